@@ -1,0 +1,1 @@
+//! OpenVDB reading and writing (in progress).
