@@ -1,1 +1,532 @@
-//! placeholder
+//! Gram-matrix style loss (Gatys et al.), the objective of volumetric style
+//! transfer (paper Sec. 3): the renders of the stylized smoke must carry the
+//! style image's VGG-19 feature correlations at a few layers.
+//!
+//! Everything mirrors `/work/shared/bench/torch_ref.py`:
+//! `gram(f) = F Fᵀ / (h·w)` with `F` the `C x (h·w)` feature matrix, and the
+//! loss is `Σ_l w_l · F.mse_loss(gram(F_l), G_l)`.
+//!
+//! Each differentiable op has its backward right after its forward.
+
+use gemm::{gemm, Parallelism};
+use nst3d_core::Image;
+use rayon::prelude::*;
+
+/// Why a style target or style loss could not be built from the given inputs.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum LossError {
+    /// The per-layer weight list does not have one weight per feature layer.
+    #[error("style weights: got {weights} weights for {layers} feature layers")]
+    WeightCount {
+        /// Number of weights given.
+        weights: usize,
+        /// Number of feature layers.
+        layers: usize,
+    },
+    /// A style weight is NaN or infinite.
+    #[error("style weight of layer {layer} is not finite ({value})")]
+    NonFiniteWeight {
+        /// Layer index.
+        layer: usize,
+        /// The offending weight.
+        value: f32,
+    },
+    /// The features to score do not have as many layers as the target.
+    #[error("style loss: got {got} feature layers, the style target has {expected}")]
+    LayerCount {
+        /// Layers passed in.
+        got: usize,
+        /// Layers in the target.
+        expected: usize,
+    },
+    /// A feature layer has a different channel count than the target's Gram.
+    #[error("style loss: layer {layer} has {got} channels, the style target has {expected}")]
+    ChannelCount {
+        /// Layer index.
+        layer: usize,
+        /// Channels of the features passed in.
+        got: usize,
+        /// Channels of the target layer.
+        expected: usize,
+    },
+    /// A feature layer has no pixels, so its Gram matrix (divided by `h·w`) is undefined.
+    #[error("feature layer {layer} is empty ({channels} x {height} x {width})")]
+    EmptyLayer {
+        /// Layer index.
+        layer: usize,
+        /// Channels.
+        channels: usize,
+        /// Rows.
+        height: usize,
+        /// Columns.
+        width: usize,
+    },
+}
+
+/// Below this many multiply-adds a product runs on the calling thread: waking
+/// the rayon pool costs more than it saves on the small Grams of tests and of
+/// deep layers of tiny renders.
+const PARALLEL_MIN_FLOPS: usize = 1 << 20;
+
+/// Upper bound on the pixel chunks of [`gram`]; enough to keep two to eight
+/// threads busy without many partial Grams to sum.
+const MAX_GRAM_CHUNKS: usize = 8;
+
+fn parallelism(m: usize, n: usize, k: usize) -> Parallelism {
+    if m * n * k < PARALLEL_MIN_FLOPS {
+        Parallelism::None
+    } else {
+        // 0 = the size of the current rayon pool, so callers control threads
+        // with `ThreadPool::install`.
+        Parallelism::Rayon(0)
+    }
+}
+
+/// `dst (m x n) = beta · lhs (m x k) · rhs (k x n)`, all described by
+/// (row stride, column stride) pairs so transposes cost nothing.
+///
+/// Accumulation is in `f32`, as PyTorch's CPU `matmul` (a BLAS `sgemm`) does,
+/// so results agree with the reference to float rounding.
+#[allow(clippy::too_many_arguments)]
+fn matmul(
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: &mut [f32],
+    lhs: &[f32],
+    lhs_strides: (usize, usize),
+    rhs: &[f32],
+    rhs_strides: (usize, usize),
+    beta: f32,
+    parallelism: Parallelism,
+) {
+    assert_eq!(dst.len(), m * n, "matmul destination size");
+    if m == 0 || n == 0 {
+        return;
+    }
+    if k == 0 {
+        dst.fill(0.0);
+        return;
+    }
+    // The last element each operand's strides reach must be in bounds; this
+    // is what makes the raw-pointer call below sound.
+    assert!(
+        (m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1 < lhs.len(),
+        "matmul lhs bounds"
+    );
+    assert!(
+        (k - 1) * rhs_strides.0 + (n - 1) * rhs_strides.1 < rhs.len(),
+        "matmul rhs bounds"
+    );
+    // SAFETY: the bounds were checked above, dst is exclusively borrowed and
+    // row-major m x n, and read_dst = false so its old contents are ignored.
+    unsafe {
+        gemm(
+            m,
+            n,
+            k,
+            dst.as_mut_ptr(),
+            1,
+            n as isize,
+            false,
+            lhs.as_ptr(),
+            lhs_strides.1 as isize,
+            lhs_strides.0 as isize,
+            rhs.as_ptr(),
+            rhs_strides.1 as isize,
+            rhs_strides.0 as isize,
+            0.0,
+            beta,
+            false,
+            false,
+            false,
+            parallelism,
+        );
+    }
+}
+
+/// Gram matrix `G = F Fᵀ / (h·w)` of a feature map, with `F` the
+/// `C x (h·w)` matrix of its planar data: symmetric `C x C`, row-major.
+///
+/// Dividing by the pixel count (not by `C·h·w`) matches the reference, so the
+/// same style weights mean the same thing in both. An empty map (no pixels)
+/// gives an all-zero Gram.
+pub fn gram(f: &Image) -> Vec<f32> {
+    let (c, p) = (f.channels, f.plane());
+    if p == 0 {
+        return vec![0.0; c * c];
+    }
+    // Shallow layers are C x C outputs over a very long k = h·w (64 x 256² at
+    // relu1_1): too few output tiles for gemm to spread over threads, so the
+    // pixels are split into column chunks whose partial Grams are summed. The
+    // chunk count depends on the shape only, so results do not change with
+    // the thread count.
+    let chunks = (p / c.max(256)).clamp(1, MAX_GRAM_CHUNKS);
+    let scale = 1.0 / p as f32;
+    let mut g = if chunks == 1 {
+        let mut g = vec![0.0; c * c];
+        matmul(
+            c,
+            c,
+            p,
+            &mut g,
+            &f.data,
+            (p, 1),
+            &f.data,
+            (1, p),
+            scale,
+            parallelism(c, c, p),
+        );
+        g
+    } else {
+        let width = p.div_ceil(chunks);
+        (0..chunks)
+            .into_par_iter()
+            .map(|i| {
+                let (k0, k1) = (i * width, ((i + 1) * width).min(p));
+                let mut part = vec![0.0; c * c];
+                let cols = &f.data[k0..];
+                matmul(
+                    c,
+                    c,
+                    k1 - k0,
+                    &mut part,
+                    cols,
+                    (p, 1),
+                    cols,
+                    (1, p),
+                    scale,
+                    Parallelism::None,
+                );
+                part
+            })
+            .collect::<Vec<_>>()
+            .into_iter()
+            // Summed in chunk order (not rayon's reduce tree) for the
+            // thread-count independence promised above.
+            .reduce(|mut a, b| {
+                a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+                a
+            })
+            .expect("at least one chunk")
+    };
+    // The blocked product may sum G[i][j] and G[j][i] in different orders;
+    // averaging makes the result exactly symmetric, which the loss relies on.
+    for i in 0..c {
+        for j in i + 1..c {
+            let s = 0.5 * (g[i * c + j] + g[j * c + i]);
+            g[i * c + j] = s;
+            g[j * c + i] = s;
+        }
+    }
+    g
+}
+
+/// Backward of [`gram`]: `dL/dF = (dG + dGᵀ) F / (h·w)` for an upstream
+/// gradient `grad_g` (`C x C`, row-major, not necessarily symmetric).
+///
+/// # Panics
+/// If `grad_g` is not `C x C` (a programming error: it comes from [`gram`]'s output).
+pub fn gram_backward(f: &Image, grad_g: &[f32]) -> Image {
+    let (c, p) = (f.channels, f.plane());
+    assert_eq!(grad_g.len(), c * c, "gram_backward: grad_g must be C x C");
+    let mut sym = vec![0.0; c * c];
+    for i in 0..c {
+        for j in 0..c {
+            sym[i * c + j] = grad_g[i * c + j] + grad_g[j * c + i];
+        }
+    }
+    let mut out = Image::zeros(c, f.height, f.width);
+    if p > 0 {
+        let par = parallelism(c, p, c);
+        matmul(
+            c,
+            p,
+            c,
+            &mut out.data,
+            &sym,
+            (c, 1),
+            &f.data,
+            (p, 1),
+            1.0 / p as f32,
+            par,
+        );
+    }
+    out
+}
+
+/// `mean((a - b)²)`, PyTorch's `F.mse_loss` with the default mean reduction
+/// (0 for empty inputs).
+///
+/// The sum is accumulated in `f64` so the result is the correctly rounded
+/// mean; PyTorch's vectorised `f32` reduction agrees to float rounding.
+///
+/// # Panics
+/// If the lengths differ (a programming error).
+pub fn mse(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len(), "mse: operand lengths differ");
+    if a.is_empty() {
+        return 0.0;
+    }
+    let sum: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();
+    (sum / a.len() as f64) as f32
+}
+
+/// Gradient of [`mse`] with respect to `a`: `2 (a - b) / n`.
+///
+/// # Panics
+/// If the lengths differ (a programming error).
+pub fn mse_backward(a: &[f32], b: &[f32]) -> Vec<f32> {
+    assert_eq!(a.len(), b.len(), "mse_backward: operand lengths differ");
+    let scale = 2.0 / a.len().max(1) as f32;
+    a.iter().zip(b).map(|(x, y)| scale * (x - y)).collect()
+}
+
+/// The style image's statistics the stylized renders must match: one Gram
+/// matrix per VGG layer (relu1_1 .. relu4_1 in the paper) and its weight.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StyleTarget {
+    grams: Vec<Vec<f32>>,
+    channels: Vec<usize>,
+    weights: Vec<f32>,
+}
+
+impl StyleTarget {
+    /// Grams of the style image's features `feats`, one per layer, weighted by
+    /// `weights` (one per layer; an empty slice means weight 1 everywhere, as
+    /// in the reference).
+    pub fn from_features(feats: &[Image], weights: &[f32]) -> Result<Self, LossError> {
+        let weights = if weights.is_empty() {
+            vec![1.0; feats.len()]
+        } else if weights.len() == feats.len() {
+            weights.to_vec()
+        } else {
+            return Err(LossError::WeightCount {
+                weights: weights.len(),
+                layers: feats.len(),
+            });
+        };
+        if let Some((layer, &value)) = weights.iter().enumerate().find(|(_, w)| !w.is_finite()) {
+            return Err(LossError::NonFiniteWeight { layer, value });
+        }
+        for (layer, f) in feats.iter().enumerate() {
+            check_not_empty(layer, f)?;
+        }
+        Ok(Self {
+            grams: feats.iter().map(gram).collect(),
+            channels: feats.iter().map(|f| f.channels).collect(),
+            weights,
+        })
+    }
+
+    /// Number of layers.
+    pub fn layers(&self) -> usize {
+        self.grams.len()
+    }
+
+    /// Target Gram of layer `l` (`C x C`, row-major).
+    pub fn gram(&self, l: usize) -> &[f32] {
+        &self.grams[l]
+    }
+
+    /// Channel count `C` of layer `l`.
+    pub fn channels(&self, l: usize) -> usize {
+        self.channels[l]
+    }
+
+    /// Per-layer weights.
+    pub fn weights(&self) -> &[f32] {
+        &self.weights
+    }
+}
+
+fn check_not_empty(layer: usize, f: &Image) -> Result<(), LossError> {
+    if f.plane() == 0 {
+        return Err(LossError::EmptyLayer {
+            layer,
+            channels: f.channels,
+            height: f.height,
+            width: f.width,
+        });
+    }
+    Ok(())
+}
+
+/// Style loss `Σ_l w_l · mse(gram(F_l), G_l)` of the render's features `feats`
+/// against `target`; returns the loss and `dL/dF_l` for every layer (same
+/// shapes as `feats`), ready for the feature network's backward pass.
+pub fn style_loss(feats: &[Image], target: &StyleTarget) -> Result<(f32, Vec<Image>), LossError> {
+    if feats.len() != target.layers() {
+        return Err(LossError::LayerCount {
+            got: feats.len(),
+            expected: target.layers(),
+        });
+    }
+    for (layer, f) in feats.iter().enumerate() {
+        if f.channels != target.channels[layer] {
+            return Err(LossError::ChannelCount {
+                layer,
+                got: f.channels,
+                expected: target.channels[layer],
+            });
+        }
+        check_not_empty(layer, f)?;
+    }
+    let mut loss = 0.0f64;
+    let mut grads = Vec::with_capacity(feats.len());
+    for (l, f) in feats.iter().enumerate() {
+        let w = target.weights[l];
+        let g = gram(f);
+        loss += w as f64 * mse(&g, &target.grams[l]) as f64;
+        let mut grad_g = mse_backward(&g, &target.grams[l]);
+        grad_g.iter_mut().for_each(|v| *v *= w);
+        grads.push(gram_backward(f, &grad_g));
+    }
+    Ok((loss as f32, grads))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
+
+    fn image(c: usize, h: usize, w: usize, seed: u64) -> Image {
+        Image::from_vec(c, h, w, pseudo_random(c * h * w, seed))
+    }
+
+    /// Plain triple loop in f64: the definition, to check the gemm call's strides.
+    fn gram_naive(f: &Image) -> Vec<f64> {
+        let (c, p) = (f.channels, f.plane());
+        let mut g = vec![0.0; c * c];
+        for i in 0..c {
+            for j in 0..c {
+                let s: f64 = f
+                    .channel(i)
+                    .iter()
+                    .zip(f.channel(j))
+                    .map(|(a, b)| *a as f64 * *b as f64)
+                    .sum();
+                g[i * c + j] = s / p as f64;
+            }
+        }
+        g
+    }
+
+    #[test]
+    fn gram_matches_definition_and_is_symmetric() {
+        // One small (single-threaded path) and one above the parallel threshold.
+        for (c, h, w) in [(5, 3, 7), (40, 30, 33)] {
+            let f = image(c, h, w, 3);
+            let g = gram(&f);
+            let want = gram_naive(&f);
+            for (a, b) in g.iter().zip(&want) {
+                assert!((*a as f64 - b).abs() < 1e-5, "{a} vs {b}");
+            }
+            for i in 0..c {
+                for j in 0..c {
+                    assert_eq!(g[i * c + j], g[j * c + i]);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn gram_backward_gradcheck_nonsymmetric_upstream() {
+        let f = image(6, 4, 5, 11);
+        let wgt = pseudo_random(36, 12); // not symmetric: exercises dG + dGᵀ
+        let analytic = gram_backward(&f, &wgt);
+        let probe = |x: &[f32]| dot(&wgt, &gram(&Image::from_vec(6, 4, 5, x.to_vec())));
+        let r = check_gradient(&f.data, &analytic.data, probe, 1e-2, 120, 1e-3);
+        assert!(r.max_rel_err < 1e-2, "{r:?}");
+    }
+
+    #[test]
+    fn mse_backward_gradcheck() {
+        let a = pseudo_random(30, 1);
+        let b = pseudo_random(30, 2);
+        let analytic = mse_backward(&a, &b);
+        let r = check_gradient(&a, &analytic, |x| mse(x, &b) as f64, 1e-2, 30, 1e-3);
+        assert!(r.max_rel_err < 1e-2, "{r:?}");
+    }
+
+    #[test]
+    fn style_loss_gradcheck_several_layers() {
+        let shapes = [(4, 5, 6), (8, 3, 4), (3, 2, 9)];
+        let style: Vec<Image> = shapes
+            .iter()
+            .enumerate()
+            .map(|(i, &(c, h, w))| image(c, h, w, 100 + i as u64))
+            .collect();
+        let target = StyleTarget::from_features(&style, &[1.0, 0.5, 3.0]).unwrap();
+        let feats: Vec<Image> = shapes
+            .iter()
+            .enumerate()
+            .map(|(i, &(c, h, w))| image(c, h, w, 200 + i as u64))
+            .collect();
+        let (_, grads) = style_loss(&feats, &target).unwrap();
+        // Perturb one layer at a time, the others held fixed.
+        for l in 0..shapes.len() {
+            let (c, h, w) = shapes[l];
+            let probe = |x: &[f32]| {
+                let mut fs = feats.clone();
+                fs[l] = Image::from_vec(c, h, w, x.to_vec());
+                style_loss(&fs, &target).unwrap().0 as f64
+            };
+            let r = check_gradient(&feats[l].data, &grads[l].data, probe, 1e-2, 60, 1e-4);
+            assert!(r.max_rel_err < 2e-2, "layer {l}: {r:?}");
+        }
+    }
+
+    #[test]
+    fn style_loss_is_zero_at_target() {
+        let style = vec![image(4, 3, 3, 1), image(2, 5, 2, 2)];
+        let target = StyleTarget::from_features(&style, &[]).unwrap();
+        let (loss, grads) = style_loss(&style, &target).unwrap();
+        assert_eq!(loss, 0.0);
+        assert!(grads.iter().all(|g| g.data.iter().all(|v| *v == 0.0)));
+    }
+
+    #[test]
+    fn bad_inputs_are_errors() {
+        let style = vec![image(4, 3, 3, 1), image(2, 5, 2, 2)];
+        assert_eq!(
+            StyleTarget::from_features(&style, &[1.0]),
+            Err(LossError::WeightCount {
+                weights: 1,
+                layers: 2
+            })
+        );
+        assert!(matches!(
+            StyleTarget::from_features(&style, &[1.0, f32::NAN]),
+            Err(LossError::NonFiniteWeight { layer: 1, .. })
+        ));
+        assert!(matches!(
+            StyleTarget::from_features(&[Image::zeros(3, 0, 4)], &[]),
+            Err(LossError::EmptyLayer { layer: 0, .. })
+        ));
+        let target = StyleTarget::from_features(&style, &[]).unwrap();
+        assert_eq!(
+            style_loss(&style[..1], &target).unwrap_err(),
+            LossError::LayerCount {
+                got: 1,
+                expected: 2
+            }
+        );
+        let wrong = vec![style[0].clone(), image(3, 5, 2, 2)];
+        assert_eq!(
+            style_loss(&wrong, &target).unwrap_err(),
+            LossError::ChannelCount {
+                layer: 1,
+                got: 3,
+                expected: 2
+            }
+        );
+        // Error messages are one line and name the problem.
+        let msg = LossError::WeightCount {
+            weights: 1,
+            layers: 2,
+        }
+        .to_string();
+        assert!(!msg.contains('\n') && msg.contains("weights"));
+    }
+}

@@ -1,1 +1,17 @@
-//! placeholder
+//! The optimisation of paper Sec. 3 for one frame: a velocity field (eq. 2)
+//! or a density scale field (eq. 5) is fitted over several octaves so that
+//! renders of the transported density match a painting's Gram statistics.
+//!
+//! - [`field`]: the optimised quantity and its transport `T` (one type for both modes).
+//! - [`view`]: one camera's loss `L(R_θ(d*))` and its gradient w.r.t. `d*`.
+//! - [`frame`]: the multi-octave Adam loop over a single density grid.
+//! - [`bench`]: the `volume-iter` benchmark work of `shared/bench/README.md`.
+
+pub mod bench;
+pub mod field;
+pub mod frame;
+pub mod view;
+
+pub use field::{Field, Limits, Mode};
+pub use frame::{stylize_frame, FrameParams, FrameResult, Progress};
+pub use view::{StyleSpec, ViewError, ViewLoss, ViewSpec};

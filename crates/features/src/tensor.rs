@@ -1,0 +1,172 @@
+//! Channels-last feature maps and the padded copies convolutions read.
+//!
+//! The network keeps activations as `(y, x, channel)` with channels fastest:
+//! a Winograd tile then reads and writes whole 16-lane channel vectors, and
+//! planar `nst3d_core::Image`s are produced only at the requested taps.
+
+use nst3d_core::Image;
+use rayon::prelude::*;
+
+use crate::simd::dispatch;
+
+/// A `height x width x channels` activation, channels fastest:
+/// index `(y * width + x) * channels + c`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FeatureMap {
+    /// Rows.
+    pub height: usize,
+    /// Columns.
+    pub width: usize,
+    /// Channels per pixel.
+    pub channels: usize,
+    /// `height * width * channels` values.
+    pub data: Vec<f32>,
+}
+
+impl FeatureMap {
+    /// An all-zero map.
+    pub fn zeros(height: usize, width: usize, channels: usize) -> Self {
+        Self { height, width, channels, data: vec![0.0; height * width * channels] }
+    }
+
+    /// Wraps channels-last data; panics if the length does not match
+    /// (a programming error, never user input).
+    pub fn from_vec(height: usize, width: usize, channels: usize, data: Vec<f32>) -> Self {
+        assert_eq!(data.len(), height * width * channels, "feature map data length");
+        Self { height, width, channels, data }
+    }
+
+    /// Channels-last copy of a planar image.
+    pub fn from_image(img: &Image) -> Self {
+        let (c, plane) = (img.channels, img.plane());
+        let mut data = vec![0.0; img.data.len()];
+        // Rows of pixels in parallel; each pixel gathers its channels.
+        data.par_chunks_mut((img.width * c).max(1)).enumerate().for_each(|(y, row)| {
+            for x in 0..img.width {
+                let p = y * img.width + x;
+                for ch in 0..c {
+                    row[x * c + ch] = img.data[ch * plane + p];
+                }
+            }
+        });
+        Self { height: img.height, width: img.width, channels: c, data }
+    }
+
+    /// Planar (PyTorch `(C, H, W)`) copy.
+    pub fn to_image(&self) -> Image {
+        let (c, plane) = (self.channels, self.height * self.width);
+        let mut data = vec![0.0; self.data.len()];
+        // Blocks of channels in parallel so each output plane is written by one task.
+        let chunk = 16.min(c.max(1));
+        data.par_chunks_mut((plane * chunk).max(1)).enumerate().for_each(|(blk, out)| {
+            let c0 = blk * chunk;
+            let nc = out.len() / plane.max(1);
+            for p in 0..plane {
+                let src = &self.data[p * c + c0..p * c + c0 + nc];
+                for (k, v) in src.iter().enumerate() {
+                    out[k * plane + p] = *v;
+                }
+            }
+        });
+        Image::from_vec(c, self.height, self.width, data)
+    }
+
+    /// Adds `other` element-wise (same shape).
+    pub(crate) fn add_assign(&mut self, other: &FeatureMap) {
+        assert_eq!(self.data.len(), other.data.len(), "feature map shapes differ");
+        self.data.par_chunks_mut(1 << 14).zip(other.data.par_chunks(1 << 14)).for_each(|(a, b)| {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x += y;
+            }
+        });
+    }
+}
+
+/// How a 3x3 convolution sees pixels outside the map.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Padding {
+    /// Zeros (torchvision VGG).
+    Zero,
+    /// Mirror without repeating the edge (`nn.ReflectionPad2d`, the Gatys VGG).
+    Reflect,
+}
+
+/// A padded channels-last copy: the input of a "valid" 3x3 convolution.
+/// It may be larger than needed (zeros beyond) so Winograd tiles never read
+/// out of bounds.
+pub(crate) struct Padded {
+    pub h: usize,
+    pub w: usize,
+    pub c: usize,
+    pub data: Vec<f32>,
+}
+
+/// Source index of padded coordinate `p` in a map of size `n` padded by `pad`.
+fn source(p: usize, n: usize, pad: usize, mode: Padding) -> Option<usize> {
+    let s = p as isize - pad as isize;
+    let n = n as isize;
+    let r = if (0..n).contains(&s) {
+        s
+    } else {
+        match mode {
+            Padding::Zero => return None,
+            Padding::Reflect if s < 0 && s >= -(pad as isize) => -s,
+            Padding::Reflect if s >= n && s < n + pad as isize => 2 * n - 2 - s,
+            Padding::Reflect => return None,
+        }
+    };
+    Some(r as usize)
+}
+
+/// Pads `src` by `pad` on every side into a `ph x pw` buffer (zeros beyond).
+/// With `mask`, values are zeroed where `mask <= 0`: the ReLU backward fused
+/// into the copy every convolution needs anyway.
+pub(crate) fn pad(src: &FeatureMap, pad: usize, mode: Padding, mask: Option<&FeatureMap>, ph: usize, pw: usize) -> Padded {
+    let c = src.channels;
+    let mut data = vec![0.0f32; ph * pw * c];
+    let xs: Vec<Option<usize>> = (0..pw).map(|px| source(px, src.width, pad, mode)).collect();
+    data.par_chunks_mut(pw * c).enumerate().for_each(|(py, row)| {
+        let Some(sy) = source(py, src.height, pad, mode) else { return };
+        dispatch(
+            #[inline(always)]
+            || {
+                for (px, sx) in xs.iter().enumerate() {
+                    let Some(sx) = *sx else { continue };
+                    let s = (sy * src.width + sx) * c;
+                    let dst = &mut row[px * c..px * c + c];
+                    match mask {
+                        None => dst.copy_from_slice(&src.data[s..s + c]),
+                        Some(m) => {
+                            for ((d, v), mv) in dst.iter_mut().zip(&src.data[s..s + c]).zip(&m.data[s..s + c]) {
+                                *d = if *mv > 0.0 { *v } else { 0.0 };
+                            }
+                        }
+                    }
+                }
+            },
+        )
+    });
+    Padded { h: ph, w: pw, c, data }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nst3d_core::gradcheck::pseudo_random;
+
+    #[test]
+    fn image_round_trip() {
+        let img = Image::from_vec(5, 3, 4, pseudo_random(60, 3));
+        let fm = FeatureMap::from_image(&img);
+        assert_eq!(fm.data[(1 * 4 + 2) * 5 + 3], img.data[(3 * 3 + 1) * 4 + 2]);
+        assert_eq!(fm.to_image(), img);
+    }
+
+    #[test]
+    fn reflect_source_matches_reflection_pad() {
+        // nn.ReflectionPad2d(1) on [a b c d]: [b a b c d c].
+        let got: Vec<_> = (0..6).map(|p| source(p, 4, 1, Padding::Reflect)).collect();
+        assert_eq!(got, vec![Some(1), Some(0), Some(1), Some(2), Some(3), Some(2)]);
+        assert_eq!(source(0, 4, 1, Padding::Zero), None);
+    }
+}

@@ -1,0 +1,431 @@
+//! VGG-19 up to relu5_1, forward to a set of taps and backward to the image.
+
+use std::fmt;
+use std::str::FromStr;
+
+use nst3d_core::Image;
+use nst3d_weights::TensorMap;
+
+use crate::conv::{Conv1x1, Conv3x3, ConvAlgorithm};
+use crate::ops::{MaxPool2x2, PoolArgmax};
+use crate::tensor::{FeatureMap, Padding};
+use crate::FeaturesError;
+
+/// Output channels of the 13 convolutions conv1_1 .. conv5_1.
+const CHANNELS: [usize; 13] = [64, 64, 128, 128, 256, 256, 256, 256, 512, 512, 512, 512, 512];
+/// A max-pool follows these convolutions (conv1_2, conv2_2, conv3_4, conv4_4).
+const POOL_AFTER: [usize; 4] = [1, 3, 7, 11];
+/// State-dict indices of the 3x3 convolutions in the Gatys normalised VGG.
+const GATYS_KEYS: [usize; 13] = [2, 5, 9, 12, 16, 19, 22, 25, 29, 32, 35, 38, 42];
+/// State-dict indices (under `features.`) in torchvision's VGG-19.
+const TORCHVISION_KEYS: [usize; 13] = [0, 2, 5, 7, 10, 12, 14, 16, 19, 21, 23, 25, 28];
+const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
+const IMAGENET_STD: [f32; 3] = [0.229, 0.224, 0.225];
+/// Caffe VGG input: BGR in [0, 255] minus the BGR channel means.
+const CAFFE_BGR_MEAN: [f32; 3] = [103.939, 116.779, 123.68];
+
+/// A ReLU output of VGG-19 that features can be tapped at.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum VggLayer {
+    /// After conv1_1 (64 channels, full resolution).
+    Relu1_1,
+    /// After conv1_2.
+    Relu1_2,
+    /// After conv2_1 (128 channels, 1/2 resolution).
+    Relu2_1,
+    /// After conv2_2.
+    Relu2_2,
+    /// After conv3_1 (256 channels, 1/4 resolution).
+    Relu3_1,
+    /// After conv3_2.
+    Relu3_2,
+    /// After conv3_3.
+    Relu3_3,
+    /// After conv3_4.
+    Relu3_4,
+    /// After conv4_1 (512 channels, 1/8 resolution).
+    Relu4_1,
+    /// After conv4_2.
+    Relu4_2,
+    /// After conv4_3.
+    Relu4_3,
+    /// After conv4_4.
+    Relu4_4,
+    /// After conv5_1 (512 channels, 1/16 resolution).
+    Relu5_1,
+}
+
+const NAMES: [&str; 13] = [
+    "relu1_1", "relu1_2", "relu2_1", "relu2_2", "relu3_1", "relu3_2", "relu3_3", "relu3_4", "relu4_1", "relu4_2",
+    "relu4_3", "relu4_4", "relu5_1",
+];
+
+impl VggLayer {
+    /// All layers, shallowest first.
+    pub const ALL: [VggLayer; 13] = [
+        VggLayer::Relu1_1,
+        VggLayer::Relu1_2,
+        VggLayer::Relu2_1,
+        VggLayer::Relu2_2,
+        VggLayer::Relu3_1,
+        VggLayer::Relu3_2,
+        VggLayer::Relu3_3,
+        VggLayer::Relu3_4,
+        VggLayer::Relu4_1,
+        VggLayer::Relu4_2,
+        VggLayer::Relu4_3,
+        VggLayer::Relu4_4,
+        VggLayer::Relu5_1,
+    ];
+
+    /// Index of the convolution this ReLU follows (0 = conv1_1).
+    pub fn conv_index(self) -> usize {
+        self as usize
+    }
+
+    /// Channels of the feature map at this layer.
+    pub fn channels(self) -> usize {
+        CHANNELS[self.conv_index()]
+    }
+}
+
+impl FromStr for VggLayer {
+    type Err = FeaturesError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        NAMES
+            .iter()
+            .position(|n| n.eq_ignore_ascii_case(s.trim()))
+            .map(|i| VggLayer::ALL[i])
+            .ok_or_else(|| FeaturesError::UnknownLayer(s.to_string()))
+    }
+}
+
+impl fmt::Display for VggLayer {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(NAMES[self.conv_index()])
+    }
+}
+
+/// Which published VGG-19 the weights come from; decides input
+/// preprocessing, border padding and pooling.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VggFlavor {
+    /// Gatys et al.'s normalised VGG (`vgg_normalised.pth`): a 1x1 conv maps RGB
+    /// in [0, 1] to Caffe BGR, reflection padding, ceil-mode pooling.
+    Gatys,
+    /// torchvision `vgg19().features`: ImageNet mean/std normalisation, zero
+    /// padding, floor pooling.
+    Torchvision,
+}
+
+/// VGG-19 convolutions conv1_1 .. conv5_1 with frozen weights.
+pub struct Vgg19 {
+    flavor: VggFlavor,
+    /// Input map from RGB in [0, 1] to what conv1_1 expects. Kept as its own
+    /// pointwise layer (not folded into conv1_1): for torchvision the
+    /// normalisation does not commute with zero padding.
+    pre: Conv1x1,
+    convs: Vec<Conv3x3>,
+    pool: MaxPool2x2,
+}
+
+/// What [`Vgg19::backward`] needs from a forward pass (kept when `keep`).
+struct Record {
+    /// Post-ReLU output of every convolution run: the ReLU masks.
+    acts: Vec<FeatureMap>,
+    /// Winners of every pool run.
+    pools: Vec<PoolArgmax>,
+}
+
+/// Result of [`Vgg19::forward`]: features at the requested taps.
+pub struct VggForward {
+    layers: Vec<VggLayer>,
+    taps: Vec<Image>,
+    input_size: (usize, usize),
+    record: Option<Record>,
+}
+
+impl VggForward {
+    /// Feature maps (planar `C x H x W`), in the order the taps were requested.
+    pub fn taps(&self) -> &[Image] {
+        &self.taps
+    }
+
+    /// The requested taps, same order as [`VggForward::taps`].
+    pub fn layers(&self) -> &[VggLayer] {
+        &self.layers
+    }
+}
+
+/// Deterministic uniform value in `[-1, 1)` for element `i` of stream
+/// `stream` (SplitMix64 of a linear key); mirrored in
+/// `tools/fixtures/features_vgg.py` so both sides build identical weights.
+fn hash_uniform(seed: u64, stream: u64, i: u64) -> f64 {
+    let key = seed
+        .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        .wrapping_add(stream.wrapping_mul(0xD1B5_4A32_D192_ED03))
+        .wrapping_add(i);
+    let mut z = key.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    2.0 * ((z >> 40) as f64 / (1u64 << 24) as f64) - 1.0
+}
+
+fn conv_keys(flavor: VggFlavor, i: usize) -> (String, String) {
+    match flavor {
+        VggFlavor::Gatys => (format!("{}.weight", GATYS_KEYS[i]), format!("{}.bias", GATYS_KEYS[i])),
+        VggFlavor::Torchvision => {
+            (format!("features.{}.weight", TORCHVISION_KEYS[i]), format!("features.{}.bias", TORCHVISION_KEYS[i]))
+        }
+    }
+}
+
+fn tensor<'a>(t: &'a TensorMap, key: &str, shape: &[usize]) -> Result<&'a [f32], FeaturesError> {
+    let d = t.get(key).ok_or_else(|| FeaturesError::MissingKey(key.to_string()))?;
+    if d.shape != shape || d.data.len() != shape.iter().product::<usize>() {
+        return Err(FeaturesError::BadShape { key: key.to_string(), found: d.shape.clone(), expected: shape.to_vec() });
+    }
+    Ok(&d.data)
+}
+
+fn in_channels(i: usize) -> usize {
+    if i == 0 {
+        3
+    } else {
+        CHANNELS[i - 1]
+    }
+}
+
+fn padding_of(flavor: VggFlavor) -> Padding {
+    match flavor {
+        VggFlavor::Gatys => Padding::Reflect,
+        VggFlavor::Torchvision => Padding::Zero,
+    }
+}
+
+fn torchvision_pre() -> Conv1x1 {
+    let mut w = vec![0.0; 9];
+    let mut b = vec![0.0; 3];
+    for c in 0..3 {
+        w[c * 4] = 1.0 / IMAGENET_STD[c];
+        b[c] = -IMAGENET_MEAN[c] / IMAGENET_STD[c];
+    }
+    Conv1x1::new(3, 3, w, b).expect("3x3 normalisation")
+}
+
+impl Vgg19 {
+    fn assemble(flavor: VggFlavor, pre: Conv1x1, convs: Vec<Conv3x3>) -> Self {
+        Self { flavor, pre, convs, pool: MaxPool2x2 { ceil_mode: flavor == VggFlavor::Gatys } }
+    }
+
+    /// Builds the network from a checkpoint's tensors, telling the flavor
+    /// from its keys (`features.0.weight` = torchvision, `0.weight` of shape
+    /// `[3, 3, 1, 1]` = Gatys). Only conv1_1 .. conv5_1 are read.
+    pub fn from_tensors(t: &TensorMap) -> Result<Self, FeaturesError> {
+        let (flavor, pre) = if t.contains_key("features.0.weight") {
+            (VggFlavor::Torchvision, torchvision_pre())
+        } else if t.get("0.weight").is_some_and(|d| d.shape == [3, 3, 1, 1]) {
+            let w = tensor(t, "0.weight", &[3, 3, 1, 1])?;
+            let b = tensor(t, "0.bias", &[3])?;
+            (VggFlavor::Gatys, Conv1x1::new(3, 3, w.to_vec(), b.to_vec())?)
+        } else {
+            return Err(FeaturesError::UnknownFlavor);
+        };
+        let convs = (0..CHANNELS.len())
+            .map(|i| {
+                let (wk, bk) = conv_keys(flavor, i);
+                let (cin, cout) = (in_channels(i), CHANNELS[i]);
+                let w = tensor(t, &wk, &[cout, cin, 3, 3])?;
+                let b = tensor(t, &bk, &[cout])?;
+                Conv3x3::new(cin, cout, w.to_vec(), b.to_vec(), padding_of(flavor))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self::assemble(flavor, pre, convs))
+    }
+
+    /// Same architecture with deterministic He-scaled uniform weights
+    /// (`w = u * sqrt(6 / (9 cin))`, bias `0.1 u`, `u` from SplitMix64 of
+    /// `(seed, layer, index)`): for benchmarks and tests without a checkpoint.
+    /// The Gatys flavor gets the exact Caffe input map.
+    pub fn random(flavor: VggFlavor, seed: u64) -> Self {
+        let pre = match flavor {
+            VggFlavor::Torchvision => torchvision_pre(),
+            VggFlavor::Gatys => {
+                // out[o] = 255 * rgb[2 - o] - mean_bgr[o]
+                let mut w = vec![0.0; 9];
+                for o in 0..3 {
+                    w[o * 3 + 2 - o] = 255.0;
+                }
+                Conv1x1::new(3, 3, w, CAFFE_BGR_MEAN.iter().map(|m| -m).collect()).expect("Caffe input map")
+            }
+        };
+        let convs = (0..CHANNELS.len())
+            .map(|i| {
+                let (cin, cout) = (in_channels(i), CHANNELS[i]);
+                let a = (6.0 / (9.0 * cin as f64)).sqrt();
+                let w = (0..cout * cin * 9).map(|k| (hash_uniform(seed, i as u64, k as u64) * a) as f32).collect();
+                let b = (0..cout).map(|k| (hash_uniform(seed, i as u64, (1 << 40) + k as u64) * 0.1) as f32).collect();
+                Conv3x3::new(cin, cout, w, b, padding_of(flavor)).expect("VGG layer shapes")
+            })
+            .collect();
+        Self::assemble(flavor, pre, convs)
+    }
+
+    /// The same network with every 3x3 convolution computed by `algorithm`
+    /// ([`ConvAlgorithm::Direct`]: slow fp32 reference).
+    pub fn with_algorithm(self, algorithm: ConvAlgorithm) -> Self {
+        Self { convs: self.convs.into_iter().map(|c| c.with_algorithm(algorithm)).collect(), ..self }
+    }
+
+    /// Which published network this is.
+    pub fn flavor(&self) -> VggFlavor {
+        self.flavor
+    }
+
+    /// Prepares the (Winograd) kernels of every convolution up to `deepest`
+    /// now, so the first forward/backward is not slower than the rest.
+    pub fn prepare(&self, deepest: VggLayer) {
+        use rayon::prelude::*;
+        self.convs[..=deepest.conv_index()].par_iter().for_each(|c| c.prepare());
+    }
+
+    /// Runs up to the deepest requested tap on `rgb` (3 x H x W, RGB in
+    /// [0, 1], H, W >= 16). With `keep`, stores what [`Vgg19::backward`] needs.
+    pub fn forward(&self, rgb: &Image, taps: &[VggLayer], keep: bool) -> VggForward {
+        assert_eq!(rgb.channels, 3, "VGG-19 input must have 3 channels");
+        assert!(rgb.height >= 2 && rgb.width >= 2, "VGG-19 input must be at least 2x2");
+        let mut out = VggForward {
+            layers: taps.to_vec(),
+            taps: vec![Image::zeros(0, 0, 0); taps.len()],
+            input_size: (rgb.height, rgb.width),
+            record: None,
+        };
+        let Some(deepest) = taps.iter().map(|l| l.conv_index()).max() else { return out };
+        let mut acts: Vec<FeatureMap> = Vec::with_capacity(deepest + 1);
+        let mut pools = Vec::new();
+        let mut x = self.pre.forward(&FeatureMap::from_image(rgb));
+        for i in 0..=deepest {
+            let y = self.convs[i].forward_relu(&x);
+            for (slot, l) in out.taps.iter_mut().zip(taps) {
+                if l.conv_index() == i {
+                    *slot = y.to_image();
+                }
+            }
+            x = if POOL_AFTER.contains(&i) && i < deepest {
+                let (p, arg) = self.pool.forward(&y);
+                pools.push(arg);
+                p
+            } else if i < deepest {
+                y.clone()
+            } else {
+                FeatureMap::zeros(0, 0, 0)
+            };
+            if keep {
+                acts.push(y);
+            }
+        }
+        if keep {
+            out.record = Some(Record { acts, pools });
+        }
+        out
+    }
+
+    /// Gradient w.r.t. the input RGB image from gradients at the taps (same
+    /// order and shapes as `fwd.taps()`). `fwd` must come from
+    /// [`Vgg19::forward`] with `keep = true`.
+    pub fn backward(&self, fwd: &VggForward, tap_grads: &[Image]) -> Image {
+        let rec = fwd.record.as_ref().expect("Vgg19::backward needs a forward pass run with keep = true");
+        assert_eq!(tap_grads.len(), fwd.layers.len(), "one gradient per tap");
+        let (h, w) = fwd.input_size;
+        let Some(deepest) = fwd.layers.iter().map(|l| l.conv_index()).max() else { return Image::zeros(3, h, w) };
+        let mut pools = rec.pools.iter().rev();
+        let mut g: Option<FeatureMap> = None;
+        for i in (0..=deepest).rev() {
+            for (l, tg) in fwd.layers.iter().zip(tap_grads) {
+                if l.conv_index() == i {
+                    let a = &rec.acts[i];
+                    assert_eq!(
+                        (tg.channels, tg.height, tg.width),
+                        (a.channels, a.height, a.width),
+                        "gradient shape at {l}"
+                    );
+                    let tg = FeatureMap::from_image(tg);
+                    match g.as_mut() {
+                        Some(g) => g.add_assign(&tg),
+                        None => g = Some(tg),
+                    }
+                }
+            }
+            let gi = g.take().expect("gradient reaches every layer below the deepest tap");
+            let mut gx = self.convs[i].backward_relu(&gi, &rec.acts[i]);
+            if i > 0 && POOL_AFTER.contains(&(i - 1)) {
+                gx = self.pool.backward(&gx, pools.next().expect("pool record"));
+            }
+            g = Some(gx);
+        }
+        self.pre.backward(&g.expect("input gradient")).to_image()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
+    use nst3d_weights::TensorData;
+
+    #[test]
+    fn layer_names_round_trip() {
+        for l in VggLayer::ALL {
+            assert_eq!(l.to_string().parse::<VggLayer>().unwrap(), l);
+        }
+        assert!("relu6_1".parse::<VggLayer>().is_err());
+    }
+
+    /// Finite differences through thousands of ReLU kinks (and fp32 loss
+    /// rounding at small steps) are noisy entry by entry, so most checked
+    /// entries must agree; the exact comparison is the PyTorch fixture test.
+    #[test]
+    fn whole_net_gradient() {
+        for flavor in [VggFlavor::Torchvision, VggFlavor::Gatys] {
+            let net = Vgg19::random(flavor, 3);
+            let (h, w) = (18, 17);
+            let x = Image::from_vec(3, h, w, pseudo_random(3 * h * w, 4).iter().map(|v| 0.5 + 0.4 * v).collect());
+            let taps = [VggLayer::Relu1_1, VggLayer::Relu2_1, VggLayer::Relu3_1, VggLayer::Relu4_1];
+            let f = net.forward(&x, &taps, true);
+            let probes: Vec<Vec<f32>> =
+                f.taps().iter().enumerate().map(|(k, t)| pseudo_random(t.data.len(), 10 + k as u64)).collect();
+            let grads: Vec<Image> =
+                f.taps().iter().zip(&probes).map(|(t, p)| Image::from_vec(t.channels, t.height, t.width, p.clone())).collect();
+            let g = net.backward(&f, &grads);
+            let scale = g.data.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+            let entries: Vec<usize> = (0..24).map(|k| (k * 131 + 7) % x.data.len()).collect();
+            let good = entries
+                .iter()
+                .filter(|&&i| {
+                    let loss = |p: &[f32]| {
+                        let mut xi = x.clone();
+                        xi.data[i] = p[0];
+                        let f = net.forward(&xi, &taps, false);
+                        f.taps().iter().zip(&probes).map(|(t, pr)| dot(pr, &t.data)).sum::<f64>()
+                    };
+                    check_gradient(&[x.data[i]], &[g.data[i]], loss, 1e-3, 1, scale * 0.1).max_rel_err < 5e-2
+                })
+                .count();
+            assert!(good >= 16, "{flavor:?}: only {good} of 24 entries match (16 needed) finite differences");
+        }
+    }
+
+    #[test]
+    fn from_tensors_names_missing_and_misshaped_keys() {
+        let mut t = TensorMap::new();
+        assert!(matches!(Vgg19::from_tensors(&t), Err(FeaturesError::UnknownFlavor)));
+        t.insert("features.0.weight".into(), TensorData { shape: vec![64, 3, 3, 3], data: vec![0.0; 64 * 27] });
+        let e = Vgg19::from_tensors(&t).err().unwrap();
+        assert!(e.to_string().contains("features.0.bias"), "{e}");
+        t.insert("features.0.bias".into(), TensorData { shape: vec![64], data: vec![0.0; 64] });
+        t.insert("features.2.weight".into(), TensorData { shape: vec![64, 64, 3], data: vec![0.0; 64 * 64 * 3] });
+        let e = Vgg19::from_tensors(&t).err().unwrap();
+        assert!(e.to_string().contains("features.2.weight"), "{e}");
+    }
+}

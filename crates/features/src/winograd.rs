@@ -1,0 +1,254 @@
+//! Winograd F(4x4, 3x3) convolution on channels-last maps.
+//!
+//! Each 4x4 output tile costs 36 multiplies per (input, output) channel pair
+//! instead of 144: the 6x6 input tile is transformed (`B^T d B`), multiplied
+//! position-wise with the transformed kernel (`G g G^T`, precomputed once
+//! since the weights are frozen) and transformed back (`A^T m A`). Over a
+//! block of tiles the position-wise products become 36 dense products
+//! `[tiles x cin] * [cin x cout]`, run by the register-blocked kernel in
+//! [`crate::gemm`].
+
+use rayon::prelude::*;
+
+use crate::gemm::{self, MR, NR};
+use crate::simd::dispatch;
+use crate::tensor::{FeatureMap, Padded};
+
+/// Channels per transform vector; Winograd layers need `cin % LANES == 0`.
+pub(crate) const LANES: usize = 16;
+const NPOS: usize = 36;
+type V = [f32; LANES];
+
+/// Kernel transform `G` (6x3) of F(4x4, 3x3).
+const G: [[f64; 3]; 6] = [
+    [1.0 / 4.0, 0.0, 0.0],
+    [-1.0 / 6.0, -1.0 / 6.0, -1.0 / 6.0],
+    [-1.0 / 6.0, 1.0 / 6.0, -1.0 / 6.0],
+    [1.0 / 24.0, 1.0 / 12.0, 1.0 / 6.0],
+    [1.0 / 24.0, -1.0 / 12.0, 1.0 / 6.0],
+    [0.0, 0.0, 1.0],
+];
+
+/// Whether a convolution with these channel counts can take this path.
+pub(crate) fn supports(cin: usize, cout: usize) -> bool {
+    cin % LANES == 0 && cout % NR == 0 && cin > 0 && cout > 0
+}
+
+/// Transformed weights, packed as `[position][cout / NR][cin][NR]` so the
+/// product kernel streams each panel contiguously.
+pub(crate) struct WinogradWeights {
+    cin: usize,
+    cout: usize,
+    v: Vec<f32>,
+}
+
+impl WinogradWeights {
+    /// From PyTorch-layout `[cout][cin][3][3]` weights (correlation, as in CNNs).
+    pub(crate) fn new(w: &[f32], cin: usize, cout: usize) -> Self {
+        assert!(supports(cin, cout));
+        let np = cout / NR;
+        let mut v = vec![0.0f32; NPOS * cout * cin];
+        for co in 0..cout {
+            for ci in 0..cin {
+                let g = &w[(co * cin + ci) * 9..(co * cin + ci) * 9 + 9];
+                // t = G g (6x3), u = t G^T (6x6), in f64 so the only rounding is the final cast.
+                let mut t = [[0f64; 3]; 6];
+                for i in 0..6 {
+                    for j in 0..3 {
+                        t[i][j] = (0..3).map(|k| G[i][k] * g[k * 3 + j] as f64).sum();
+                    }
+                }
+                for a in 0..6 {
+                    for b in 0..6 {
+                        let u: f64 = (0..3).map(|k| t[a][k] * G[b][k]).sum();
+                        let p = a * 6 + b;
+                        v[((p * np + co / NR) * cin + ci) * NR + co % NR] = u as f32;
+                    }
+                }
+            }
+        }
+        Self { cin, cout, v }
+    }
+}
+
+/// `B^T x` for one column of six lane vectors.
+#[inline(always)]
+fn bt6(x: &[V; 6]) -> [V; 6] {
+    let mut y = [[0.0; LANES]; 6];
+    for l in 0..LANES {
+        let (x0, x1, x2, x3, x4, x5) = (x[0][l], x[1][l], x[2][l], x[3][l], x[4][l], x[5][l]);
+        y[0][l] = 4.0 * x0 - 5.0 * x2 + x4;
+        y[1][l] = -4.0 * (x1 + x2) + x3 + x4;
+        y[2][l] = 4.0 * (x1 - x2) - x3 + x4;
+        y[3][l] = 2.0 * (x3 - x1) - x2 + x4;
+        y[4][l] = 2.0 * (x1 - x3) - x2 + x4;
+        y[5][l] = 4.0 * x1 - 5.0 * x3 + x5;
+    }
+    y
+}
+
+/// `A^T m` for one column of six lane vectors.
+#[inline(always)]
+fn at6(m: &[V; 6]) -> [V; 4] {
+    let mut y = [[0.0; LANES]; 4];
+    for l in 0..LANES {
+        let (m0, m1, m2, m3, m4, m5) = (m[0][l], m[1][l], m[2][l], m[3][l], m[4][l], m[5][l]);
+        let (s12, d12, s34, d34) = (m1 + m2, m1 - m2, m3 + m4, m3 - m4);
+        y[0][l] = m0 + s12 + s34;
+        y[1][l] = d12 + 2.0 * d34;
+        y[2][l] = s12 + 4.0 * s34;
+        y[3][l] = d12 + 8.0 * d34 + m5;
+    }
+    y
+}
+
+#[inline(always)]
+fn load(s: &[f32]) -> V {
+    s[..LANES].try_into().unwrap()
+}
+
+/// Output pointer shared by tasks that write disjoint pixels.
+#[derive(Clone, Copy)]
+struct OutPtr(*mut f32);
+// SAFETY: tasks write disjoint ranges (distinct tiles or positions).
+unsafe impl Send for OutPtr {}
+unsafe impl Sync for OutPtr {}
+impl OutPtr {
+    fn get(self) -> *mut f32 {
+        self.0
+    }
+}
+
+/// Tiles per block: the transformed block `36 x tiles x channels` stays
+/// within a few MB (shared L3) while the weights are read once per block.
+fn block_tiles(ntiles: usize, cin: usize, cout: usize) -> usize {
+    let cap = (4 << 20) / (NPOS * 4 * (cin + cout));
+    let tb = cap.clamp(MR, 1024).min(ntiles.div_ceil(MR) * MR);
+    tb / MR * MR
+}
+
+/// "Valid" 3x3 convolution of `inp` producing `out_h x out_w`, with optional
+/// bias and fused ReLU. `inp` must be at least `(ceil4(out) + 2)` on each axis.
+pub(crate) fn conv(inp: &Padded, out_h: usize, out_w: usize, ww: &WinogradWeights, bias: Option<&[f32]>, relu: bool) -> FeatureMap {
+    let (cin, cout) = (ww.cin, ww.cout);
+    assert_eq!(inp.c, cin);
+    let (th, tw) = (out_h.div_ceil(4), out_w.div_ceil(4));
+    assert!(inp.h >= th * 4 + 2 && inp.w >= tw * 4 + 2, "padded input too small for the tile grid");
+    let ntiles = th * tw;
+    let tb = block_tiles(ntiles, cin, cout);
+    // Every output value is written exactly once below (through raw
+    // pointers, no slice over the uninitialised part), so skip the zeroing
+    // that a reused heap chunk would cost.
+    let mut data: Vec<f32> = Vec::with_capacity(out_h * out_w * cout);
+    let outp = OutPtr(data.as_mut_ptr());
+    // Block scratch is reused across calls: fresh multi-MB buffers cost a
+    // memset or page faults each time (seen at ~10% in profiles).
+    let mut scratch = SCRATCH.lock().map(|mut s| std::mem::take(&mut *s)).unwrap_or_default();
+    scratch.resize(NPOS * tb * (cin + cout), 0.0);
+    let (u, m) = scratch.split_at_mut(NPOS * tb * cin);
+    let (up, mp) = (OutPtr(u.as_mut_ptr()), OutPtr(m.as_mut_ptr()));
+    let np = cout / NR;
+
+    for t0 in (0..ntiles).step_by(tb) {
+        let nt = tb.min(ntiles - t0);
+        // Input transform, tiles in parallel.
+        (0..nt).into_par_iter().with_min_len(4).for_each(|t| {
+            let (ty, tx) = ((t0 + t) / tw, (t0 + t) % tw);
+            dispatch(
+                #[inline(always)]
+                || {
+                    for c0 in (0..cin).step_by(LANES) {
+                        let mut rows = [[[0.0; LANES]; 6]; 6];
+                        for (i, row) in rows.iter_mut().enumerate() {
+                            let base = ((ty * 4 + i) * inp.w + tx * 4) * cin + c0;
+                            let col: [V; 6] = std::array::from_fn(|j| load(&inp.data[base + j * cin..]));
+                            // Rows of B^T d B: transform along x first.
+                            *row = bt6(&col);
+                        }
+                        for b in 0..6 {
+                            let col: [V; 6] = std::array::from_fn(|i| rows[i][b]);
+                            let y = bt6(&col);
+                            for (a, ya) in y.iter().enumerate() {
+                                let p = a * 6 + b;
+                                // SAFETY: (p, t) rows are owned by this task.
+                                unsafe {
+                                    let dst = up.get().add((p * tb + t) * cin + c0);
+                                    std::ptr::copy_nonoverlapping(ya.as_ptr(), dst, LANES);
+                                }
+                            }
+                        }
+                    }
+                },
+            )
+        });
+        // 36 independent products, one task per position.
+        let rows = nt.div_ceil(MR) * MR;
+        (0..NPOS).into_par_iter().for_each(|p| {
+            for jp in 0..np {
+                let panel = &ww.v[(p * np + jp) * cin * NR..(p * np + jp + 1) * cin * NR];
+                for r0 in (0..rows).step_by(MR) {
+                    // SAFETY: u/m hold tb >= rows rows per position; panel holds cin * NR.
+                    unsafe {
+                        gemm::kernel(
+                            up.get().add((p * tb + r0) * cin),
+                            cin,
+                            panel.as_ptr(),
+                            cin,
+                            mp.get().add((p * tb + r0) * cout + jp * NR),
+                            cout,
+                        );
+                    }
+                }
+            }
+        });
+        // Output transform, tiles in parallel; bias and ReLU fused.
+        (0..nt).into_par_iter().with_min_len(4).for_each(|t| {
+            let (ty, tx) = ((t0 + t) / tw, (t0 + t) % tw);
+            let (ny, nx) = (4.min(out_h - ty * 4), 4.min(out_w - tx * 4));
+            dispatch(
+                #[inline(always)]
+                || {
+                    for c0 in (0..cout).step_by(LANES) {
+                        let mut rows = [[[0.0; LANES]; 4]; 6];
+                        for (a, row) in rows.iter_mut().enumerate() {
+                            let col: [V; 6] = std::array::from_fn(|b| {
+                                // SAFETY: position rows were written by the products above.
+                                unsafe { *(mp.get().add(((a * 6 + b) * tb + t) * cout + c0) as *const V) }
+                            });
+                            *row = at6(&col);
+                        }
+                        let bv: V = match bias {
+                            Some(b) => load(&b[c0..]),
+                            None => [0.0; LANES],
+                        };
+                        for j in 0..nx {
+                            let col: [V; 6] = std::array::from_fn(|a| rows[a][j]);
+                            let y = at6(&col);
+                            for (i, yi) in y.iter().enumerate().take(ny) {
+                                let mut v = *yi;
+                                for l in 0..LANES {
+                                    v[l] += bv[l];
+                                    if relu {
+                                        v[l] = v[l].max(0.0);
+                                    }
+                                }
+                                let o = ((ty * 4 + i) * out_w + tx * 4 + j) * cout + c0;
+                                // SAFETY: each tile writes only its own pixels.
+                                unsafe { std::ptr::copy_nonoverlapping(v.as_ptr(), outp.get().add(o), LANES) };
+                            }
+                        }
+                    }
+                },
+            )
+        });
+    }
+    if let Ok(mut s) = SCRATCH.lock() {
+        *s = scratch;
+    }
+    // SAFETY: the output transform wrote all out_h * out_w pixels x cout channels.
+    unsafe { data.set_len(out_h * out_w * cout) };
+    FeatureMap::from_vec(out_h, out_w, cout, data)
+}
+
+/// Scratch of the last finished convolution, handed to the next one.
+static SCRATCH: std::sync::Mutex<Vec<f32>> = std::sync::Mutex::new(Vec::new());

@@ -1,0 +1,104 @@
+//! The `volume-iter` benchmark: exactly the per-iteration work of
+//! `shared/bench/torch_ref.py` (see `shared/bench/README.md`), so the two
+//! medians can be divided.
+
+use std::time::Instant;
+
+use nst3d_core::{gradcheck::pseudo_random, Grid3, Image};
+use nst3d_features::{Vgg19, VggFlavor};
+use nst3d_optim::Adam;
+use nst3d_transport as transport;
+
+use crate::field::{Field, Mode};
+use crate::view::{StyleSpec, ViewLoss, ViewSpec};
+
+/// Timings of a benchmark run.
+#[derive(Clone, Debug)]
+pub struct BenchReport {
+    /// Milliseconds of each timed iteration (the warm-up excluded).
+    pub iteration_ms: Vec<f64>,
+    /// Median of `iteration_ms`.
+    pub median_ms: f64,
+    /// Loss of the last iteration (a sanity value, not a result).
+    pub last_loss: f32,
+}
+
+/// The peer's synthetic smoke: smooth noise (random at N/8, trilinearly
+/// upsampled) inside a soft ball, clamped to `[0, 1]`.
+pub fn synthetic_smoke(n: usize, seed: u64) -> Grid3 {
+    let c = (n / 8).max(2);
+    let coarse: Vec<f32> = pseudo_random(c * c * c, seed).iter().map(|v| 0.5 * (v + 1.0)).collect();
+    let coarse = Grid3::from_vec([c; 3], coarse);
+    let noise = transport::resize_grid(&coarse, [n; 3]);
+    let mut d = Grid3::zeros([n; 3]);
+    let h = 2.0 / (n as f32 - 1.0);
+    for z in 0..n {
+        for y in 0..n {
+            for x in 0..n {
+                let p = [x, y, z].map(|i| -1.0 + h * i as f32);
+                let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                let i = d.index(x, y, z);
+                d.data[i] = (noise.data[i] * (1.0 - r).max(0.0) * 2.0).clamp(0.0, 1.0);
+            }
+        }
+    }
+    d
+}
+
+/// Runs `iters` timed iterations (after one warm-up) of the benchmark work
+/// at resolution `n` in `mode`: transport, orthographic render along z with
+/// γ = 8/N, 2x upsample, grey→RGB, ImageNet-normalised VGG-19 to relu4_1,
+/// Gram MSE loss on relu1_1..relu4_1, backward to the field, one Adam step
+/// (lr 0.01 in the peer's normalised units) and the density-mode clamp.
+pub fn volume_iter(n: usize, mode: Mode, iters: usize) -> BenchReport {
+    let d = synthetic_smoke(n, 0);
+    // The peer uses a randomly initialised torchvision VGG: the work does not
+    // depend on the weight values.
+    let vgg = Vgg19::random(VggFlavor::Torchvision, 0);
+    let style = Image::from_vec(
+        3,
+        2 * n,
+        2 * n,
+        pseudo_random(3 * 4 * n * n, 7).iter().map(|v| 0.5 * (v + 1.0)).collect(),
+    );
+    let loss = ViewLoss::new(&vgg, &style, &StyleSpec::default()).expect("default style layers are valid");
+    let view = ViewSpec { camera: None, gamma: 8.0 / n as f32, exposure: 1.0, equalize: false };
+    let mut field = Field::identity(mode, d.len());
+    // The peer's velocity lives in grid_sample's [-1, 1] coordinates; ours
+    // is in voxels, so the same step is (N-1)/2 times larger here.
+    let lr = match mode {
+        Mode::Velocity => 0.01 * (n as f32 - 1.0) / 2.0,
+        Mode::Density => 0.01,
+    };
+    let mut adam = Adam::new(field.len(), lr);
+    let mut times = Vec::with_capacity(iters);
+    let mut last_loss = 0.0;
+    for it in 0..=iters {
+        let t0 = Instant::now();
+        let dstar = field.transport(&d);
+        let (l, grad_dstar) = loss.loss_and_grad(&dstar, &view).expect("the benchmark view renders");
+        let grad = field.transport_backward(&d, &grad_dstar.data);
+        adam.step(field.params_mut(), &grad);
+        if let Field::Scale(s) = &mut field {
+            transport::clamp_scale(s, 0.0, 2.0);
+        }
+        last_loss = l;
+        if it > 0 {
+            times.push(t0.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    let median_ms = median(&times);
+    BenchReport { iteration_ms: times, median_ms, last_loss }
+}
+
+/// Median as Python's `statistics.median` computes it (mean of the two
+/// middle values for an even count), so our number and the peer's compare.
+pub fn median(values: &[f64]) -> f64 {
+    let mut v = values.to_vec();
+    v.sort_by(|a, b| a.total_cmp(b));
+    match v.len() {
+        0 => 0.0,
+        n if n % 2 == 1 => v[n / 2],
+        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
+}

