@@ -17,6 +17,7 @@ use nst3d_render::{Camera, Projection};
 use nst3d_stylize::{stylize_frame, FrameParams, Limits, Mode, StyleSpec, ViewLoss, ViewSpec};
 
 use crate::progress::Progress;
+use nst3d_io::image::resize_to_height;
 
 /// Arguments of `nst3d volume`.
 #[derive(Args)]
@@ -48,9 +49,10 @@ pub struct VolumeArgs {
     /// Adam learning rate (default: 0.5 voxels per step in velocity mode, 0.1 in density mode).
     #[arg(long)]
     lr: Option<f32>,
-    /// Largest stylization velocity, in voxels (velocity mode).
-    #[arg(long, default_value_t = 4.0)]
-    vmax: f32,
+    /// Largest stylization velocity, in voxels (velocity mode; default 4% of
+    /// the grid's largest side, at least 1 voxel, so small grids keep their shape).
+    #[arg(long)]
+    vmax: Option<f32>,
     /// Smallest density scale (density mode).
     #[arg(long, default_value_t = 0.0)]
     smin: f32,
@@ -60,6 +62,10 @@ pub struct VolumeArgs {
     /// Style image scale factor (smaller = larger patterns).
     #[arg(long, default_value_t = 0.5)]
     style_scale: f32,
+    /// Match the painting's colour statistics too (by default only its
+    /// luminance: the renderer draws grey smoke, which cannot reach colour Grams).
+    #[arg(long)]
+    style_color: bool,
     /// VGG-19 layers whose Gram matrices are matched.
     #[arg(long, value_delimiter = ',', default_value = "relu1_1,relu2_1,relu3_1,relu4_1")]
     layers: Vec<VggLayer>,
@@ -138,7 +144,7 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     if args.octaves == 0 || args.iters == 0 {
         bail!("--octaves and --iters must be at least 1");
     }
-    for (name, v) in [("--vmax", args.vmax), ("--fov", args.fov), ("--style-scale", args.style_scale)] {
+    for (name, v) in [("--vmax", args.vmax.unwrap_or(1.0)), ("--fov", args.fov), ("--style-scale", args.style_scale)] {
         if !(v.is_finite() && v > 0.0) {
             bail!("{name} must be a positive number, got {v}");
         }
@@ -155,11 +161,13 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     })?;
     let (bx, dense) = grid.to_dense()?;
     let style = nst3d_io::image::load_style(&args.style, args.style_scale)?;
+    let style = if args.style_color { style } else { nst3d_io::image::luminance_rgb(&style) };
     let vgg = load_vgg(args.weights.as_deref())?;
 
+    let vmax = args.vmax.unwrap_or_else(|| (0.04 * *bx.dims.iter().max().unwrap_or(&1) as f32).max(1.0));
     // Room for the velocity to move smoke outwards.
     let margin = match args.mode {
-        Mode::Velocity => args.vmax.ceil() as usize + 1,
+        Mode::Velocity => vmax.ceil() as usize + 1,
         Mode::Density => 0,
     };
     let padded = pad(&dense, margin);
@@ -181,7 +189,7 @@ pub fn run(args: VolumeArgs) -> Result<()> {
         octaves: args.octaves,
         iterations: args.iters,
         learning_rate: lr,
-        limits: Limits { vmax: args.vmax, smin: args.smin, smax: args.smax },
+        limits: Limits { vmax, smin: args.smin, smax: args.smax },
         view: view.clone(),
     };
 
@@ -221,9 +229,12 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     write_vdb(&args.out, &grids)?;
 
     if let Some(preview) = &args.preview {
-        let before = display(&loss, &padded, &view)?;
-        let after = display(&loss, &result.density, &view)?;
-        let sheet = nst3d_io::image::side_by_side(&[&before, &after]);
+        // Before | after | the painting, all scaled to one readable height.
+        let h = PREVIEW_HEIGHT;
+        let before = resize_to_height(&display(&loss, &padded, &view)?, h);
+        let after = resize_to_height(&display(&loss, &result.density, &view)?, h);
+        let painting = resize_to_height(&style, h);
+        let sheet = nst3d_io::image::side_by_side(&[&before, &after, &painting]);
         nst3d_io::image::write_png(preview, &sheet)?;
     }
     println!(
@@ -241,6 +252,9 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     );
     Ok(())
 }
+
+/// Height of the preview sheet in pixels.
+const PREVIEW_HEIGHT: usize = 384;
 
 /// Absorption giving the densest ray an optical depth of 3: dense enough to
 /// show shape, thin enough that the image does not flatten to white.

@@ -12,7 +12,7 @@ use std::sync::OnceLock;
 use rayon::prelude::*;
 
 use crate::simd::dispatch;
-use crate::tensor::{pad, FeatureMap, Padded, Padding};
+use crate::tensor::{pad, take_buffer, FeatureMap, Padded, Padding, Source};
 use crate::winograd::{self, WinogradWeights};
 use crate::FeaturesError;
 
@@ -45,18 +45,15 @@ impl Kernel {
         Kernel::Direct { cin, cout, wt }
     }
 
-    /// Tile size the padded input must be aligned to.
-    fn align(&self) -> usize {
+    /// Convolves `src` to `out_h x out_w`; the direct path works on a padded
+    /// copy, Winograd reads `src` in place.
+    fn run(&self, src: Source<'_>, out_h: usize, out_w: usize, bias: Option<&[f32]>, relu: bool) -> FeatureMap {
         match self {
-            Kernel::Winograd(_) => 4,
-            Kernel::Direct { .. } => 1,
-        }
-    }
-
-    fn run(&self, inp: &Padded, out_h: usize, out_w: usize, bias: Option<&[f32]>, relu: bool) -> FeatureMap {
-        match self {
-            Kernel::Winograd(ww) => winograd::conv(inp, out_h, out_w, ww, bias, relu),
-            Kernel::Direct { cin, cout, wt } => direct(inp, out_h, out_w, *cin, *cout, wt, bias, relu),
+            Kernel::Winograd(ww) => winograd::conv(src, out_h, out_w, ww, bias, relu),
+            Kernel::Direct { cin, cout, wt } => {
+                let padded = pad(src, out_h + 2, out_w + 2);
+                direct(&padded, out_h, out_w, *cin, *cout, wt, bias, relu)
+            }
         }
     }
 }
@@ -68,7 +65,11 @@ fn wide_output(cout: usize) -> bool {
 /// Direct "valid" 3x3 convolution (see [`Kernel::Direct`] for the layouts).
 #[allow(clippy::too_many_arguments)]
 fn direct(inp: &Padded, out_h: usize, out_w: usize, cin: usize, cout: usize, wt: &[f32], bias: Option<&[f32]>, relu: bool) -> FeatureMap {
-    let mut out = FeatureMap::zeros(out_h, out_w, cout);
+    // Every value is set below (bias first), so a pooled buffer's old
+    // contents never show.
+    let mut data = take_buffer(out_h * out_w * cout);
+    data.resize(out_h * out_w * cout, 0.0);
+    let mut out = FeatureMap::from_vec(out_h, out_w, cout, data);
     let zero = vec![0.0; cout];
     let bias = bias.unwrap_or(&zero);
     out.data.par_chunks_mut(out_w * cout).enumerate().for_each(|(y, row)| {
@@ -211,10 +212,8 @@ impl Conv3x3 {
 
     fn forward_fused(&self, x: &FeatureMap, relu: bool) -> FeatureMap {
         assert_eq!(x.channels, self.cin, "conv input channels");
-        let k = self.fwd_kernel();
-        let (ph, pw) = (x.height.next_multiple_of(k.align()) + 2, x.width.next_multiple_of(k.align()) + 2);
-        let padded = pad(x, 1, self.padding, None, ph, pw);
-        k.run(&padded, x.height, x.width, Some(&self.bias), relu)
+        let src = Source { map: x, pad: 1, mode: self.padding, mask: None };
+        self.fwd_kernel().run(src, x.height, x.width, Some(&self.bias), relu)
     }
 
     /// Gradient w.r.t. the input of [`Conv3x3::forward`] from `grad_out`.
@@ -223,7 +222,7 @@ impl Conv3x3 {
     }
 
     /// Gradient w.r.t. the input of [`Conv3x3::forward_relu`], given that
-    /// call's output (the ReLU mask is applied while padding).
+    /// call's output (the ReLU mask is applied while reading `grad_out`).
     pub fn backward_relu(&self, grad_out: &FeatureMap, relu_out: &FeatureMap) -> FeatureMap {
         self.backward_masked(grad_out, Some(relu_out))
     }
@@ -233,17 +232,14 @@ impl Conv3x3 {
         let k = self.bwd_kernel();
         let (h, w) = (g.height, g.width);
         match self.padding {
-            Padding::Zero => {
-                let padded = pad(g, 1, Padding::Zero, mask, h.next_multiple_of(k.align()) + 2, w.next_multiple_of(k.align()) + 2);
-                k.run(&padded, h, w, None, false)
-            }
+            Padding::Zero => k.run(Source { map: g, pad: 1, mode: Padding::Zero, mask }, h, w, None, false),
             Padding::Reflect => {
                 // Gradient w.r.t. the reflection-padded input ((h+2) x (w+2)),
                 // then the mirrored border rows/columns fold back onto their sources.
-                let (oh, ow) = (h + 2, w + 2);
-                let padded = pad(g, 2, Padding::Zero, mask, oh.next_multiple_of(k.align()) + 2, ow.next_multiple_of(k.align()) + 2);
-                let gp = k.run(&padded, oh, ow, None, false);
-                fold_reflection(&gp, h, w)
+                let gp = k.run(Source { map: g, pad: 2, mode: Padding::Zero, mask }, h + 2, w + 2, None, false);
+                let out = fold_reflection(&gp, h, w);
+                gp.recycle();
+                out
             }
         }
     }

@@ -39,36 +39,48 @@ impl FeatureMap {
     /// Channels-last copy of a planar image.
     pub fn from_image(img: &Image) -> Self {
         let (c, plane) = (img.channels, img.plane());
-        let mut data = vec![0.0; img.data.len()];
+        let mut data = take_buffer(img.data.len());
         // Rows of pixels in parallel; each pixel gathers its channels.
-        data.par_chunks_mut((img.width * c).max(1)).enumerate().for_each(|(y, row)| {
+        data.spare_capacity_mut()[..img.data.len()].par_chunks_mut((img.width * c).max(1)).enumerate().for_each(|(y, row)| {
             for x in 0..img.width {
                 let p = y * img.width + x;
                 for ch in 0..c {
-                    row[x * c + ch] = img.data[ch * plane + p];
+                    row[x * c + ch].write(img.data[ch * plane + p]);
                 }
             }
         });
+        // SAFETY: every element was written above.
+        unsafe { data.set_len(img.data.len()) };
         Self { height: img.height, width: img.width, channels: c, data }
     }
 
     /// Planar (PyTorch `(C, H, W)`) copy.
     pub fn to_image(&self) -> Image {
         let (c, plane) = (self.channels, self.height * self.width);
-        let mut data = vec![0.0; self.data.len()];
-        // Blocks of channels in parallel so each output plane is written by one task.
+        // Not pooled: the image leaves the crate. Not zeroed either: every
+        // value is written below.
+        let mut data: Vec<f32> = Vec::with_capacity(self.data.len());
+        // Blocks of channels in parallel so each output plane is written by
+        // one task; pixels in runs of 64 so the reads of a run stay in cache.
         let chunk = 16.min(c.max(1));
-        data.par_chunks_mut((plane * chunk).max(1)).enumerate().for_each(|(blk, out)| {
+        data.spare_capacity_mut()[..self.data.len()].par_chunks_mut((plane * chunk).max(1)).enumerate().for_each(|(blk, out)| {
             let c0 = blk * chunk;
             let nc = out.len() / plane.max(1);
             for p in 0..plane {
                 let src = &self.data[p * c + c0..p * c + c0 + nc];
                 for (k, v) in src.iter().enumerate() {
-                    out[k * plane + p] = *v;
+                    out[k * plane + p].write(*v);
                 }
             }
         });
+        // SAFETY: every element was written above.
+        unsafe { data.set_len(self.data.len()) };
         Image::from_vec(c, self.height, self.width, data)
+    }
+
+    /// Hands the storage back to the buffer pool (see [`take_buffer`]).
+    pub(crate) fn recycle(self) {
+        recycle(self.data);
     }
 
     /// Adds `other` element-wise (same shape).
@@ -118,26 +130,45 @@ fn source(p: usize, n: usize, pad: usize, mode: Padding) -> Option<usize> {
     Some(r as usize)
 }
 
-/// Pads `src` by `pad` on every side into a `ph x pw` buffer (zeros beyond).
-/// With `mask`, values are zeroed where `mask <= 0`: the ReLU backward fused
-/// into the copy every convolution needs anyway.
-pub(crate) fn pad(src: &FeatureMap, pad: usize, mode: Padding, mask: Option<&FeatureMap>, ph: usize, pw: usize) -> Padded {
-    let c = src.channels;
+/// What a 3x3 convolution reads: `map` seen through `pad` border pixels of
+/// `mode` on every side, with the ReLU backward applied on the fly when
+/// `mask` is given (values read as zero where `mask <= 0`).
+#[derive(Clone, Copy)]
+pub(crate) struct Source<'a> {
+    pub map: &'a FeatureMap,
+    pub pad: usize,
+    pub mode: Padding,
+    pub mask: Option<&'a FeatureMap>,
+}
+
+impl Source<'_> {
+    /// Source row (or column, with `n` the width) of each of the first `len`
+    /// padded coordinates; `None` reads as zero.
+    pub fn axis_map(&self, len: usize, n: usize) -> Vec<Option<usize>> {
+        (0..len).map(|p| source(p, n, self.pad, self.mode)).collect()
+    }
+}
+
+/// Pads `src` into a `ph x pw` buffer (zeros beyond): the input of the
+/// direct convolution (the Winograd path reads the [`Source`] in place).
+pub(crate) fn pad(src: Source<'_>, ph: usize, pw: usize) -> Padded {
+    let (map, mask) = (src.map, src.mask);
+    let c = map.channels;
     let mut data = vec![0.0f32; ph * pw * c];
-    let xs: Vec<Option<usize>> = (0..pw).map(|px| source(px, src.width, pad, mode)).collect();
+    let xs = src.axis_map(pw, map.width);
     data.par_chunks_mut(pw * c).enumerate().for_each(|(py, row)| {
-        let Some(sy) = source(py, src.height, pad, mode) else { return };
+        let Some(sy) = source(py, map.height, src.pad, src.mode) else { return };
         dispatch(
             #[inline(always)]
             || {
                 for (px, sx) in xs.iter().enumerate() {
                     let Some(sx) = *sx else { continue };
-                    let s = (sy * src.width + sx) * c;
+                    let s = (sy * map.width + sx) * c;
                     let dst = &mut row[px * c..px * c + c];
                     match mask {
-                        None => dst.copy_from_slice(&src.data[s..s + c]),
+                        None => dst.copy_from_slice(&map.data[s..s + c]),
                         Some(m) => {
-                            for ((d, v), mv) in dst.iter_mut().zip(&src.data[s..s + c]).zip(&m.data[s..s + c]) {
+                            for ((d, v), mv) in dst.iter_mut().zip(&map.data[s..s + c]).zip(&m.data[s..s + c]) {
                                 *d = if *mv > 0.0 { *v } else { 0.0 };
                             }
                         }
@@ -147,6 +178,47 @@ pub(crate) fn pad(src: &FeatureMap, pad: usize, mode: Padding, mask: Option<&Fea
         )
     });
     Padded { h: ph, w: pw, c, data }
+}
+
+/// Freed activation buffers, reused by the next pass: every forward and
+/// backward allocates the same few dozen multi-MB maps, and fresh ones cost
+/// page faults and kernel zeroing (~5-10% of a pass in profiles).
+static POOL: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
+/// Most buffers the pool keeps (a VGG-19 pass to relu4_1 holds ~30 at once).
+const POOL_MAX: usize = 48;
+
+/// An empty vector with capacity for at least `len` values, from the pool
+/// when a buffer of fitting size is there. The caller writes every element
+/// (through `spare_capacity_mut`) and then sets the length.
+pub(crate) fn take_buffer(len: usize) -> Vec<f32> {
+    if let Ok(mut pool) = POOL.lock() {
+        // Best fit, and never more than twice the request, so small maps do
+        // not pin the big buffers.
+        let best = pool
+            .iter()
+            .enumerate()
+            .filter(|(_, b)| b.capacity() >= len && b.capacity() <= 2 * len.max(1024))
+            .min_by_key(|(_, b)| b.capacity())
+            .map(|(i, _)| i);
+        if let Some(i) = best {
+            let mut b = pool.swap_remove(i);
+            b.clear();
+            return b;
+        }
+    }
+    Vec::with_capacity(len)
+}
+
+/// Returns a buffer to the pool (dropped if the pool is full).
+pub(crate) fn recycle(buf: Vec<f32>) {
+    if buf.capacity() < 1024 {
+        return;
+    }
+    if let Ok(mut pool) = POOL.lock() {
+        if pool.len() < POOL_MAX {
+            pool.push(buf);
+        }
+    }
 }
 
 #[cfg(test)]

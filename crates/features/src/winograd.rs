@@ -10,9 +10,9 @@
 
 use rayon::prelude::*;
 
-use crate::gemm::{self, MR, NR};
+use crate::gemm::{self, Blocking, NR_MIN, ROW_ALIGN};
 use crate::simd::dispatch;
-use crate::tensor::{FeatureMap, Padded};
+use crate::tensor::{take_buffer, FeatureMap, Source};
 
 /// Channels per transform vector; Winograd layers need `cin % LANES == 0`.
 pub(crate) const LANES: usize = 16;
@@ -31,14 +31,16 @@ const G: [[f64; 3]; 6] = [
 
 /// Whether a convolution with these channel counts can take this path.
 pub(crate) fn supports(cin: usize, cout: usize) -> bool {
-    cin % LANES == 0 && cout % NR == 0 && cin > 0 && cout > 0
+    cin % LANES == 0 && cout % NR_MIN == 0 && cin > 0 && cout > 0
 }
 
-/// Transformed weights, packed as `[position][cout / NR][cin][NR]` so the
-/// product kernel streams each panel contiguously.
+/// Transformed weights, packed as `[position][cout / nr][cin][nr]` (`nr`
+/// from the layer's [`Blocking`]) so the product kernel streams each panel
+/// contiguously.
 pub(crate) struct WinogradWeights {
     cin: usize,
     cout: usize,
+    bl: Blocking,
     v: Vec<f32>,
 }
 
@@ -46,7 +48,8 @@ impl WinogradWeights {
     /// From PyTorch-layout `[cout][cin][3][3]` weights (correlation, as in CNNs).
     pub(crate) fn new(w: &[f32], cin: usize, cout: usize) -> Self {
         assert!(supports(cin, cout));
-        let np = cout / NR;
+        let bl = Blocking::for_cout(cout);
+        let (nr, np) = (bl.nr, cout / bl.nr);
         let mut v = vec![0.0f32; NPOS * cout * cin];
         for co in 0..cout {
             for ci in 0..cin {
@@ -62,12 +65,12 @@ impl WinogradWeights {
                     for b in 0..6 {
                         let u: f64 = (0..3).map(|k| t[a][k] * G[b][k]).sum();
                         let p = a * 6 + b;
-                        v[((p * np + co / NR) * cin + ci) * NR + co % NR] = u as f32;
+                        v[((p * np + co / nr) * cin + ci) * nr + co % nr] = u as f32;
                     }
                 }
             }
         }
-        Self { cin, cout, v }
+        Self { cin, cout, bl, v }
     }
 }
 
@@ -123,23 +126,26 @@ impl OutPtr {
 /// within a few MB (shared L3) while the weights are read once per block.
 fn block_tiles(ntiles: usize, cin: usize, cout: usize) -> usize {
     let cap = (4 << 20) / (NPOS * 4 * (cin + cout));
-    let tb = cap.clamp(MR, 1024).min(ntiles.div_ceil(MR) * MR);
-    tb / MR * MR
+    let tb = cap.clamp(ROW_ALIGN, 1024).min(ntiles.div_ceil(ROW_ALIGN) * ROW_ALIGN);
+    tb / ROW_ALIGN * ROW_ALIGN
 }
 
-/// "Valid" 3x3 convolution of `inp` producing `out_h x out_w`, with optional
-/// bias and fused ReLU. `inp` must be at least `(ceil4(out) + 2)` on each axis.
-pub(crate) fn conv(inp: &Padded, out_h: usize, out_w: usize, ww: &WinogradWeights, bias: Option<&[f32]>, relu: bool) -> FeatureMap {
-    let (cin, cout) = (ww.cin, ww.cout);
-    assert_eq!(inp.c, cin);
+/// 3x3 convolution of `src` (read through its padding and mask) producing
+/// `out_h x out_w` ("valid" over the padded map), with optional bias and
+/// fused ReLU.
+pub(crate) fn conv(src: Source<'_>, out_h: usize, out_w: usize, ww: &WinogradWeights, bias: Option<&[f32]>, relu: bool) -> FeatureMap {
+    let (cin, cout, bl) = (ww.cin, ww.cout, ww.bl);
+    let (map, mask) = (src.map, src.mask);
+    assert_eq!(map.channels, cin);
     let (th, tw) = (out_h.div_ceil(4), out_w.div_ceil(4));
-    assert!(inp.h >= th * 4 + 2 && inp.w >= tw * 4 + 2, "padded input too small for the tile grid");
+    // Padded coordinate -> source pixel, once per axis; border tiles read
+    // zeros or mirrored pixels from these instead of a padded copy.
+    let (ys, xs) = (src.axis_map(th * 4 + 2, map.height), src.axis_map(tw * 4 + 2, map.width));
     let ntiles = th * tw;
     let tb = block_tiles(ntiles, cin, cout);
     // Every output value is written exactly once below (through raw
-    // pointers, no slice over the uninitialised part), so skip the zeroing
-    // that a reused heap chunk would cost.
-    let mut data: Vec<f32> = Vec::with_capacity(out_h * out_w * cout);
+    // pointers, no slice over the uninitialised part): no zeroing.
+    let mut data = take_buffer(out_h * out_w * cout);
     let outp = OutPtr(data.as_mut_ptr());
     // Block scratch is reused across calls: fresh multi-MB buffers cost a
     // memset or page faults each time (seen at ~10% in profiles).
@@ -147,21 +153,34 @@ pub(crate) fn conv(inp: &Padded, out_h: usize, out_w: usize, ww: &WinogradWeight
     scratch.resize(NPOS * tb * (cin + cout), 0.0);
     let (u, m) = scratch.split_at_mut(NPOS * tb * cin);
     let (up, mp) = (OutPtr(u.as_mut_ptr()), OutPtr(m.as_mut_ptr()));
-    let np = cout / NR;
+    let np = cout / bl.nr;
 
     for t0 in (0..ntiles).step_by(tb) {
         let nt = tb.min(ntiles - t0);
         // Input transform, tiles in parallel.
         (0..nt).into_par_iter().with_min_len(4).for_each(|t| {
             let (ty, tx) = ((t0 + t) / tw, (t0 + t) % tw);
+            let (ty6, tx6) = (&ys[ty * 4..ty * 4 + 6], &xs[tx * 4..tx * 4 + 6]);
             dispatch(
                 #[inline(always)]
                 || {
                     for c0 in (0..cin).step_by(LANES) {
                         let mut rows = [[[0.0; LANES]; 6]; 6];
-                        for (i, row) in rows.iter_mut().enumerate() {
-                            let base = ((ty * 4 + i) * inp.w + tx * 4) * cin + c0;
-                            let col: [V; 6] = std::array::from_fn(|j| load(&inp.data[base + j * cin..]));
+                        for (row, sy) in rows.iter_mut().zip(ty6) {
+                            let col: [V; 6] = std::array::from_fn(|j| match (*sy, tx6[j]) {
+                                (Some(y), Some(x)) => {
+                                    let s = (y * map.width + x) * cin + c0;
+                                    let v = load(&map.data[s..]);
+                                    match mask {
+                                        None => v,
+                                        Some(m) => {
+                                            let mv = load(&m.data[s..]);
+                                            std::array::from_fn(|l| if mv[l] > 0.0 { v[l] } else { 0.0 })
+                                        }
+                                    }
+                                }
+                                _ => [0.0; LANES],
+                            });
                             // Rows of B^T d B: transform along x first.
                             *row = bt6(&col);
                         }
@@ -182,19 +201,20 @@ pub(crate) fn conv(inp: &Padded, out_h: usize, out_w: usize, ww: &WinogradWeight
             )
         });
         // 36 independent products, one task per position.
-        let rows = nt.div_ceil(MR) * MR;
+        let rows = nt.div_ceil(bl.mr) * bl.mr;
         (0..NPOS).into_par_iter().for_each(|p| {
             for jp in 0..np {
-                let panel = &ww.v[(p * np + jp) * cin * NR..(p * np + jp + 1) * cin * NR];
-                for r0 in (0..rows).step_by(MR) {
-                    // SAFETY: u/m hold tb >= rows rows per position; panel holds cin * NR.
+                let panel = &ww.v[(p * np + jp) * cin * bl.nr..(p * np + jp + 1) * cin * bl.nr];
+                for r0 in (0..rows).step_by(bl.mr) {
+                    // SAFETY: u/m hold tb >= rows rows per position; panel holds cin * nr.
                     unsafe {
                         gemm::kernel(
+                            bl,
                             up.get().add((p * tb + r0) * cin),
                             cin,
                             panel.as_ptr(),
                             cin,
-                            mp.get().add((p * tb + r0) * cout + jp * NR),
+                            mp.get().add((p * tb + r0) * cout + jp * bl.nr),
                             cout,
                         );
                     }

@@ -82,6 +82,21 @@ pub fn load_style(path: &Path, scale: f32) -> Result<Image, ImageError> {
     Ok(out)
 }
 
+/// The painting's luminance (Rec. 601 weights, as PIL's `convert("L")`)
+/// repeated in three channels: the transmittance renderer draws grey smoke,
+/// so a grey painting's Gram statistics are the ones it can actually reach.
+pub fn luminance_rgb(img: &Image) -> Image {
+    assert_eq!(img.channels, 3, "luminance of an RGB image");
+    let p = img.plane();
+    let grey: Vec<f32> =
+        (0..p).map(|i| 0.299 * img.data[i] + 0.587 * img.data[p + i] + 0.114 * img.data[2 * p + i]).collect();
+    let mut data = Vec::with_capacity(3 * p);
+    for _ in 0..3 {
+        data.extend_from_slice(&grey);
+    }
+    Image::from_vec(3, img.height, img.width, data)
+}
+
 /// Converts a 1- or 3-channel image with values in `[0, 1]` to 8-bit RGB
 /// (values outside are clipped).
 pub fn to_rgb8(img: &Image) -> image::RgbImage {
@@ -116,6 +131,24 @@ pub fn side_by_side(images: &[&Image]) -> Image {
             }
         }
         x0 += img.width;
+    }
+    out
+}
+
+/// Resizes to `height` rows keeping the aspect ratio (triangle filter), for
+/// previews of small grids that would otherwise be a few dozen pixels tall.
+pub fn resize_to_height(img: &Image, height: usize) -> Image {
+    let width = ((img.width * height) as f32 / img.height.max(1) as f32).round().max(1.0) as usize;
+    let mut out = Image::zeros(img.channels, height, width);
+    for c in 0..img.channels {
+        let plane = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(
+            img.width as u32,
+            img.height as u32,
+            img.channel(c).to_vec(),
+        )
+        .expect("plane size matches");
+        let r = image::imageops::resize(&plane, width as u32, height as u32, FilterType::Triangle);
+        out.data[c * height * width..(c + 1) * height * width].copy_from_slice(r.as_raw());
     }
     out
 }
