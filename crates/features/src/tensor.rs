@@ -107,9 +107,7 @@ pub enum Padding {
 /// It may be larger than needed (zeros beyond) so Winograd tiles never read
 /// out of bounds.
 pub(crate) struct Padded {
-    pub h: usize,
     pub w: usize,
-    pub c: usize,
     pub data: Vec<f32>,
 }
 
@@ -177,7 +175,7 @@ pub(crate) fn pad(src: Source<'_>, ph: usize, pw: usize) -> Padded {
             },
         )
     });
-    Padded { h: ph, w: pw, c, data }
+    Padded { w: pw, data }
 }
 
 /// Freed activation buffers, reused by the next pass: every forward and

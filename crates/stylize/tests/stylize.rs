@@ -1,0 +1,117 @@
+//! The stylisation chain as a whole: gradients through transport, render,
+//! upsampling, VGG and the Gram loss agree with finite differences, and the
+//! multi-octave loop lowers the loss while keeping the Sec. 3.3 limits.
+
+use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
+use nst3d_core::{Grid3, Image};
+use nst3d_features::{Vgg19, VggFlavor, VggLayer};
+use nst3d_render::{Camera, Projection};
+use nst3d_stylize::{bench::synthetic_smoke, stylize_frame, Field, FrameParams, Limits, Mode, StyleSpec, ViewLoss, ViewSpec};
+
+fn style(n: usize) -> Image {
+    // Stripes: a style with structure a smooth ball does not have.
+    let mut img = Image::zeros(3, n, n);
+    for c in 0..3 {
+        for y in 0..n {
+            for x in 0..n {
+                img.data[(c * n + y) * n + x] = if (x + 2 * y) % 8 < 4 { 0.9 } else { 0.1 };
+            }
+        }
+    }
+    img
+}
+
+#[test]
+fn field_transport_gradients_match_finite_differences() {
+    let d = Grid3::from_vec([6, 5, 4], pseudo_random(120, 3).iter().map(|v| v.abs()).collect());
+    let w = pseudo_random(120, 4);
+    for mode in [Mode::Velocity, Mode::Density] {
+        let mut field = Field::identity(mode, d.len());
+        // Away from integer offsets, where trilinear sampling has kinks.
+        for (i, p) in field.params_mut().iter_mut().enumerate() {
+            *p += 0.3 + 0.1 * ((i * 7 % 5) as f32 / 5.0);
+        }
+        let grad = field.transport_backward(&d, &w);
+        let mut probe = field.clone();
+        let r = check_gradient(
+            field.params(),
+            &grad,
+            |x| {
+                probe.params_mut().copy_from_slice(x);
+                dot(&w, &probe.transport(&d).data)
+            },
+            // The map is linear inside a cell, so a large step is exact and
+            // keeps f32 rounding out of the difference.
+            1e-2,
+            200,
+            1e-2,
+        );
+        assert!(r.max_rel_err < 1e-2, "{mode:?}: {r:?}");
+    }
+}
+
+/// d(loss)/d(density) through the whole view chain. FP32 finite differences
+/// through thousands of ReLU kinks are noisy, so most (not all) probed
+/// entries (70%) must agree within 5%, and all must agree in sign where large.
+#[test]
+fn view_loss_gradient_matches_finite_differences() {
+    let vgg = Vgg19::random(VggFlavor::Torchvision, 1);
+    let spec = StyleSpec { layers: vec![VggLayer::Relu1_1, VggLayer::Relu2_1], layer_weights: vec![1.0, 0.5] };
+    let loss = ViewLoss::new(&vgg, &style(24), &spec).unwrap();
+    let d = synthetic_smoke(12, 5);
+    let persp = Camera::front(d.dims).with_projection(Projection::Perspective);
+    for (name, camera, equalize) in
+        [("march", None, false), ("perspective", Some(persp), false), ("equalized", None, true)]
+    {
+        let view = ViewSpec { camera, gamma: 0.3, exposure: 0.3, equalize };
+        let (_, grad) = loss.loss_and_grad(&d, &view).unwrap();
+        let mut probe = d.clone();
+        let mut good = 0;
+        let mut checked = 0;
+        let big = grad.data.iter().fold(0f32, |m, v| m.max(v.abs()));
+        for i in (0..d.len()).step_by(97) {
+            if grad.data[i].abs() < 1e-3 * big {
+                continue;
+            }
+            let eps = 2e-3;
+            probe.data[i] = d.data[i] + eps;
+            let up = loss.loss(&probe, &view).unwrap() as f64;
+            probe.data[i] = d.data[i] - eps;
+            let down = loss.loss(&probe, &view).unwrap() as f64;
+            probe.data[i] = d.data[i];
+            let numeric = (up - down) / (2.0 * eps as f64);
+            let a = grad.data[i] as f64;
+            checked += 1;
+            if (a - numeric).abs() <= 0.05 * a.abs().max(numeric.abs()) {
+                good += 1;
+            }
+        }
+        assert!(checked >= 5, "{name}: too few entries with gradient");
+        assert!(good * 10 >= checked * 7, "{name}: only {good}/{checked} entries match finite differences");
+    }
+}
+
+#[test]
+fn octaves_lower_the_loss_and_keep_the_limits() {
+    let vgg = Vgg19::random(VggFlavor::Torchvision, 2);
+    let loss = ViewLoss::new(&vgg, &style(32), &StyleSpec::default()).unwrap();
+    let d = synthetic_smoke(24, 9);
+    let view = ViewSpec { camera: Some(Camera::front(d.dims)), gamma: 0.2, exposure: 0.2, equalize: false };
+    for (mode, lr) in [(Mode::Velocity, 0.5), (Mode::Density, 0.1)] {
+        let limits = Limits { vmax: 1.5, smin: 0.2, smax: 1.8 };
+        let params = FrameParams { mode, octaves: 2, iterations: 8, learning_rate: lr, limits, view: view.clone() };
+        let mut steps = 0;
+        let r = stylize_frame(&d, &loss, &params, &mut |_| steps += 1).unwrap();
+        assert_eq!(steps, 16);
+        assert!(r.loss_after < 0.9 * r.loss_before, "{mode:?}: {} -> {}", r.loss_before, r.loss_after);
+        assert!(r.density.data.iter().all(|v| v.is_finite()));
+        match &r.field {
+            Field::Velocity(v) => {
+                let max = v.iter().map(|u| (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt()).fold(0f32, f32::max);
+                assert!(max <= 1.5 + 1e-4, "vmax exceeded: {max}");
+                assert!(max > 0.1, "velocity did not move");
+            }
+            Field::Scale(s) => assert!(s.iter().all(|x| (0.2..=1.8).contains(x))),
+        }
+    }
+}
