@@ -114,7 +114,7 @@ fn openvdb_summary(path: &Path, grid: &str) -> String {
         "import sys\ntry:\n import pyopenvdb as vdb, numpy as np\nexcept ImportError:\n sys.exit('python3-openvdb missing: apt-get install python3-openvdb python3-numpy')\n\
 g = vdb.read('{}', '{}')\nlo, hi = g.evalActiveVoxelBoundingBox()\n\
 a = np.zeros([hi[i]-lo[i]+1 for i in range(3)], dtype=np.float32)\ng.copyToArray(a, ijk=lo)\n\
-print(g.name, '%.6f' % g.transform.voxelSize()[0], g.activeVoxelCount(), bool(np.isfinite(a).all()), '%.3f' % a.max())\n",
+print(g.name, '%.6f' % g.transform.voxelSize()[0], g.activeVoxelCount(), bool(np.isfinite(a).all()), '%.3f' % a.max(), *lo, *hi)\n",
         path.display(),
         grid
     );
@@ -140,6 +140,7 @@ fn stylizes_real_smoke_in_both_modes() {
     let dir = tempfile::tempdir().unwrap();
     let smoke = shared("volumes/smoke_000003.vdb");
     let input = openvdb_summary(&smoke, "density");
+    let input_fields: Vec<i64> = input.split(' ').skip(5).map(|v| v.parse().unwrap()).collect();
     let input_voxel = input.split(' ').nth(1).unwrap().to_string();
     for mode in ["density", "velocity"] {
         let preview = dir.path().join(format!("{mode}.png"));
@@ -160,6 +161,26 @@ fn stylizes_real_smoke_in_both_modes() {
         assert!(f[2].parse::<u64>().unwrap() > 10_000, "{summary}");
         assert_eq!(f[3], "True", "non-finite values: {summary}");
         assert!(image::open(&preview).unwrap().height() >= 256);
+        // Index space is preserved: the smoke stays where it was, give or
+        // take the velocity limit (4% of 98 voxels → 4 voxels) in velocity mode.
+        let bbox: Vec<i64> = f[5..].iter().map(|v| v.parse().unwrap()).collect();
+        let slack = if mode == "velocity" { 5 } else { 0 };
+        for a in 0..3 {
+            assert!(bbox[a] >= input_fields[a] - slack && bbox[a + 3] <= input_fields[a + 3] + slack, "{summary} vs {input}");
+            assert!(bbox[a + 3] - bbox[a] > (input_fields[a + 3] - input_fields[a]) / 2, "{summary} vs {input}");
+        }
+    }
+}
+
+/// The other real frames run too (fast settings: this is about reading and
+/// writing them, the loss drop is tested above).
+#[test]
+fn other_shared_frames_run() {
+    let dir = tempfile::tempdir().unwrap();
+    for input in ["volumes/smoke_000002.vdb", "volumes/plume48/fluid_data_0030.vdb"] {
+        let (o, out) = volume(&shared(input), &shared("styles/shipwreck.jpg"), dir.path(), &["--iters", "3"]);
+        assert!(o.status.success(), "{input}: {}", String::from_utf8_lossy(&o.stderr));
+        assert!(openvdb_summary(&out, "density").contains(" True "), "{input}");
     }
 }
 
