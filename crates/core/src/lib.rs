@@ -2,6 +2,7 @@
 //! the planar image the renderer produces and the network consumes, and the
 //! finite-difference gradient check every differentiable op is tested with.
 
+pub mod fixture;
 pub mod gradcheck;
 pub mod grid;
 pub mod image;

@@ -218,25 +218,13 @@ impl View {
         };
         let (t_near, t_far) = range(&|c| c[2]);
 
-        let (frustum, lattice) = match cam.projection {
+        // The window (in voxels for ortho, tangents for perspective) and the lattice size.
+        let window = match cam.projection {
             Projection::Orthographic => {
                 let (u_lo, u_hi) = range(&|c| c[0]);
                 let (v_lo, v_hi) = range(&|c| c[1]);
                 let lattice = [cells(u_hi - u_lo), cells(v_hi - v_lo), cells(t_far - t_near)];
-                let f = Frustum {
-                    eye: cam.eye,
-                    forward,
-                    right,
-                    up,
-                    u0: u_lo,
-                    du: (u_hi - u_lo) / lattice[0] as f32,
-                    v0: v_hi,
-                    dv: (v_hi - v_lo) / lattice[1] as f32,
-                    t0: t_near,
-                    dt: (t_far - t_near) / lattice[2] as f32,
-                    perspective: false,
-                };
-                (f, lattice)
+                ((u_lo, u_hi, v_lo, v_hi), lattice, false)
             }
             Projection::Perspective => {
                 if !(cam.fov_y_deg > 0.0 && cam.fov_y_deg < 180.0) {
@@ -261,21 +249,22 @@ impl View {
                 // At the nearest bounding plane a tangent span `s` is `s · t_near` voxels.
                 let lattice =
                     [cells((u_hi - u_lo) * t_near), cells((v_hi - v_lo) * t_near), cells(t_far - t_near)];
-                let f = Frustum {
-                    eye: cam.eye,
-                    forward,
-                    right,
-                    up,
-                    u0: u_lo,
-                    du: (u_hi - u_lo) / lattice[0] as f32,
-                    v0: v_hi,
-                    dv: (v_hi - v_lo) / lattice[1] as f32,
-                    t0: t_near,
-                    dt: (t_far - t_near) / lattice[2] as f32,
-                    perspective: true,
-                };
-                (f, lattice)
+                ((u_lo, u_hi, v_lo, v_hi), lattice, true)
             }
+        };
+        let ((u_lo, u_hi, v_lo, v_hi), lattice, perspective) = window;
+        let frustum = Frustum {
+            eye: cam.eye,
+            forward,
+            right,
+            up,
+            u0: u_lo,
+            du: (u_hi - u_lo) / lattice[0] as f32,
+            v0: v_hi,
+            dv: (v_hi - v_lo) / lattice[1] as f32,
+            t0: t_near,
+            dt: (t_far - t_near) / lattice[2] as f32,
+            perspective,
         };
         if lattice.iter().try_fold(1usize, |acc, &n| acc.checked_mul(n)).is_none_or(|n| n > MAX_LATTICE) {
             return Err(RenderError::LatticeTooLarge(lattice));

@@ -4,31 +4,10 @@
 use nst3d_core::Grid3;
 use nst3d_transport::{advect_linear, advect_linear_backward, resize_grid};
 
-/// Reads a committed fixture as f32 values; panics loudly if it is missing.
+use nst3d_core::fixture::{assert_close, split};
+
 fn fixture(name: &str) -> Vec<f32> {
-    let path = format!("{}/tests/fixtures/{name}", env!("CARGO_MANIFEST_DIR"));
-    let bytes = std::fs::read(&path)
-        .unwrap_or_else(|e| panic!("missing fixture {path} ({e}); run tools/fixtures/transport_grid_sample.py"));
-    bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
-}
-
-/// Splits `data` into consecutive arrays of the given lengths.
-fn split<'a>(mut data: &'a [f32], lens: &[usize]) -> Vec<&'a [f32]> {
-    assert_eq!(data.len(), lens.iter().sum::<usize>(), "fixture size");
-    lens.iter()
-        .map(|&n| {
-            let (a, b) = data.split_at(n);
-            data = b;
-            a
-        })
-        .collect()
-}
-
-fn assert_close(got: &[f32], want: &[f32], tol: f32, what: &str) {
-    assert_eq!(got.len(), want.len());
-    for (i, (a, b)) in got.iter().zip(want).enumerate() {
-        assert!((a - b).abs() <= tol * (1.0 + b.abs()), "{what}[{i}]: {a} vs torch {b}");
-    }
+    nst3d_core::fixture::load_f32(env!("CARGO_MANIFEST_DIR"), name, "tools/fixtures/transport_grid_sample.py")
 }
 
 #[test]
