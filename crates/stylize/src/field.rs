@@ -114,6 +114,30 @@ impl Field {
         }
     }
 
+    /// The field carried along a displacement `u` (voxels, one vector per
+    /// voxel of `dims`) by one semi-Lagrangian step: the value at `g` is read
+    /// at `g - u(g)`. This is `T(v̂, u)` of eq. 4. Outside the grid a velocity
+    /// reads as 0 and a scale as 1 (no change).
+    pub fn carried(&self, dims: [usize; 3], u: &[[f32; 3]]) -> Field {
+        let back: Vec<[f32; 3]> = u.iter().map(|w| [-w[0], -w[1], -w[2]]).collect();
+        let carry = |values: Vec<f32>| transport::advect_linear(&Grid3::from_vec(dims, values), &back).data;
+        match self {
+            Field::Velocity(v) => {
+                let comps: Vec<Vec<f32>> = (0..3).map(|a| carry(v.iter().map(|x| x[a]).collect())).collect();
+                Field::Velocity((0..v.len()).map(|i| [comps[0][i], comps[1][i], comps[2][i]]).collect())
+            }
+            // Carry the deviation from 1 so that scale read from outside is 1.
+            Field::Scale(s) => Field::Scale(carry(s.iter().map(|x| x - 1.0).collect()).iter().map(|x| x + 1.0).collect()),
+        }
+    }
+
+    /// The exponential moving average of eq. 4: `(1 - α)·self + α·other`.
+    pub fn blend(&mut self, other: &Field, alpha: f32) {
+        for (a, b) in self.params_mut().iter_mut().zip(other.params()) {
+            *a = (1.0 - alpha) * *a + alpha * b;
+        }
+    }
+
     /// Carries the field to a grid of `to` voxels (the next, finer octave).
     /// Velocities are rescaled because they are measured in voxels.
     pub fn resize(&self, from: [usize; 3], to: [usize; 3]) -> Field {
@@ -124,5 +148,29 @@ impl Field {
                 Field::Scale(transport::resize_grid(&g, to).data)
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn carried_follows_the_displacement_and_blend_is_the_ema() {
+        let dims = [6, 1, 1];
+        let mut v = vec![[0.0f32; 3]; 6];
+        v[2] = [1.0, 2.0, 3.0];
+        let u = vec![[1.0, 0.0, 0.0]; 6];
+        let Field::Velocity(c) = Field::Velocity(v).carried(dims, &u) else { unreachable!() };
+        assert_eq!(c[3], [1.0, 2.0, 3.0], "moved one voxel along +x");
+        assert_eq!(c[0], [0.0; 3], "read from outside: zero velocity");
+
+        let Field::Scale(s) = Field::Scale(vec![2.0; 6]).carried(dims, &u) else { unreachable!() };
+        assert_eq!(s[0], 1.0, "read from outside: unit scale");
+        assert_eq!(s[5], 2.0);
+
+        let mut a = Field::Scale(vec![1.0; 6]);
+        a.blend(&Field::Scale(vec![3.0; 6]), 0.25);
+        assert_eq!(a.params(), &[1.5; 6]);
     }
 }

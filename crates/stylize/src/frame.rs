@@ -86,7 +86,7 @@ fn pyramid(d: &Grid3, octaves: usize) -> Vec<Grid3> {
 /// The view adapted to a grid `factor` times coarser: each voxel holds the
 /// average of `factor` voxels along a ray, so absorption scales by `factor`
 /// to keep the picture's opacity, and the camera moves into coarse index space.
-fn view_at(view: &ViewSpec, factor: f32) -> ViewSpec {
+pub fn view_at(view: &ViewSpec, factor: f32) -> ViewSpec {
     ViewSpec {
         camera: view.camera.map(|c| coarse_camera(c, factor)),
         gamma: view.gamma * factor,

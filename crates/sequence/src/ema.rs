@@ -1,0 +1,233 @@
+//! Algorithm 1 of the paper: velocity- (or density-) based stylisation of a
+//! whole sequence with exponential-moving-average temporal coherence.
+//!
+//! Every iteration sweeps all frames; before frame `t` takes its optimiser
+//! step its field is blended with the previous frame's field carried along
+//! the simulation velocity, `v̂_t ← (1−α)v̂_t + α·T(v̂_{t−1}, u_{t−1})` (eq. 4),
+//! then clipped. The sweep direction flips after every iteration so each
+//! frame is pulled by both neighbours. Octaves wrap the whole loop, coarse to
+//! fine, as in the single-frame case.
+
+use nst3d_core::Grid3;
+use nst3d_optim::Adam;
+use nst3d_stylize::{Field, FrameParams, ViewError, ViewLoss, ViewSpec};
+use nst3d_transport as transport;
+
+/// Why a sequence could not be stylised.
+#[derive(Debug, thiserror::Error)]
+pub enum SequenceError {
+    /// A frame could not be loaded or saved (the message names it).
+    #[error("frame {frame}: {message}")]
+    Frame {
+        /// Index of the frame in the sequence.
+        frame: usize,
+        /// What went wrong.
+        message: String,
+    },
+    /// Scoring a view failed.
+    #[error(transparent)]
+    View(#[from] ViewError),
+}
+
+/// The simulation, frame by frame, on one common dense domain.
+pub trait Simulation {
+    /// Number of frames.
+    fn len(&self) -> usize;
+    /// True when there are no frames.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Dims of the common domain every frame is densified into.
+    fn dims(&self) -> [usize; 3];
+    /// Density of frame `t` over the common domain.
+    fn density(&self, t: usize) -> Result<Grid3, SequenceError>;
+    /// Simulation velocity `u_t`, in voxels per frame at voxel centres of the
+    /// common domain; `None` when the frame has none (no carrying then).
+    fn velocity(&self, t: usize) -> Result<Option<Vec<[f32; 3]>>, SequenceError>;
+}
+
+/// Per-frame optimisation state: the field and its Adam moments.
+#[derive(Clone, Debug)]
+pub struct FrameState {
+    /// The stylisation field `v̂_t` (or `ŝ_t`).
+    pub field: Field,
+    /// Adam first moments.
+    pub m: Vec<f32>,
+    /// Adam second moments.
+    pub v: Vec<f32>,
+    /// Adam step count.
+    pub step: u64,
+}
+
+/// Where per-frame state lives between sweeps: memory for short sequences,
+/// disk when the sequence does not fit (memory then stays a few frames).
+pub trait StateStore {
+    /// The state of frame `t`, if any was saved.
+    fn load(&mut self, t: usize) -> Result<Option<FrameState>, SequenceError>;
+    /// Saves the state of frame `t`.
+    fn save(&mut self, t: usize, state: FrameState) -> Result<(), SequenceError>;
+}
+
+/// All states in memory.
+#[derive(Default)]
+pub struct MemoryStore {
+    states: Vec<Option<FrameState>>,
+}
+
+impl StateStore for MemoryStore {
+    fn load(&mut self, t: usize) -> Result<Option<FrameState>, SequenceError> {
+        Ok(self.states.get_mut(t).and_then(Option::take))
+    }
+    fn save(&mut self, t: usize, state: FrameState) -> Result<(), SequenceError> {
+        if self.states.len() <= t {
+            self.states.resize_with(t + 1, || None);
+        }
+        self.states[t] = Some(state);
+        Ok(())
+    }
+}
+
+/// Settings of a sequence stylisation.
+#[derive(Clone, Debug)]
+pub struct SequenceParams {
+    /// Per-frame settings (mode, octaves, iterations = sweeps per octave, lr, limits).
+    pub frame: FrameParams,
+    /// EMA weight α of eq. 4 (0 = frames independent).
+    pub alpha: f32,
+}
+
+/// Progress of the sweeps.
+#[derive(Clone, Copy, Debug)]
+pub struct SweepProgress {
+    /// Octave, coarse first.
+    pub octave: usize,
+    /// Sweep (iteration of Algorithm 1) within the octave, 1-based.
+    pub iteration: usize,
+    /// Frame just updated.
+    pub frame: usize,
+    /// Its loss before the step.
+    pub loss: f32,
+}
+
+/// A frame's density at octave `level` (0 = full resolution).
+fn density_at(sim: &dyn Simulation, t: usize, level: usize) -> Result<Grid3, SequenceError> {
+    let mut d = sim.density(t)?;
+    for _ in 0..level {
+        d = transport::downsample2(&d);
+    }
+    Ok(d)
+}
+
+/// A frame's simulation velocity at octave `level`, in voxels of that level.
+fn velocity_at(sim: &dyn Simulation, t: usize, dims: [usize; 3]) -> Result<Option<Vec<[f32; 3]>>, SequenceError> {
+    Ok(sim.velocity(t)?.map(|u| if dims == sim.dims() { u } else { transport::resize_velocity(&u, sim.dims(), dims) }))
+}
+
+/// Runs Algorithm 1; `views` is the camera set Θ (losses add up). Returns
+/// nothing: the final fields are in `store`, one per frame, at full
+/// resolution — [`stylized_density`] applies them.
+pub fn stylize_sequence(
+    sim: &dyn Simulation,
+    loss: &ViewLoss,
+    views: &[ViewSpec],
+    params: &SequenceParams,
+    store: &mut dyn StateStore,
+    progress: &mut dyn FnMut(&SweepProgress),
+) -> Result<(), SequenceError> {
+    let n = sim.len();
+    let fp = &params.frame;
+    // Octave dims from the common domain, as the single-frame pyramid does.
+    let mut dims = vec![sim.dims()];
+    for _ in 1..fp.octaves.max(1) {
+        let [x, y, z] = *dims.last().unwrap();
+        let next = [x.div_ceil(2), y.div_ceil(2), z.div_ceil(2)];
+        if next.iter().any(|&k| k < 4) {
+            break;
+        }
+        dims.push(next);
+    }
+    let octaves = dims.len();
+    for (k, level) in (0..octaves).rev().enumerate() {
+        let here = dims[level];
+        let factor = (1usize << level) as f32;
+        let level_views: Vec<ViewSpec> = views.iter().map(|v| nst3d_stylize::frame::view_at(v, factor)).collect();
+        let vmax_here = fp.limits.vmax / factor;
+        // Carry fields up from the coarser octave; fresh Adam moments.
+        for t in 0..n {
+            let field = match store.load(t)? {
+                None => Field::identity(fp.mode, here.iter().product()),
+                Some(s) => s.field.resize(dims[level + 1], here),
+            };
+            let len = field.len();
+            store.save(t, FrameState { field, m: vec![0.0; len], v: vec![0.0; len], step: 0 })?;
+        }
+        for it in 0..fp.iterations {
+            let forward = it % 2 == 0;
+            let order: Vec<usize> = if forward { (0..n).collect() } else { (0..n).rev().collect() };
+            // The previous frame's updated field, already carried to this frame's time.
+            let mut carried: Option<Field> = None;
+            for &t in &order {
+                let d = density_at(sim, t, level)?;
+                let u = velocity_at(sim, t, here)?;
+                let mut st = store.load(t)?.ok_or_else(|| SequenceError::Frame {
+                    frame: t,
+                    message: "lost its optimisation state".into(),
+                })?;
+                if let Some(c) = &carried {
+                    st.field.blend(c, params.alpha);
+                    st.field.constrain(&fp.limits, vmax_here);
+                }
+                let dstar = st.field.transport(&d);
+                let mut grad = vec![0.0f32; st.field.len()];
+                let mut total = 0.0;
+                for view in &level_views {
+                    let (l, g) = loss.loss_and_grad(&dstar, view)?;
+                    total += l;
+                    for (a, b) in grad.iter_mut().zip(st.field.transport_backward(&d, &g.data)) {
+                        *a += b;
+                    }
+                }
+                let mut adam = Adam::new(st.field.len(), fp.learning_rate);
+                adam.set_state(&st.m, &st.v, st.step).map_err(|e| SequenceError::Frame { frame: t, message: e.to_string() })?;
+                adam.step(st.field.params_mut(), &grad);
+                st.field.constrain(&fp.limits, vmax_here);
+                let (m, v, step) = adam.state();
+                st.m.copy_from_slice(m);
+                st.v.copy_from_slice(v);
+                st.step = step;
+                progress(&SweepProgress { octave: k, iteration: it + 1, frame: t, loss: total });
+                // Forward sweeps carry v̂_t along u_t to t+1; backward sweeps
+                // carry v̂_t back to t-1 along −u_{t−1}.
+                carried = if params.alpha > 0.0 {
+                    let next = if forward { t + 1 } else { t.wrapping_sub(1) };
+                    if next < n {
+                        let disp = if forward { u } else { velocity_at(sim, next, here)?.map(|w| negate(&w)) };
+                        Some(match disp {
+                            Some(w) => st.field.carried(here, &w),
+                            None => st.field.clone(),
+                        })
+                    } else {
+                        None
+                    }
+                } else {
+                    None
+                };
+                store.save(t, st)?;
+            }
+        }
+    }
+    Ok(())
+}
+
+fn negate(u: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    u.iter().map(|w| [-w[0], -w[1], -w[2]]).collect()
+}
+
+/// `d*_t = T(d_t, v̂_t)` for a frame whose field is in `store`.
+pub fn stylized_density(sim: &dyn Simulation, store: &mut dyn StateStore, t: usize) -> Result<Grid3, SequenceError> {
+    let d = sim.density(t)?;
+    let st = store.load(t)?.ok_or_else(|| SequenceError::Frame { frame: t, message: "was never stylized".into() })?;
+    let out = st.field.transport(&d);
+    store.save(t, st)?;
+    Ok(out)
+}

@@ -1,0 +1,10 @@
+//! Whole simulations rather than single frames (paper Sec. 3.2): frame
+//! ranges and file-name patterns as render farms hand them over, and the
+//! exponential moving average that carries the stylisation from frame to
+//! frame along the simulation's own velocity (eq. 4, Algorithm 1).
+
+pub mod ema;
+pub mod flicker;
+pub mod frames;
+
+pub use frames::{expand_pattern, FrameSpec, FramesError};
