@@ -31,6 +31,15 @@ where
         fill(&mut w)?;
         w.flush()?;
     }
+    // Temporary files are created private (0600); a finished output should
+    // read like any other file the user writes: keep the old file's mode, or
+    // rw-r--r-- for a new one.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = fs::metadata(path).map(|m| m.permissions().mode() & 0o7777).unwrap_or(0o644);
+        tmp.as_file().set_permissions(fs::Permissions::from_mode(mode))?;
+    }
     tmp.as_file().sync_all()?;
     tmp.persist(path).map_err(|e| e.error)?;
     Ok(())
@@ -60,5 +69,10 @@ mod tests {
         write_atomic(&target, |w| w.write_all(b"old")).unwrap();
         write_atomic(&target, |w| w.write_all(b"new")).unwrap();
         assert_eq!(fs::read(&target).unwrap(), b"new");
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            assert_eq!(fs::metadata(&target).unwrap().permissions().mode() & 0o777, 0o644);
+        }
     }
 }

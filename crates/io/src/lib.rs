@@ -2,5 +2,7 @@
 //! write-to-temporary-then-rename rule every output follows.
 
 pub mod atomic;
+pub mod groom;
 pub mod image;
+pub mod mesh;
 pub mod vdb;
