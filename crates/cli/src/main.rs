@@ -4,6 +4,7 @@
 
 mod bench;
 mod progress;
+mod sequence;
 mod volume;
 
 use clap::{Parser, Subcommand};

@@ -24,79 +24,92 @@ use nst3d_io::image::resize_to_height;
 pub struct VolumeArgs {
     /// Input OpenVDB file.
     #[arg(long)]
-    input: PathBuf,
+    pub(crate) input: PathBuf,
     /// Style painting (PNG or JPEG).
     #[arg(long)]
-    style: PathBuf,
+    pub(crate) style: PathBuf,
     /// Output OpenVDB file (written atomically).
     #[arg(long)]
-    out: PathBuf,
+    pub(crate) out: PathBuf,
     /// Before/after preview PNG.
     #[arg(long)]
-    preview: Option<PathBuf>,
+    pub(crate) preview: Option<PathBuf>,
+    /// Frames to stylize as a sequence (e.g. `1-120` or `1-3,5,7-20:2`);
+    /// then --input and --out are patterns with `####` or `%04d`.
+    #[arg(long)]
+    pub(crate) frames: Option<String>,
+    /// EMA weight α of the temporal coherence (eq. 4), sequences only.
+    #[arg(long, default_value_t = 0.7)]
+    pub(crate) ema: f32,
+    /// Simulation velocity grid for the EMA (default: the first of velocity, vel, v).
+    #[arg(long)]
+    pub(crate) velocity_grid: Option<String>,
+    /// Voxels per frame per unit of the velocity grid (default: fitted to the data).
+    #[arg(long)]
+    pub(crate) velocity_scale: Option<f32>,
     /// Name of the float grid to stylize.
     #[arg(long, default_value = "density")]
-    grid: String,
+    pub(crate) grid: String,
     /// velocity (transport by an optimised velocity, eq. 2) or density (scale field, eq. 5).
     #[arg(long, default_value = "velocity")]
-    mode: Mode,
+    pub(crate) mode: Mode,
     /// Octaves (coarse-to-fine levels).
     #[arg(long, default_value_t = 2)]
-    octaves: usize,
+    pub(crate) octaves: usize,
     /// Adam iterations per octave.
     #[arg(long, default_value_t = 20)]
-    iters: usize,
+    pub(crate) iters: usize,
     /// Adam learning rate (default: 0.5 voxels per step in velocity mode, 0.1 in density mode).
     #[arg(long)]
-    lr: Option<f32>,
+    pub(crate) lr: Option<f32>,
     /// Largest stylization velocity, in voxels (velocity mode; default 4% of
     /// the grid's largest side, at least 1 voxel, so small grids keep their shape).
     #[arg(long)]
-    vmax: Option<f32>,
+    pub(crate) vmax: Option<f32>,
     /// Smallest density scale (density mode).
     #[arg(long, default_value_t = 0.0)]
-    smin: f32,
+    pub(crate) smin: f32,
     /// Largest density scale (density mode).
     #[arg(long, default_value_t = 2.0)]
-    smax: f32,
+    pub(crate) smax: f32,
     /// Style image scale factor (smaller = larger patterns).
     #[arg(long, default_value_t = 0.5)]
-    style_scale: f32,
+    pub(crate) style_scale: f32,
     /// Match the painting's colour statistics too (by default only its
     /// luminance: the renderer draws grey smoke, which cannot reach colour Grams).
     #[arg(long)]
-    style_color: bool,
+    pub(crate) style_color: bool,
     /// VGG-19 layers whose Gram matrices are matched.
     #[arg(long, value_delimiter = ',', default_value = "relu1_1,relu2_1,relu3_1,relu4_1")]
-    layers: Vec<VggLayer>,
+    pub(crate) layers: Vec<VggLayer>,
     /// Absorption γ per unit density and voxel (default: chosen so the densest ray has optical depth 3).
     #[arg(long)]
-    absorption: Option<f32>,
+    pub(crate) absorption: Option<f32>,
     /// Apply the differentiable histogram equalization of eq. 7 (helps dense, flat-white smoke).
     #[arg(long)]
-    equalize: bool,
+    pub(crate) equalize: bool,
     /// Camera projection.
     #[arg(long, value_enum, default_value = "perspective")]
-    camera: CameraKind,
+    pub(crate) camera: CameraKind,
     /// Vertical field of view of the perspective camera, degrees.
     #[arg(long, default_value_t = 30.0)]
-    fov: f32,
+    pub(crate) fov: f32,
     /// Which index axis points up in the file (Blender caches are z-up, Houdini y-up).
     #[arg(long, value_enum, default_value = "z")]
-    up: UpAxis,
+    pub(crate) up: UpAxis,
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache; see tools/fetch_weights.sh).
     #[arg(long)]
-    weights: Option<PathBuf>,
+    pub(crate) weights: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
-enum CameraKind {
+pub(crate) enum CameraKind {
     Orthographic,
     Perspective,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
-enum UpAxis {
+pub(crate) enum UpAxis {
     Y,
     Z,
 }
@@ -111,9 +124,51 @@ pub fn load_vgg(explicit: Option<&Path>) -> Result<Vgg19> {
     Ok(Vgg19::from_tensors(&tensors).with_context(|| format!("{}", path.display()))?)
 }
 
+/// The painting (luminance unless --style-color) and the network.
+pub(crate) fn load_style_and_vgg(args: &VolumeArgs) -> Result<(Image, Vgg19)> {
+    let style = nst3d_io::image::load_style(&args.style, args.style_scale)?;
+    let style = if args.style_color { style } else { nst3d_io::image::luminance_rgb(&style) };
+    Ok((style, load_vgg(args.weights.as_deref())?))
+}
+
+/// Checks the numeric arguments before any slow work.
+pub(crate) fn check_args(args: &VolumeArgs) -> Result<()> {
+    if args.octaves == 0 || args.iters == 0 {
+        bail!("--octaves and --iters must be at least 1");
+    }
+    for (name, v) in [("--vmax", args.vmax.unwrap_or(1.0)), ("--fov", args.fov), ("--style-scale", args.style_scale)] {
+        if !(v.is_finite() && v > 0.0) {
+            bail!("{name} must be a positive number, got {v}");
+        }
+    }
+    if !(args.smin.is_finite() && args.smax.is_finite() && args.smin < args.smax && args.smin >= 0.0) {
+        bail!("need 0 <= --smin < --smax, got {} and {}", args.smin, args.smax);
+    }
+    if !(0.0..1.0).contains(&args.ema) {
+        bail!("--ema must be in [0, 1), got {}", args.ema);
+    }
+    Ok(())
+}
+
+/// The optimiser settings shared by single frames and sequences.
+pub(crate) fn frame_params(args: &VolumeArgs, vmax: f32, view: &ViewSpec) -> FrameParams {
+    let lr = args.lr.unwrap_or(match args.mode {
+        Mode::Velocity => 0.5,
+        Mode::Density => 0.1,
+    });
+    FrameParams {
+        mode: args.mode,
+        octaves: args.octaves,
+        iterations: args.iters,
+        learning_rate: lr,
+        limits: Limits { vmax, smin: args.smin, smax: args.smax },
+        view: view.clone(),
+    }
+}
+
 /// A front camera for a grid of `dims` voxels: looking at the centre from
 /// the side where the up axis stays vertical in the picture.
-fn front_camera(dims: [usize; 3], up: UpAxis, kind: CameraKind, fov: f32) -> Camera {
+pub(crate) fn front_camera(dims: [usize; 3], up: UpAxis, kind: CameraKind, fov: f32) -> Camera {
     let c = dims.map(|n| (n as f32 - 1.0) * 0.5);
     let extent = dims.iter().copied().max().unwrap_or(1) as f32;
     let (dir, upv) = match up {
@@ -141,18 +196,10 @@ fn front_camera(dims: [usize; 3], up: UpAxis, kind: CameraKind, fov: f32) -> Cam
 
 /// Runs `nst3d volume`.
 pub fn run(args: VolumeArgs) -> Result<()> {
-    if args.octaves == 0 || args.iters == 0 {
-        bail!("--octaves and --iters must be at least 1");
+    check_args(&args)?;
+    if args.frames.is_some() {
+        return crate::sequence::run(args);
     }
-    for (name, v) in [("--vmax", args.vmax.unwrap_or(1.0)), ("--fov", args.fov), ("--style-scale", args.style_scale)] {
-        if !(v.is_finite() && v > 0.0) {
-            bail!("{name} must be a positive number, got {v}");
-        }
-    }
-    if !(args.smin.is_finite() && args.smax.is_finite() && args.smin < args.smax && args.smin >= 0.0) {
-        bail!("need 0 <= --smin < --smax, got {} and {}", args.smin, args.smax);
-    }
-
     // Read and check everything before the slow part, so a bad input fails in a second.
     let file = read_vdb(&args.input)?;
     let grid = file.grid(&args.grid).with_context(|| {
@@ -160,9 +207,7 @@ pub fn run(args: VolumeArgs) -> Result<()> {
         format!("{}: no grid named '{}' (grids: {})", args.input.display(), args.grid, names.join(", "))
     })?;
     let (bx, dense) = grid.to_dense()?;
-    let style = nst3d_io::image::load_style(&args.style, args.style_scale)?;
-    let style = if args.style_color { style } else { nst3d_io::image::luminance_rgb(&style) };
-    let vgg = load_vgg(args.weights.as_deref())?;
+    let (style, vgg) = load_style_and_vgg(&args)?;
 
     let vmax = args.vmax.unwrap_or_else(|| (0.04 * *bx.dims.iter().max().unwrap_or(&1) as f32).max(1.0));
     // Room for the velocity to move smoke outwards.
@@ -180,18 +225,7 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     let view = ViewSpec { camera: Some(camera), gamma, exposure: gamma, equalize: args.equalize };
     let spec = StyleSpec { layers: args.layers.clone(), layer_weights: vec![1.0; args.layers.len()] };
     let loss = ViewLoss::new(&vgg, &style, &spec)?;
-    let lr = args.lr.unwrap_or(match args.mode {
-        Mode::Velocity => 0.5,
-        Mode::Density => 0.1,
-    });
-    let params = FrameParams {
-        mode: args.mode,
-        octaves: args.octaves,
-        iterations: args.iters,
-        learning_rate: lr,
-        limits: Limits { vmax, smin: args.smin, smax: args.smax },
-        view: view.clone(),
-    };
+    let params = frame_params(&args, vmax, &view);
 
     let mut progress = Progress::new((args.octaves * args.iters) as u64);
     let result = stylize_frame(&padded, &loss, &params, &mut |p| {
@@ -254,11 +288,11 @@ pub fn run(args: VolumeArgs) -> Result<()> {
 }
 
 /// Height of the preview sheet in pixels.
-const PREVIEW_HEIGHT: usize = 384;
+pub(crate) const PREVIEW_HEIGHT: usize = 384;
 
 /// Absorption giving the densest ray an optical depth of 3: dense enough to
 /// show shape, thin enough that the image does not flatten to white.
-fn auto_absorption(d: &Grid3, camera: &Camera) -> Result<f32> {
+pub(crate) fn auto_absorption(d: &Grid3, camera: &Camera) -> Result<f32> {
     // With γ = 0 the render is the plain column sum of density along each ray.
     let (sums, _) = nst3d_render::render(d, camera, 0.0)?;
     let max = sums.data.iter().copied().fold(0.0f32, f32::max);
@@ -269,12 +303,12 @@ fn auto_absorption(d: &Grid3, camera: &Camera) -> Result<f32> {
 }
 
 /// The picture an artist sees of a density: the network's grey image, 2x.
-fn display(loss: &ViewLoss, d: &Grid3, view: &ViewSpec) -> Result<Image> {
+pub(crate) fn display(loss: &ViewLoss, d: &Grid3, view: &ViewSpec) -> Result<Image> {
     Ok(nst3d_render::upsample2x(&loss.image(d, view)?))
 }
 
 /// Surrounds a grid with `m` voxels of empty space on every side.
-fn pad(g: &Grid3, m: usize) -> Grid3 {
+pub(crate) fn pad(g: &Grid3, m: usize) -> Grid3 {
     if m == 0 {
         return g.clone();
     }

@@ -193,3 +193,42 @@ fn bench_prints_the_median_last() {
     assert!(last.starts_with("ms_per_iter "), "{stdout}");
     assert!(last[12..].trim().parse::<f64>().unwrap() > 0.0);
 }
+
+/// A short stretch of the Blender plume as a sequence: every frame is
+/// written, keeps all of the input's grids, and OpenVDB opens it.
+#[test]
+fn sequence_of_blender_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = shared("volumes/plume48").join("fluid_data_####.vdb");
+    let out = dir.path().join("styled_%04d.vdb");
+    let o = nst3d(&[
+        "volume",
+        "--input",
+        s(&input),
+        "--frames",
+        "20-24",
+        "--style",
+        s(&shared("styles/starry_night.jpg")),
+        "--out",
+        s(&out),
+        "--iters",
+        "2",
+        "--octaves",
+        "1",
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(stdout.contains("5 frames stylized"), "{stdout}");
+    for f in 20..=24 {
+        let path = dir.path().join(format!("styled_{f:04}.vdb"));
+        assert!(openvdb_summary(&path, "density").contains(" True "), "frame {f}");
+        let file = nst3d_io::vdb::read_vdb(&path).unwrap();
+        let names: Vec<&str> = file.grids.iter().map(|g| g.name.as_str()).collect();
+        for g in ["density", "velocity", "temperature", "flame", "shadow"] {
+            assert!(names.contains(&g), "frame {f} lost grid {g}: {names:?}");
+        }
+    }
+    let bad = nst3d(&["volume", "--input", s(&input), "--frames", "5-1", "--style", s(&input), "--out", s(&out)]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("bad frame spec"));
+}

@@ -141,28 +141,4 @@ mod tests {
             }
         }
     }
-
-    /// Throughput of the kernel alone at the VGG layer shapes (one thread):
-    /// `cargo test -p nst3d-features --release --lib kernel_gflops -- --ignored --nocapture`
-    #[test]
-    #[ignore]
-    fn kernel_gflops() {
-        for (k, n) in [(64usize, 64usize), (128, 128), (256, 256), (512, 512), (64, 32)] {
-            let bl = Blocking::for_cout(n);
-            let rows = 216;
-            let (a, b) = (vec![0.5f32; rows * k], vec![0.25f32; k * n]);
-            let mut c = vec![0.0f32; rows * n];
-            let reps = 200;
-            let t = std::time::Instant::now();
-            for _ in 0..reps {
-                for jp in 0..n / bl.nr {
-                    for r0 in (0..rows).step_by(bl.mr) {
-                        unsafe { kernel(bl, a.as_ptr().add(r0 * k), k, b.as_ptr().add(jp * k * bl.nr), k, c.as_mut_ptr().add(r0 * n + jp * bl.nr), n) };
-                    }
-                }
-            }
-            let s = t.elapsed().as_secs_f64();
-            println!("k {k} n {n} {bl:?}: {:.1} GFLOP/s", (reps * rows * k * n * 2) as f64 / s / 1e9);
-        }
-    }
 }

@@ -46,7 +46,7 @@ impl MaxPool2x2 {
     pub fn forward(&self, x: &FeatureMap) -> (FeatureMap, PoolArgmax) {
         let (h, w, c) = (x.height, x.width, x.channels);
         let (oh, ow) = (self.out_size(h), self.out_size(w));
-        let mut out = FeatureMap::zeros(oh, ow, c);
+        let mut out = FeatureMap::pooled_zeros(oh, ow, c);
         let mut index = vec![0u32; oh * ow * c];
         out.data.par_chunks_mut((ow * c).max(1)).zip(index.par_chunks_mut((ow * c).max(1))).enumerate().for_each(|(oy, (orow, irow))| {
             for ox in 0..ow {
@@ -77,11 +77,22 @@ impl MaxPool2x2 {
     /// Routes each output gradient to its window's maximum.
     pub fn backward(&self, grad: &FeatureMap, arg: &PoolArgmax) -> FeatureMap {
         let c = grad.channels;
-        let mut gx = FeatureMap::zeros(arg.in_height, arg.in_width, c);
-        // Windows never overlap, so every input receives at most one value.
-        for (g, i) in grad.data.iter().zip(&arg.index) {
-            gx.data[*i as usize] = *g;
-        }
+        let (h, w) = (arg.in_height, arg.in_width);
+        let mut gx = FeatureMap::pooled_zeros(h, w, c);
+        let orow = grad.width * c;
+        // Windows never overlap, so every input receives at most one value;
+        // output row oy only reaches input rows 2oy and 2oy + 1, so pairs of
+        // input rows fill in parallel.
+        gx.data.par_chunks_mut((2 * w * c).max(1)).enumerate().for_each(|(oy, rows)| {
+            if oy >= grad.height {
+                return;
+            }
+            let base = oy * 2 * w * c;
+            let span = oy * orow..(oy + 1) * orow;
+            for (g, i) in grad.data[span.clone()].iter().zip(&arg.index[span]) {
+                rows[*i as usize - base] = *g;
+            }
+        });
         gx
     }
 }

@@ -29,6 +29,13 @@ impl FeatureMap {
         Self { height, width, channels, data: vec![0.0; height * width * channels] }
     }
 
+    /// An all-zero map in a pooled buffer (see [`take_buffer`]).
+    pub(crate) fn pooled_zeros(height: usize, width: usize, channels: usize) -> Self {
+        let mut data = take_buffer(height * width * channels);
+        data.resize(height * width * channels, 0.0);
+        Self { height, width, channels, data }
+    }
+
     /// Wraps channels-last data; panics if the length does not match
     /// (a programming error, never user input).
     pub fn from_vec(height: usize, width: usize, channels: usize, data: Vec<f32>) -> Self {

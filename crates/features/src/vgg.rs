@@ -304,29 +304,44 @@ impl Vgg19 {
         let Some(deepest) = taps.iter().map(|l| l.conv_index()).max() else { return out };
         let mut acts: Vec<FeatureMap> = Vec::with_capacity(deepest + 1);
         let mut pools = Vec::new();
-        let mut x = self.pre.forward(&FeatureMap::from_image(rgb));
+        let rgb_map = FeatureMap::from_image(rgb);
+        let pre = self.pre.forward(&rgb_map);
+        rgb_map.recycle();
+        // The next convolution's input when it is not the previous ReLU
+        // output itself (which is read in place from `acts`, never cloned).
+        let mut x = Some(pre);
         for i in 0..=deepest {
-            let y = self.convs[i].forward_relu(&x);
+            let y = match &x {
+                Some(x) => self.convs[i].forward_relu(x),
+                None => self.convs[i].forward_relu(acts.last().expect("previous activation")),
+            };
+            if let Some(x) = x.take() {
+                x.recycle();
+            }
             for (slot, l) in out.taps.iter_mut().zip(taps) {
                 if l.conv_index() == i {
                     *slot = y.to_image();
                 }
             }
-            x = if POOL_AFTER.contains(&i) && i < deepest {
+            if POOL_AFTER.contains(&i) && i < deepest {
                 let (p, arg) = self.pool.forward(&y);
                 pools.push(arg);
-                p
-            } else if i < deepest {
-                y.clone()
-            } else {
-                FeatureMap::zeros(0, 0, 0)
-            };
+                x = Some(p);
+            }
             if keep {
+                acts.push(y);
+            } else if x.is_some() || i == deepest {
+                y.recycle();
+            } else {
+                // Without a record the activation still feeds the next layer.
+                acts.clear();
                 acts.push(y);
             }
         }
         if keep {
             out.record = Some(Record { acts, pools });
+        } else {
+            acts.into_iter().for_each(FeatureMap::recycle);
         }
         out
     }
@@ -352,19 +367,37 @@ impl Vgg19 {
                     );
                     let tg = FeatureMap::from_image(tg);
                     match g.as_mut() {
-                        Some(g) => g.add_assign(&tg),
+                        Some(g) => {
+                            g.add_assign(&tg);
+                            tg.recycle();
+                        }
                         None => g = Some(tg),
                     }
                 }
             }
             let gi = g.take().expect("gradient reaches every layer below the deepest tap");
             let mut gx = self.convs[i].backward_relu(&gi, &rec.acts[i]);
+            gi.recycle();
             if i > 0 && POOL_AFTER.contains(&(i - 1)) {
-                gx = self.pool.backward(&gx, pools.next().expect("pool record"));
+                let pooled = self.pool.backward(&gx, pools.next().expect("pool record"));
+                gx.recycle();
+                gx = pooled;
             }
             g = Some(gx);
         }
-        self.pre.backward(&g.expect("input gradient")).to_image()
+        let g = g.expect("input gradient");
+        let out = self.pre.backward(&g).to_image();
+        g.recycle();
+        out
+    }
+}
+
+/// Activations go back to the buffer pool for the next pass.
+impl Drop for VggForward {
+    fn drop(&mut self) {
+        if let Some(rec) = self.record.take() {
+            rec.acts.into_iter().for_each(FeatureMap::recycle);
+        }
     }
 }
 

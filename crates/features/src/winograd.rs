@@ -11,7 +11,6 @@
 use rayon::prelude::*;
 
 use crate::gemm::{self, Blocking, NR_MIN, ROW_ALIGN};
-use crate::simd::dispatch;
 use crate::tensor::{take_buffer, FeatureMap, Source};
 
 /// Channels per transform vector; Winograd layers need `cin % LANES == 0`.
@@ -110,6 +109,129 @@ fn load(s: &[f32]) -> V {
     s[..LANES].try_into().unwrap()
 }
 
+/// Channels `c0..c0 + LANES` of source pixel `(y, x)` (zeros for `None`),
+/// masked by the ReLU-backward `mask` when given.
+#[inline(always)]
+fn load_source(map: &FeatureMap, mask: Option<&FeatureMap>, y: Option<usize>, x: Option<usize>, c0: usize) -> V {
+    let (Some(y), Some(x)) = (y, x) else { return [0.0; LANES] };
+    let s = (y * map.width + x) * map.channels + c0;
+    let mut v = load(&map.data[s..]);
+    if let Some(m) = mask {
+        let mv = load(&m.data[s..]);
+        for l in 0..LANES {
+            if mv[l] <= 0.0 {
+                v[l] = 0.0;
+            }
+        }
+    }
+    v
+}
+
+/// Calls a transform, through its AVX-512-compiled copy when the machine
+/// has it. A plain function, not a closure, is inlined into the
+/// `#[target_feature]` wrapper: the closure version stayed an SSE function
+/// (~20% of a pass in profiles).
+macro_rules! dispatch_transform {
+    ($plain:ident, $fast:ident, ($($arg:expr),* $(,)?)) => {{
+        #[cfg(target_arch = "x86_64")]
+        if crate::gemm::has_avx512() {
+            unsafe { $fast($($arg),*) }
+        } else {
+            unsafe { $plain($($arg),*) }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        unsafe {
+            $plain($($arg),*)
+        }
+    }};
+}
+
+/// [`input_tile`] compiled for AVX-512.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+unsafe fn input_tile_avx512(map: &FeatureMap, mask: Option<&FeatureMap>, ty6: &[Option<usize>], tx6: &[Option<usize>], u: *mut f32, pos_stride: usize) {
+    input_tile(map, mask, ty6, tx6, u, pos_stride)
+}
+
+/// [`output_tile`] compiled for AVX-512.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn output_tile_avx512(m: *const f32, pos_stride: usize, cout: usize, bias: Option<&[f32]>, relu: bool, out: *mut f32, out_stride: usize, ny: usize, nx: usize) {
+    output_tile(m, pos_stride, cout, bias, relu, out, out_stride, ny, nx)
+}
+
+/// Input transform `B^T d B` of one tile: reads the 6x6 source pixels
+/// (through padding and mask) and writes position `p`'s row at
+/// `u + p * pos_stride`, channels contiguous.
+#[inline(always)]
+unsafe fn input_tile(map: &FeatureMap, mask: Option<&FeatureMap>, ty6: &[Option<usize>], tx6: &[Option<usize>], u: *mut f32, pos_stride: usize) {
+    for c0 in (0..map.channels).step_by(LANES) {
+        // Array literals of inlined calls rather than `array::from_fn` or a
+        // zeroed array filled in loops: those did not inline and cost a 2 KB
+        // memset per channel block.
+        macro_rules! row {
+            ($i:expr) => {{
+                let y = ty6[$i];
+                bt6(&[
+                    load_source(map, mask, y, tx6[0], c0),
+                    load_source(map, mask, y, tx6[1], c0),
+                    load_source(map, mask, y, tx6[2], c0),
+                    load_source(map, mask, y, tx6[3], c0),
+                    load_source(map, mask, y, tx6[4], c0),
+                    load_source(map, mask, y, tx6[5], c0),
+                ])
+            }};
+        }
+        // Rows of B^T d B: transform along x first.
+        let rows = [row!(0), row!(1), row!(2), row!(3), row!(4), row!(5)];
+        for b in 0..6 {
+            let y = bt6(&[rows[0][b], rows[1][b], rows[2][b], rows[3][b], rows[4][b], rows[5][b]]);
+            for (a, ya) in y.iter().enumerate() {
+                std::ptr::copy_nonoverlapping(ya.as_ptr(), u.add((a * 6 + b) * pos_stride + c0), LANES);
+            }
+        }
+    }
+}
+
+/// Output transform `A^T m A` of one tile plus bias and optional ReLU:
+/// reads position `p`'s row at `m + p * pos_stride` and writes the tile's
+/// `ny x nx` pixels at `out` (row stride `out_stride`).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+unsafe fn output_tile(m: *const f32, pos_stride: usize, cout: usize, bias: Option<&[f32]>, relu: bool, out: *mut f32, out_stride: usize, ny: usize, nx: usize) {
+    for c0 in (0..cout).step_by(LANES) {
+        macro_rules! ld {
+            ($a:expr, $b:expr) => {
+                *(m.add(($a * 6 + $b) * pos_stride + c0) as *const V)
+            };
+        }
+        macro_rules! row {
+            ($a:expr) => {
+                at6(&[ld!($a, 0), ld!($a, 1), ld!($a, 2), ld!($a, 3), ld!($a, 4), ld!($a, 5)])
+            };
+        }
+        let rows = [row!(0), row!(1), row!(2), row!(3), row!(4), row!(5)];
+        let bv: V = match bias {
+            Some(b) => load(&b[c0..]),
+            None => [0.0; LANES],
+        };
+        for j in 0..nx {
+            let y = at6(&[rows[0][j], rows[1][j], rows[2][j], rows[3][j], rows[4][j], rows[5][j]]);
+            for (i, yi) in y.iter().enumerate().take(ny) {
+                let mut v = *yi;
+                for l in 0..LANES {
+                    v[l] += bv[l];
+                    if relu {
+                        v[l] = v[l].max(0.0);
+                    }
+                }
+                std::ptr::copy_nonoverlapping(v.as_ptr(), out.add(i * out_stride + j * cout + c0), LANES);
+            }
+        }
+    }
+}
+
 /// Output pointer shared by tasks that write disjoint pixels.
 #[derive(Clone, Copy)]
 struct OutPtr(*mut f32);
@@ -161,44 +283,8 @@ pub(crate) fn conv(src: Source<'_>, out_h: usize, out_w: usize, ww: &WinogradWei
         (0..nt).into_par_iter().with_min_len(4).for_each(|t| {
             let (ty, tx) = ((t0 + t) / tw, (t0 + t) % tw);
             let (ty6, tx6) = (&ys[ty * 4..ty * 4 + 6], &xs[tx * 4..tx * 4 + 6]);
-            dispatch(
-                #[inline(always)]
-                || {
-                    for c0 in (0..cin).step_by(LANES) {
-                        let mut rows = [[[0.0; LANES]; 6]; 6];
-                        for (row, sy) in rows.iter_mut().zip(ty6) {
-                            let col: [V; 6] = std::array::from_fn(|j| match (*sy, tx6[j]) {
-                                (Some(y), Some(x)) => {
-                                    let s = (y * map.width + x) * cin + c0;
-                                    let v = load(&map.data[s..]);
-                                    match mask {
-                                        None => v,
-                                        Some(m) => {
-                                            let mv = load(&m.data[s..]);
-                                            std::array::from_fn(|l| if mv[l] > 0.0 { v[l] } else { 0.0 })
-                                        }
-                                    }
-                                }
-                                _ => [0.0; LANES],
-                            });
-                            // Rows of B^T d B: transform along x first.
-                            *row = bt6(&col);
-                        }
-                        for b in 0..6 {
-                            let col: [V; 6] = std::array::from_fn(|i| rows[i][b]);
-                            let y = bt6(&col);
-                            for (a, ya) in y.iter().enumerate() {
-                                let p = a * 6 + b;
-                                // SAFETY: (p, t) rows are owned by this task.
-                                unsafe {
-                                    let dst = up.get().add((p * tb + t) * cin + c0);
-                                    std::ptr::copy_nonoverlapping(ya.as_ptr(), dst, LANES);
-                                }
-                            }
-                        }
-                    }
-                },
-            )
+            // SAFETY: (p, t) rows of u are owned by this task.
+            dispatch_transform!(input_tile, input_tile_avx512, (map, mask, ty6, tx6, up.get().add(t * cin), tb * cin));
         });
         // 36 independent products, one task per position.
         let rows = nt.div_ceil(bl.mr) * bl.mr;
@@ -225,41 +311,19 @@ pub(crate) fn conv(src: Source<'_>, out_h: usize, out_w: usize, ww: &WinogradWei
         (0..nt).into_par_iter().with_min_len(4).for_each(|t| {
             let (ty, tx) = ((t0 + t) / tw, (t0 + t) % tw);
             let (ny, nx) = (4.min(out_h - ty * 4), 4.min(out_w - tx * 4));
-            dispatch(
-                #[inline(always)]
-                || {
-                    for c0 in (0..cout).step_by(LANES) {
-                        let mut rows = [[[0.0; LANES]; 4]; 6];
-                        for (a, row) in rows.iter_mut().enumerate() {
-                            let col: [V; 6] = std::array::from_fn(|b| {
-                                // SAFETY: position rows were written by the products above.
-                                unsafe { *(mp.get().add(((a * 6 + b) * tb + t) * cout + c0) as *const V) }
-                            });
-                            *row = at6(&col);
-                        }
-                        let bv: V = match bias {
-                            Some(b) => load(&b[c0..]),
-                            None => [0.0; LANES],
-                        };
-                        for j in 0..nx {
-                            let col: [V; 6] = std::array::from_fn(|a| rows[a][j]);
-                            let y = at6(&col);
-                            for (i, yi) in y.iter().enumerate().take(ny) {
-                                let mut v = *yi;
-                                for l in 0..LANES {
-                                    v[l] += bv[l];
-                                    if relu {
-                                        v[l] = v[l].max(0.0);
-                                    }
-                                }
-                                let o = ((ty * 4 + i) * out_w + tx * 4 + j) * cout + c0;
-                                // SAFETY: each tile writes only its own pixels.
-                                unsafe { std::ptr::copy_nonoverlapping(v.as_ptr(), outp.get().add(o), LANES) };
-                            }
-                        }
-                    }
-                },
-            )
+            // SAFETY: the products wrote row t of every position; each tile
+            // writes only its own ny x nx pixels.
+            dispatch_transform!(output_tile, output_tile_avx512, (
+                mp.get().add(t * cout),
+                tb * cout,
+                cout,
+                bias,
+                relu,
+                outp.get().add((ty * 4 * out_w + tx * 4) * cout),
+                out_w * cout,
+                ny,
+                nx
+            ));
         });
     }
     if let Ok(mut s) = SCRATCH.lock() {
