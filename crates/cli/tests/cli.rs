@@ -232,3 +232,18 @@ fn sequence_of_blender_frames() {
     assert_eq!(bad.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("bad frame spec"));
 }
+
+/// Farm re-runs must be reproducible: the same inputs give the same bytes.
+#[test]
+fn identical_inputs_give_identical_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut outputs = Vec::new();
+    for run in 0..2 {
+        let sub = dir.path().join(format!("run{run}"));
+        std::fs::create_dir_all(&sub).unwrap();
+        let (o, out) = volume(&shared("volumes/smoke_000002.vdb"), &shared("styles/shipwreck.jpg"), &sub, &["--iters", "3"]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        outputs.push(std::fs::read(out).unwrap());
+    }
+    assert!(outputs[0] == outputs[1], "two identical runs wrote different files");
+}

@@ -6,12 +6,17 @@
 //! backward next to it.
 
 mod camera;
+mod cameras;
 mod equalize;
 mod march;
 mod render;
 mod upsample;
 
 pub use camera::{Camera, Projection, View};
+pub use cameras::{
+    fov_y_from_lens, min_angular_distance_deg, omniview, poisson_disk_sphere, ring, sphere_uniform, world_to_index, Aim,
+    CameraFileError, CameraKey, CameraRig,
+};
 pub use equalize::{equalize, equalize_backward, EqCache, EqualizeParams};
 pub use march::{march, march_backward};
 pub use render::{render, render_backward, render_view, RenderCache};

@@ -45,56 +45,40 @@ fn put_mask(out: &mut Vec<u8>, mask: &[u64]) {
 
 /// Encodes a whole file.
 pub(super) fn encode(grids: &[VdbGrid]) -> Vec<u8> {
+    let mut file_meta = Metadata::default();
+    file_meta.insert("creator", MetaValue::String("nst3d".into()));
     let mut out = Vec::new();
     out.extend_from_slice(&MAGIC);
     put_u32(&mut out, FORMAT_VERSION);
     put_u32(&mut out, 10);
     put_u32(&mut out, 0);
     out.push(1); // grid offsets present: readers may seek per grid
-    out.extend_from_slice(uuid().as_bytes());
-    let mut file_meta = Metadata::default();
-    file_meta.insert("creator", MetaValue::String("nst3d".into()));
+    // Placeholder, replaced below by a hash of everything after it.
+    let uuid_at = out.len();
+    out.extend_from_slice(&[b'0'; 36]);
     put_metadata(&mut out, &file_meta);
     put_u32(&mut out, grids.len() as u32);
     for (i, grid) in grids.iter().enumerate() {
         // OpenVDB numbers repeated or empty names so each is unique.
         let dup = grid.name.is_empty() || grids.iter().filter(|g| g.name == grid.name).count() > 1;
-        let unique = if dup {
-            format!("{}{NAME_SEP}{i}", grid.name)
-        } else {
-            grid.name.clone()
-        };
+        let unique = if dup { format!("{}{NAME_SEP}{i}", grid.name) } else { grid.name.clone() };
         put_grid(&mut out, grid, &unique);
     }
+    let id = content_uuid(&out[uuid_at + 36..]);
+    out[uuid_at..uuid_at + 36].copy_from_slice(id.as_bytes());
     out
 }
 
-/// A 36-character UUID-shaped string; OpenVDB only compares it for equality.
-fn uuid() -> String {
-    let t = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos());
-    let mut x =
-        (t as u64) ^ ((t >> 64) as u64) ^ 0x9E37_79B9_7F4A_7C15 ^ u64::from(std::process::id());
-    let mut hex = String::new();
-    for _ in 0..32 {
-        x ^= x << 13;
-        x ^= x >> 7;
-        x ^= x << 17;
-        hex.push(
-            char::from_digit((x & 15) as u32, 16)
-                .unwrap()
-                .to_ascii_uppercase(),
-        );
-    }
-    format!(
-        "{}-{}-{}-{}-{}",
-        &hex[0..8],
-        &hex[8..12],
-        &hex[12..16],
-        &hex[16..20],
-        &hex[20..32]
-    )
+/// A 36-character UUID-shaped string derived from the file's content, so the
+/// same grids always give the same bytes (farm re-runs and caches compare
+/// files); OpenVDB only compares the UUID for equality.
+fn content_uuid(content: &[u8]) -> String {
+    // Two FNV-1a 64-bit hashes with different offsets make 128 bits.
+    let fnv = |seed: u64| {
+        content.iter().fold(seed, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01B3))
+    };
+    let hex = format!("{:016X}{:016X}", fnv(0xCBF2_9CE4_8422_2325), fnv(0x6C62_272E_07BB_0142));
+    format!("{}-{}-{}-{}-{}", &hex[0..8], &hex[8..12], &hex[12..16], &hex[16..20], &hex[20..32])
 }
 
 fn put_metadata(out: &mut Vec<u8>, meta: &Metadata) {

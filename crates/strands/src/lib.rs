@@ -1,0 +1,69 @@
+//! Groom-side stages of strand stylization (strand style transfer paper,
+//! Sec. 3.1, 3.3, 3.4 and Table 1), everything except rendering and the
+//! style loss:
+//!
+//! - [`DeformationField`]: learnable velocities `v_j` at samples `o_j` on
+//!   the guides, RBF-interpolated onto every control point and applied by
+//!   one forward-Euler step (eq. 4–5), with its backward (`Wᵀ`).
+//! - [`densify`]: proxy strands rooted on the scalp between the guides.
+//! - [`preserve_lengths`], [`project_collisions`] over a [`MeshBvh`]
+//!   (Sec. 3.4), combined in [`Constraints`].
+//! - [`ema_blend_factor`], [`ema_blend`], [`transport_velocities`] and the
+//!   [`OneEuroFilter`] for animated grooms (Sec. 3.3).
+//! - [`fur_ball`], [`grass_patch`], [`Wind`] and the Table 1 [`Preset`]s.
+//!
+//! Per optimisation step (Alg. 1): EMA on `v` → `DeformationField::forward`
+//! → `preserve_lengths` → `project_collisions` → render; the render's
+//! gradient on the points goes back through `DeformationField::backward`
+//! (the two projections are not differentiated, as in the paper).
+//!
+//! All stages work on [`FlatStrands`]: every control point in one array,
+//! guides first, then proxies.
+
+#![warn(missing_docs)]
+
+mod bvh;
+mod constraints;
+mod densify;
+mod field;
+mod generators;
+mod kdtree;
+mod math;
+mod preset;
+mod strands;
+mod temporal;
+
+pub use bvh::{closest_point_on_triangle, ClosestHit, Feature, MeshBvh};
+pub use constraints::{preserve_lengths, project_collisions, CollisionParams, CollisionStats, Constraints};
+pub use densify::{densify, DensifyParams};
+pub use field::{velocity_sample_indices, DeformationField, Kernel, RbfWeights, SampleDensity};
+pub use generators::{fur_ball, grass_patch, uv_sphere, FurBallParams, GrassParams, Wind};
+pub use kdtree::KdTree;
+pub use preset::{Preset, PresetParams, TemporalParams};
+pub use strands::FlatStrands;
+pub use temporal::{
+    ema_blend, ema_blend_factor, smoothing_factor, transport_velocities, DerivativeSmoothing, OneEuroFilter,
+    OneEuroParams,
+};
+
+/// Everything that can go wrong in the groom stages; one line naming the
+/// problem.
+#[derive(Debug, thiserror::Error)]
+pub enum StrandError {
+    /// Input geometry that cannot be used (empty, non-finite, bad indices).
+    #[error("invalid input: {0}")]
+    Invalid(String),
+    /// A parameter outside its valid range.
+    #[error("bad parameter: {0}")]
+    Parameter(String),
+    /// Two inputs that must match in length do not.
+    #[error("{what}: expected {expected}, got {got}")]
+    Mismatch {
+        /// Which input.
+        what: &'static str,
+        /// Length required.
+        expected: usize,
+        /// Length given.
+        got: usize,
+    },
+}
