@@ -8,6 +8,8 @@
 //!
 //! Each differentiable op has its backward right after its forward.
 
+pub mod nnst;
+
 use gemm::{gemm, Parallelism};
 use nst3d_core::Image;
 use rayon::prelude::*;

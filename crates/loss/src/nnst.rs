@@ -1,0 +1,575 @@
+//! Nearest-neighbour style loss (NNST, Kolkin et al. 2022) as used by strand
+//! style transfer (paper Sec. 3, eq. 2–3): every hyper-column of the content
+//! render's VGG features is replaced by its nearest style hyper-column under
+//! the cosine distance of zero-centred features (eq. 2), and the render's
+//! features are pulled towards those targets with an L2 loss (eq. 3).
+//!
+//! Hyper-columns follow NNST's construction (which the paper builds on):
+//! - each layer is divided by its channel count, so wide deep layers do not
+//!   dominate the cosine distance;
+//! - every layer is resized (bilinear, `align_corners=True`, NNST's
+//!   `scl_spatial`) to a common grid of `1/grid_divisor` of the image
+//!   resolution — NNST uses a quarter, the relu3_1 grid of VGG — and the
+//!   layers are concatenated per pixel. The image resolution is read from the
+//!   first layer, which must therefore be a full-resolution tap (relu1_1).
+//!
+//! Matching centres content and style columns by their own means (`μ_c`, `μ_s`
+//! in eq. 2, as NNST's `pairwise_distances_cos_center` does). Only the style
+//! columns need unit length: scaling a content column does not change which
+//! style column is its arg-max. The targets are the matched style columns as
+//! they are (not centred, not normalised), the `Φ(I_s)_j` of eq. 2.
+//!
+//! The loss is the paper's L2 distance (eq. 3; NNST itself uses a cosine
+//! loss), squared and averaged over content columns:
+//! `L = 1/N_c · Σ_i ‖h_i − T_i‖²`. The targets are constants: no gradient
+//! flows through the arg-max, as in NNST.
+
+use super::{matmul, parallelism};
+use gemm::Parallelism;
+use nst3d_core::Image;
+use rayon::prelude::*;
+
+/// Why an NNST target, match or loss could not be built from the given features.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum NnstError {
+    /// No feature layers were given.
+    #[error("nnst: no feature layers given")]
+    NoLayers,
+    /// The common-grid divisor is zero.
+    #[error("nnst: grid divisor must be at least 1")]
+    ZeroGridDivisor,
+    /// A feature layer has no pixels or no channels.
+    #[error("nnst: feature layer {layer} is empty ({channels} x {height} x {width})")]
+    EmptyLayer {
+        /// Layer index.
+        layer: usize,
+        /// Channels.
+        channels: usize,
+        /// Rows.
+        height: usize,
+        /// Columns.
+        width: usize,
+    },
+    /// The features do not have as many layers as the style target.
+    #[error("nnst: got {got} feature layers, the style target has {expected}")]
+    LayerCount {
+        /// Layers passed in.
+        got: usize,
+        /// Layers of the style target.
+        expected: usize,
+    },
+    /// A layer's channel count differs from the style target's.
+    #[error("nnst: layer {layer} has {got} channels, the style target has {expected}")]
+    ChannelCount {
+        /// Layer index.
+        layer: usize,
+        /// Channels passed in.
+        got: usize,
+        /// Channels of the style target's layer.
+        expected: usize,
+    },
+    /// The render's hyper-column grid differs from the one its targets were matched on.
+    #[error("nnst: features give a {got:?} hyper-column grid, the targets were matched on {expected:?}")]
+    GridMismatch {
+        /// Grid (rows, columns) of the features passed in.
+        got: (usize, usize),
+        /// Grid of the matched targets.
+        expected: (usize, usize),
+    },
+}
+
+/// Settings of the hyper-column construction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NnstParams {
+    /// The common grid is the first layer's size divided by this (rounded
+    /// down, at least 1 pixel). NNST uses 4: the relu3_1 grid.
+    pub grid_divisor: usize,
+}
+
+impl Default for NnstParams {
+    fn default() -> Self {
+        Self { grid_divisor: 4 }
+    }
+}
+
+/// Score rows per matching block: a block's `rows x N_s` score matrix stays
+/// under this many floats (32 MiB), so memory is bounded whatever the sizes;
+/// blocks of a few hundred rows keep gemm near its best throughput.
+const BLOCK_SCORES: usize = 1 << 23;
+
+/// Floor on a style column's norm before normalising (NNST clamps the squared
+/// norm at 1e-8), so constant style regions do not divide by zero.
+const MIN_NORM: f32 = 1e-4;
+
+/// Common hyper-column grid (rows, columns) of a feature list whose first
+/// layer is at image resolution.
+pub fn common_grid(feats: &[Image], params: &NnstParams) -> Result<(usize, usize), NnstError> {
+    check_layers(feats)?;
+    if params.grid_divisor == 0 {
+        return Err(NnstError::ZeroGridDivisor);
+    }
+    let d = params.grid_divisor;
+    Ok(((feats[0].height / d).max(1), (feats[0].width / d).max(1)))
+}
+
+fn check_layers(feats: &[Image]) -> Result<(), NnstError> {
+    if feats.is_empty() {
+        return Err(NnstError::NoLayers);
+    }
+    for (layer, f) in feats.iter().enumerate() {
+        if f.data.is_empty() {
+            return Err(NnstError::EmptyLayer { layer, channels: f.channels, height: f.height, width: f.width });
+        }
+    }
+    Ok(())
+}
+
+/// One output sample of a 1-D `align_corners=True` bilinear resize:
+/// `out = (1 − w)·in[i0] + w·in[i1]`.
+#[derive(Clone, Copy)]
+struct Tap {
+    i0: usize,
+    i1: usize,
+    w: f32,
+}
+
+/// Taps of PyTorch's `align_corners=True` bilinear resize from `n` to `m`
+/// samples (source position `y·(n−1)/(m−1)`, computed in `f32` as PyTorch does).
+fn taps(n: usize, m: usize) -> Vec<Tap> {
+    let scale = if m > 1 { (n - 1) as f32 / (m - 1) as f32 } else { 0.0 };
+    (0..m)
+        .map(|y| {
+            let src = scale * y as f32;
+            let i0 = (src as usize).min(n - 1);
+            let i1 = (i0 + 1).min(n - 1);
+            Tap { i0, i1, w: src - i0 as f32 }
+        })
+        .collect()
+}
+
+/// Separable bilinear resize of one plane, `scale · resize(src)`: rows first,
+/// then columns. Same-size planes are copied, as the taps are exact then.
+fn resize_plane(src: &[f32], (h, w): (usize, usize), dst: &mut [f32], (gh, gw): (usize, usize), scale: f32) {
+    if (h, w) == (gh, gw) {
+        dst.iter_mut().zip(src).for_each(|(d, s)| *d = scale * s);
+        return;
+    }
+    let (ty, tx) = (taps(h, gh), taps(w, gw));
+    let mut rows = vec![0.0f32; h * gw];
+    for y in 0..h {
+        let s = &src[y * w..(y + 1) * w];
+        for (o, t) in rows[y * gw..(y + 1) * gw].iter_mut().zip(&tx) {
+            *o = (1.0 - t.w) * s[t.i0] + t.w * s[t.i1];
+        }
+    }
+    for (o, t) in dst.chunks_exact_mut(gw).zip(&ty) {
+        let (r0, r1) = (&rows[t.i0 * gw..(t.i0 + 1) * gw], &rows[t.i1 * gw..(t.i1 + 1) * gw]);
+        for x in 0..gw {
+            o[x] = scale * ((1.0 - t.w) * r0[x] + t.w * r1[x]);
+        }
+    }
+}
+
+/// Backward of [`resize_plane`]: scatters `grad` (grid-sized) through the
+/// transposed taps into `out` (source-sized, overwritten).
+fn resize_plane_backward(grad: &[f32], (gh, gw): (usize, usize), out: &mut [f32], (h, w): (usize, usize), scale: f32) {
+    if (h, w) == (gh, gw) {
+        out.iter_mut().zip(grad).for_each(|(o, g)| *o = scale * g);
+        return;
+    }
+    let (ty, tx) = (taps(h, gh), taps(w, gw));
+    let mut rows = vec![0.0f32; h * gw];
+    for (g, t) in grad.chunks_exact(gw).zip(&ty) {
+        for x in 0..gw {
+            rows[t.i0 * gw + x] += (1.0 - t.w) * g[x];
+            rows[t.i1 * gw + x] += t.w * g[x];
+        }
+    }
+    out.fill(0.0);
+    for y in 0..h {
+        let o = &mut out[y * w..(y + 1) * w];
+        for (r, t) in rows[y * gw..(y + 1) * gw].iter().zip(&tx) {
+            o[t.i0] += scale * (1.0 - t.w) * r;
+            o[t.i1] += scale * t.w * r;
+        }
+    }
+}
+
+/// (layer, channel) of each hyper-column entry, in concatenation order.
+fn channel_map(feats: &[Image]) -> Vec<(usize, usize)> {
+    feats.iter().enumerate().flat_map(|(l, f)| (0..f.channels).map(move |c| (l, c))).collect()
+}
+
+/// Hyper-columns of `feats` on the `grid`: every layer divided by its channel
+/// count, resized to the grid and concatenated along channels. Planar
+/// `D x gh x gw` with `D = Σ C_l`, like `torch.cat(..., dim=0)`.
+pub fn hypercolumns(feats: &[Image], grid: (usize, usize)) -> Image {
+    let map = channel_map(feats);
+    let mut out = Image::zeros(map.len(), grid.0, grid.1);
+    let plane = out.plane();
+    if plane == 0 {
+        return out;
+    }
+    out.data.par_chunks_mut(plane).zip(&map).for_each(|(dst, &(l, c))| {
+        let f = &feats[l];
+        resize_plane(f.channel(c), (f.height, f.width), dst, grid, 1.0 / f.channels as f32);
+    });
+    out
+}
+
+/// Backward of [`hypercolumns`]: the gradient w.r.t. each layer of `feats`
+/// (only their shapes are read) from the gradient `grad` w.r.t. the hyper-columns.
+///
+/// # Panics
+/// If `grad` does not have `Σ C_l` channels (a programming error: it comes
+/// from [`hypercolumns`]' output).
+pub fn hypercolumns_backward(feats: &[Image], grad: &Image) -> Vec<Image> {
+    let map = channel_map(feats);
+    assert_eq!(grad.channels, map.len(), "hypercolumns_backward: channel count");
+    let grid = (grad.height, grad.width);
+    feats
+        .iter()
+        .enumerate()
+        .map(|(l, f)| {
+            let mut g = Image::zeros(f.channels, f.height, f.width);
+            let first = map.iter().position(|&(ll, _)| ll == l).unwrap_or(0);
+            let plane = f.plane();
+            if plane > 0 {
+                g.data.par_chunks_mut(plane).enumerate().for_each(|(c, dst)| {
+                    resize_plane_backward(
+                        grad.channel(first + c),
+                        grid,
+                        dst,
+                        (f.height, f.width),
+                        1.0 / f.channels as f32,
+                    );
+                });
+            }
+            g
+        })
+        .collect()
+}
+
+/// Per-channel mean over the pixels of a planar image, in `f64`.
+fn channel_means(h: &Image) -> Vec<f32> {
+    let n = h.plane().max(1) as f64;
+    (0..h.channels).into_par_iter().map(|k| (h.channel(k).iter().map(|&v| v as f64).sum::<f64>() / n) as f32).collect()
+}
+
+/// The style image's side of eq. 2: its raw hyper-columns (the candidate
+/// targets) and their zero-centred unit-length copies to match against.
+#[derive(Clone, Debug)]
+pub struct NnstTarget {
+    channels: Vec<usize>,
+    params: NnstParams,
+    /// Raw style hyper-columns, planar `D x N_s`.
+    columns: Image,
+    /// Centred, unit style columns, planar `D x N_s`: the `k x n` operand
+    /// layout gemm runs fastest with.
+    unit: Vec<f32>,
+}
+
+impl NnstTarget {
+    /// Builds the style side from the style image's VGG taps `feats`
+    /// (relu1_1 first, at the style image's resolution).
+    pub fn from_style_features(feats: &[Image], params: &NnstParams) -> Result<Self, NnstError> {
+        let grid = common_grid(feats, params)?;
+        let columns = hypercolumns(feats, grid);
+        let (d, ns) = (columns.channels, columns.plane());
+        let mean = channel_means(&columns);
+        // Column norms of the centred columns, accumulated plane by plane so
+        // the planar layout is read contiguously.
+        let mut norm2 = vec![0.0f32; ns];
+        for (plane, m) in columns.data.chunks_exact(ns).zip(&mean) {
+            norm2.iter_mut().zip(plane).for_each(|(n, v)| *n += (v - m) * (v - m));
+        }
+        let inv: Vec<f32> = norm2.iter().map(|n| 1.0 / n.sqrt().max(MIN_NORM)).collect();
+        let mut unit = vec![0.0f32; d * ns];
+        unit.par_chunks_mut(ns).zip(columns.data.par_chunks(ns)).zip(&mean).for_each(|((u, c), m)| {
+            u.iter_mut().zip(c).zip(&inv).for_each(|((u, v), i)| *u = (v - m) * i);
+        });
+        Ok(Self { channels: feats.iter().map(|f| f.channels).collect(), params: *params, columns, unit })
+    }
+
+    /// Number of feature layers.
+    pub fn layers(&self) -> usize {
+        self.channels.len()
+    }
+
+    /// Hyper-column length `D = Σ C_l`.
+    pub fn depth(&self) -> usize {
+        self.columns.channels
+    }
+
+    /// The style hyper-column grid (rows, columns).
+    pub fn style_grid(&self) -> (usize, usize) {
+        (self.columns.height, self.columns.width)
+    }
+
+    /// The raw style hyper-columns, planar `D x rows x columns`.
+    pub fn columns(&self) -> &Image {
+        &self.columns
+    }
+
+    fn check(&self, feats: &[Image]) -> Result<(), NnstError> {
+        check_layers(feats)?;
+        if feats.len() != self.layers() {
+            return Err(NnstError::LayerCount { got: feats.len(), expected: self.layers() });
+        }
+        for (layer, (f, &c)) in feats.iter().zip(&self.channels).enumerate() {
+            if f.channels != c {
+                return Err(NnstError::ChannelCount { layer, got: f.channels, expected: c });
+            }
+        }
+        Ok(())
+    }
+
+    /// Eq. 2: the nearest style hyper-column (cosine distance of centred
+    /// columns) of every hyper-column of the content render's features `content`.
+    ///
+    /// The `N_c x N_s` similarity matrix is never held whole: row blocks of it
+    /// are computed (gemm) and reduced to their arg-max in parallel.
+    pub fn match_content(&self, content: &[Image]) -> Result<NnstMatch, NnstError> {
+        self.check(content)?;
+        let grid = common_grid(content, &self.params)?;
+        let h = hypercolumns(content, grid);
+        let (d, nc, ns) = (h.channels, h.plane(), self.columns.plane());
+        let mean = channel_means(&h);
+        let mut centred = h;
+        centred.data.par_chunks_mut(nc).zip(&mean).for_each(|(p, m)| p.iter_mut().for_each(|v| *v -= m));
+
+        let rows = (BLOCK_SCORES / ns).clamp(1, 512);
+        let mut indices = vec![0u32; nc];
+        indices.par_chunks_mut(rows).enumerate().for_each(|(b, idx)| {
+            let (i0, n) = (b * rows, idx.len());
+            // The block's columns gathered pixel-major: gemm packs a
+            // contiguous-row operand far faster than the planar map's
+            // N_c-strided one.
+            let mut block = vec![0.0f32; n * d];
+            for (k, plane) in centred.data.chunks_exact(nc).enumerate() {
+                for (r, v) in plane[i0..i0 + n].iter().enumerate() {
+                    block[r * d + k] = *v;
+                }
+            }
+            let mut scores = vec![0.0f32; n * ns];
+            matmul(
+                n,
+                ns,
+                d,
+                &mut scores,
+                &block,
+                (d, 1),
+                &self.unit,
+                (ns, 1),
+                1.0,
+                // The blocks already spread over the pool; small single-block
+                // cases still let gemm use it.
+                if nc <= rows { parallelism(n, ns, d) } else { Parallelism::None },
+            );
+            for (r, out) in idx.iter_mut().enumerate() {
+                *out = argmax(&scores[r * ns..(r + 1) * ns]) as u32;
+            }
+        });
+
+        let mut targets = Image::zeros(d, grid.0, grid.1);
+        targets.data.par_chunks_mut(nc).enumerate().for_each(|(k, t)| {
+            let s = self.columns.channel(k);
+            t.iter_mut().zip(&indices).for_each(|(t, &j)| *t = s[j as usize]);
+        });
+        Ok(NnstMatch { channels: self.channels.clone(), params: self.params, targets, indices })
+    }
+}
+
+/// Index of the largest value; the first one on ties (NaNs never win).
+fn argmax(v: &[f32]) -> usize {
+    let mut best = 0;
+    for (i, &x) in v.iter().enumerate() {
+        if x > v[best] {
+            best = i;
+        }
+    }
+    best
+}
+
+/// The stylized target features `T` of eq. 2 for one content render: the
+/// matched style hyper-column of every content hyper-column.
+#[derive(Clone, Debug)]
+pub struct NnstMatch {
+    channels: Vec<usize>,
+    params: NnstParams,
+    targets: Image,
+    indices: Vec<u32>,
+}
+
+impl NnstMatch {
+    /// Targets `T`, planar `D x rows x columns` on the content's grid.
+    pub fn targets(&self) -> &Image {
+        &self.targets
+    }
+
+    /// For each content hyper-column (row-major on the content grid), the
+    /// index of its style hyper-column (row-major on the style grid).
+    pub fn indices(&self) -> &[u32] {
+        &self.indices
+    }
+
+    /// The content hyper-column grid (rows, columns).
+    pub fn grid(&self) -> (usize, usize) {
+        (self.targets.height, self.targets.width)
+    }
+}
+
+/// Eq. 3 against fixed targets: `L = 1/N_c · Σ_i ‖h_i − T_i‖²` with `h` the
+/// hyper-columns of the render's features `feats`; returns `L` and `dL/dF_l`
+/// per layer (shapes of `feats`) for the feature network's backward pass.
+///
+/// This is the paper's use: `matched` comes from the unstylized render
+/// `R_θ(x_0)` of the same view, while `feats` come from the current render.
+pub fn nnst_loss_matched(feats: &[Image], matched: &NnstMatch) -> Result<(f32, Vec<Image>), NnstError> {
+    check_layers(feats)?;
+    if feats.len() != matched.channels.len() {
+        return Err(NnstError::LayerCount { got: feats.len(), expected: matched.channels.len() });
+    }
+    for (layer, (f, &c)) in feats.iter().zip(&matched.channels).enumerate() {
+        if f.channels != c {
+            return Err(NnstError::ChannelCount { layer, got: f.channels, expected: c });
+        }
+    }
+    let grid = common_grid(feats, &matched.params)?;
+    if grid != matched.grid() {
+        return Err(NnstError::GridMismatch { got: grid, expected: matched.grid() });
+    }
+    // Forward and backward of the squared distance in one pass.
+    let mut h = hypercolumns(feats, grid);
+    let nc = h.plane();
+    let scale = 2.0 / nc as f32;
+    let sum: f64 = h
+        .data
+        .par_chunks_mut(nc)
+        .zip(matched.targets.data.par_chunks(nc))
+        .map(|(hk, tk)| {
+            let mut s = 0.0f64;
+            for (v, t) in hk.iter_mut().zip(tk) {
+                let r = *v - t;
+                s += (r * r) as f64;
+                *v = scale * r;
+            }
+            s
+        })
+        .sum();
+    let loss = (sum / nc as f64) as f32;
+    Ok((loss, hypercolumns_backward(feats, &h)))
+}
+
+/// NNST loss of `content` against the style `target`, matching the
+/// hyper-columns of `content` themselves (NNST's scheme when the content is
+/// the current iterate); the matches are held constant for the gradient.
+pub fn nnst_loss(content: &[Image], target: &NnstTarget) -> Result<(f32, Vec<Image>), NnstError> {
+    let matched = target.match_content(content)?;
+    nnst_loss_matched(content, &matched)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
+
+    fn image(c: usize, h: usize, w: usize, seed: u64) -> Image {
+        Image::from_vec(c, h, w, pseudo_random(c * h * w, seed))
+    }
+
+    #[test]
+    fn resize_matches_definition() {
+        // 5 -> 3 with align_corners: samples at 0, 2, 4 exactly.
+        let src: Vec<f32> = (0..5).map(|v| v as f32).collect();
+        let mut dst = vec![0.0; 3];
+        resize_plane(&src, (1, 5), &mut dst, (1, 3), 1.0);
+        assert_eq!(dst, vec![0.0, 2.0, 4.0]);
+        // 2 -> 3: midpoint.
+        let mut dst = vec![0.0; 3];
+        resize_plane(&[1.0, 3.0], (1, 2), &mut dst, (1, 3), 1.0);
+        assert_eq!(dst, vec![1.0, 2.0, 3.0]);
+    }
+
+    #[test]
+    fn hypercolumns_backward_gradcheck() {
+        let feats = vec![image(3, 9, 7, 1), image(4, 5, 4, 2), image(2, 2, 3, 3)];
+        let grid = (4, 5);
+        let d = 9;
+        let wgt = pseudo_random(d * 20, 4);
+        let grads = hypercolumns_backward(&feats, &Image::from_vec(d, 4, 5, wgt.clone()));
+        for l in 0..feats.len() {
+            let f = &feats[l];
+            let probe = |x: &[f32]| {
+                let mut fs = feats.clone();
+                fs[l] = Image::from_vec(f.channels, f.height, f.width, x.to_vec());
+                dot(&wgt, &hypercolumns(&fs, grid).data)
+            };
+            let r = check_gradient(&f.data, &grads[l].data, probe, 1e-2, 200, 1e-3);
+            assert!(r.max_rel_err < 1e-2, "layer {l}: {r:?}");
+        }
+    }
+
+    #[test]
+    fn loss_gradcheck_fixed_targets() {
+        let params = NnstParams { grid_divisor: 2 };
+        let style = vec![image(3, 10, 12, 10), image(5, 5, 6, 11), image(6, 3, 3, 12)];
+        let content = vec![image(3, 12, 8, 20), image(5, 6, 4, 21), image(6, 3, 2, 22)];
+        let target = NnstTarget::from_style_features(&style, &params).unwrap();
+        let matched = target.match_content(&content).unwrap();
+        // The current render differs from the one the targets were matched on.
+        let feats = vec![image(3, 12, 8, 30), image(5, 6, 4, 31), image(6, 3, 2, 32)];
+        let (_, grads) = nnst_loss_matched(&feats, &matched).unwrap();
+        for l in 0..feats.len() {
+            let f = &feats[l];
+            let probe = |x: &[f32]| {
+                let mut fs = feats.clone();
+                fs[l] = Image::from_vec(f.channels, f.height, f.width, x.to_vec());
+                nnst_loss_matched(&fs, &matched).unwrap().0 as f64
+            };
+            let r = check_gradient(&f.data, &grads[l].data, probe, 1e-2, 150, 1e-4);
+            assert!(r.max_rel_err < 2e-2, "layer {l}: {r:?}");
+        }
+    }
+
+    #[test]
+    fn identical_content_and_style_match_themselves() {
+        let params = NnstParams { grid_divisor: 2 };
+        // Large enough to take several matching blocks and the parallel path.
+        let feats = vec![image(8, 64, 48, 1), image(16, 32, 24, 2), image(8, 16, 12, 3)];
+        let target = NnstTarget::from_style_features(&feats, &params).unwrap();
+        let matched = target.match_content(&feats).unwrap();
+        assert!(matched.indices().iter().enumerate().all(|(i, &j)| i as u32 == j));
+        let (loss, grads) = nnst_loss(&feats, &target).unwrap();
+        assert_eq!(loss, 0.0);
+        assert!(grads.iter().all(|g| g.data.iter().all(|v| *v == 0.0)));
+    }
+
+    #[test]
+    fn bad_inputs_are_errors() {
+        let p = NnstParams::default();
+        assert_eq!(NnstTarget::from_style_features(&[], &p).unwrap_err(), NnstError::NoLayers);
+        assert_eq!(
+            NnstTarget::from_style_features(&[image(2, 4, 4, 1)], &NnstParams { grid_divisor: 0 }).unwrap_err(),
+            NnstError::ZeroGridDivisor
+        );
+        assert!(matches!(
+            NnstTarget::from_style_features(&[Image::zeros(2, 0, 4)], &p),
+            Err(NnstError::EmptyLayer { layer: 0, .. })
+        ));
+        let style = vec![image(2, 8, 8, 1), image(3, 4, 4, 2)];
+        let t = NnstTarget::from_style_features(&style, &p).unwrap();
+        assert_eq!(t.match_content(&style[..1]).unwrap_err(), NnstError::LayerCount { got: 1, expected: 2 });
+        assert_eq!(
+            nnst_loss(&[style[0].clone(), image(4, 4, 4, 3)], &t).unwrap_err(),
+            NnstError::ChannelCount { layer: 1, got: 4, expected: 3 }
+        );
+        let m = t.match_content(&style).unwrap();
+        let bigger = vec![image(2, 16, 16, 1), image(3, 8, 8, 2)];
+        assert_eq!(
+            nnst_loss_matched(&bigger, &m).unwrap_err(),
+            NnstError::GridMismatch { got: (4, 4), expected: (2, 2) }
+        );
+        assert!(!NnstError::NoLayers.to_string().contains('\n'));
+    }
+}
