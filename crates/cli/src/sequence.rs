@@ -3,20 +3,24 @@
 //!
 //! All frames are densified into one common box (the union of their active
 //! boxes plus the velocity margin) so fields can be carried from frame to
-//! frame; frames are read from disk when needed, so memory holds the fields
-//! and a couple of frames, not the whole simulation.
+//! frame. Frames are read from disk when needed and every frame's field and
+//! Adam moments live in a work folder ([`DiskStore`]), always, whatever the
+//! sequence length: memory holds a few frames, and a killed run resumes from
+//! its last completed sweep. Farm chunks optimise their frames plus a
+//! warm-up overlap but derive the box, velocity scale and absorption from
+//! the whole --frames range, so every chunk solves the same problem.
 
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use nst3d_core::Grid3;
 use nst3d_io::vdb::{read_vdb, write_vdb, GridValues, Transform, VdbGrid};
-use nst3d_sequence::ema::{stylize_sequence, stylized_density, MemoryStore, SequenceError, SequenceParams, Simulation};
-use nst3d_sequence::{expand_pattern, FrameSpec};
+use nst3d_sequence::ema::{stylize_sequence_with, SequenceError, SequenceParams, Simulation, StateStore};
+use nst3d_sequence::{expand_pattern, DiskStore, FrameSpec};
 use nst3d_stylize::{Mode, StyleSpec, ViewLoss, ViewSpec};
 
 use crate::progress::Progress;
-use crate::volume::{auto_absorption, check_args, frame_params, front_camera, load_style_and_vgg, VolumeArgs};
+use crate::volume::{absorption_for, check_args, frame_params, load_style_and_vgg, mean_loss, views_of, Cameras, VolumeArgs};
 
 /// Velocity grid names solvers write: Blender `velocity`, Houdini `vel` or `v`.
 const VELOCITY_NAMES: [&str; 3] = ["velocity", "vel", "v"];
@@ -109,22 +113,112 @@ impl Simulation for VdbSimulation {
     }
 }
 
-/// Runs a sequence stylization.
+/// A farm chunk: `START-END` (frame numbers, inclusive).
+fn parse_chunk(s: &str) -> Result<(i64, i64)> {
+    let spec = FrameSpec::parse(s).with_context(|| format!("--chunk '{s}'"))?;
+    let f = spec.frames();
+    if f.len() != (f[f.len() - 1] - f[0] + 1) as usize {
+        bail!("--chunk '{s}' must be one range START-END");
+    }
+    Ok((f[0], f[f.len() - 1]))
+}
+
+/// FNV-1a, 64 bits: a stable name for a job's work folder (the same on
+/// every machine and build, unlike the standard library's hasher).
+fn fnv1a(bytes: &[u8], mut h: u64) -> u64 {
+    for b in bytes {
+        h ^= *b as u64;
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    h
+}
+
+/// Everything the optimised states depend on, so a work folder is only
+/// reused by the same job: settings, the style image and camera file
+/// contents, and each input frame's size and modification time.
+fn job_hash(args: &VolumeArgs, run_paths: &[PathBuf]) -> Result<u64> {
+    let settings = format!(
+        "{:?}|{:?}|{:?}|{}|{:?}|{}|{:?}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{}|{:?}|{}|{:?}",
+        args.input,
+        args.frames,
+        args.chunk,
+        args.warmup,
+        args.out,
+        args.ema,
+        args.velocity_grid,
+        args.velocity_scale,
+        args.grid,
+        matches!(args.mode, Mode::Velocity),
+        args.lr,
+        args.vmax,
+        args.octaves,
+        args.iters,
+        args.smin,
+        args.smax,
+        args.absorption,
+        args.layers.iter().map(|l| format!("{l:?}")).collect::<Vec<_>>(),
+        args.style_scale,
+        args.style_color,
+        args.equalize,
+        matches!(args.camera, crate::volume::CameraKind::Perspective),
+        args.fov,
+        matches!(args.up, crate::volume::UpAxis::Z),
+        args.cameras,
+        args.camera_seed,
+        args.weights,
+    );
+    let mut h = fnv1a(settings.as_bytes(), 0xcbf2_9ce4_8422_2325);
+    h = fnv1a(&std::fs::read(&args.style).with_context(|| format!("{}", args.style.display()))?, h);
+    if let Some(c) = &args.camera_file {
+        h = fnv1a(&std::fs::read(c).with_context(|| format!("{}", c.display()))?, h);
+    }
+    for p in run_paths {
+        let meta = std::fs::metadata(p).with_context(|| format!("{}", p.display()))?;
+        let mtime = meta.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map_or(0, |d| d.as_nanos());
+        h = fnv1a(format!("{}|{}|{mtime}", p.display(), meta.len()).as_bytes(), h);
+    }
+    Ok(h)
+}
+
+/// Runs a sequence stylization: the whole of --frames, or one --chunk of it
+/// with --warmup frames of overlap (docs/FARM.md).
 pub fn run(args: VolumeArgs) -> Result<()> {
     check_args(&args)?;
     let spec = FrameSpec::parse(args.frames.as_deref().unwrap_or_default())?;
     let input = args.input.to_string_lossy().to_string();
     let output = args.out.to_string_lossy().to_string();
-    let frames = spec.frames().to_vec();
-    let paths: Vec<PathBuf> = frames.iter().map(|&f| expand_pattern(&input, f).map(PathBuf::from)).collect::<Result<_, _>>()?;
-    let outs: Vec<PathBuf> = frames
-        .iter()
-        .map(|&f| expand_pattern(&output, f).map(PathBuf::from))
-        .collect::<Result<_, _>>()
-        .context("--out must be a pattern too when --frames is given")?;
+    let all = spec.frames().to_vec();
+    if args.warmup < 0 {
+        bail!("--warmup must be 0 or more frames, got {}", args.warmup);
+    }
+    let (start, end) = match &args.chunk {
+        Some(c) => parse_chunk(c)?,
+        None => (all[0], all[all.len() - 1]),
+    };
+    let written: Vec<i64> = spec.within(start, end);
+    if written.is_empty() {
+        bail!("--chunk {start}-{end} holds none of the frames {}", args.frames.as_deref().unwrap_or_default());
+    }
+    // The chunk optimises its frames plus the warm-up on each side.
+    let run_frames = spec.within(start.saturating_sub(args.warmup), end.saturating_add(args.warmup));
+    let path_of = |f: i64| expand_pattern(&input, f).map(PathBuf::from);
+    let out_of = |f: i64| expand_pattern(&output, f).map(PathBuf::from).context("--out must be a pattern too when --frames is given");
+    let paths: Vec<PathBuf> = all.iter().map(|&f| path_of(f)).collect::<Result<_, _>>()?;
+    let outs: Vec<PathBuf> = run_frames.iter().map(|&f| out_of(f)).collect::<Result<_, _>>()?;
+    let is_written = |f: i64| (start..=end).contains(&f);
+    let todo: Vec<usize> = (0..run_frames.len()).filter(|&i| is_written(run_frames[i]) && (args.force || !outs[i].exists())).collect();
+    let existing = written.len() - todo.len();
+    if todo.is_empty() {
+        println!("all {} frames {start}-{end} already exist; nothing to do (--force redoes them)", written.len());
+        return Ok(());
+    }
+    if existing > 0 {
+        eprintln!("{existing} of {} frames already exist and are kept (--force redoes them)", written.len());
+    }
 
-    // One pass over the headers: every frame must read, have the grid, and
-    // share one transform; the common box is the union of active boxes.
+    // One pass over ALL frames of --frames, not just the chunk: the common
+    // box, the velocity scale and the absorption must be the same in every
+    // chunk or the chunks would not blend at their seams.
     let mut transform: Option<Transform> = None;
     let mut lo = [i32::MAX; 3];
     let mut hi = [i32::MIN; 3];
@@ -160,6 +254,7 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     if lo[0] > hi[0] {
         bail!("every frame's grid '{}' is empty: nothing to stylize", args.grid);
     }
+    let transform = transform.expect("at least one frame");
     let extent = (0..3).map(|k| (hi[k] - lo[k] + 1) as usize).max().unwrap_or(1);
     let vmax = args.vmax.unwrap_or((0.04 * extent as f32).max(1.0));
     let margin = match args.mode {
@@ -171,17 +266,25 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     if dims.iter().product::<usize>() > (1 << 28) {
         bail!("the frames' common box {dims:?} is too large to stylize densely");
     }
-    let mut sim = VdbSimulation { paths, grid: args.grid.clone(), velocity_grid, velocity_scale: 1.0, origin, dims };
-    if sim.velocity_grid.is_some() {
-        sim.velocity_scale = match args.velocity_scale {
+    let mut full = VdbSimulation { paths: paths.clone(), grid: args.grid.clone(), velocity_grid, velocity_scale: 1.0, origin, dims };
+    if full.velocity_grid.is_some() {
+        full.velocity_scale = match args.velocity_scale {
             Some(s) if s.is_finite() && s >= 0.0 => s,
             Some(s) => bail!("--velocity-scale must be a non-negative number, got {s}"),
-            None => calibrate(&sim)?,
+            None => calibrate(&full)?,
         };
     }
+    let sim = VdbSimulation {
+        paths: run_frames.iter().map(|&f| path_of(f)).collect::<Result<_, _>>()?,
+        grid: full.grid.clone(),
+        velocity_grid: full.velocity_grid.clone(),
+        ..full
+    };
     eprintln!(
-        "{} frames, common box {}x{}x{} at {:?}, velocity grid {} (x{:.4} voxels/frame)",
+        "{} frames ({} to write, {} warm-up), common box {}x{}x{} at {:?}, velocity grid {} (x{:.4} voxels/frame)",
         sim.len(),
+        todo.len(),
+        run_frames.iter().filter(|&&f| !is_written(f)).count(),
         dims[0],
         dims[1],
         dims[2],
@@ -191,74 +294,131 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     );
 
     let (style, vgg) = load_style_and_vgg(&args)?;
-    let camera = front_camera(dims, args.up, args.camera, args.fov);
+    let cameras = Cameras::from_args(&args)?;
+    let cams_at = |f: i64| cameras.at(&args, f as f64, dims, &transform, origin);
+    // The densest frame and view of the whole sequence set the absorption
+    // for all, so brightness does not pump and chunks agree.
     let gamma = match args.absorption {
-        Some(g) if g.is_finite() && g > 0.0 => g,
-        Some(g) => bail!("--absorption must be a positive number, got {g}"),
-        // The densest frame sets the absorption for all, so brightness does not pump.
+        Some(_) => absorption_for(&args, std::iter::empty())?,
         None => {
             let mut best = f32::INFINITY;
-            for t in 0..sim.len() {
-                if let Ok(g) = auto_absorption(&sim.density(t)?, &camera) {
+            for (t, &f) in all.iter().enumerate() {
+                let d = full.density(t)?;
+                let cams = cams_at(f);
+                if let Ok(g) = absorption_for(&args, cams.iter().map(|c| (&d, c))) {
                     best = best.min(g);
                 }
+            }
+            if !best.is_finite() {
+                bail!("the density is zero everywhere in view: nothing to stylize");
             }
             best
         }
     };
-    let view = ViewSpec { camera: Some(camera), gamma, exposure: gamma, equalize: args.equalize };
+    let views: Vec<Vec<ViewSpec>> = run_frames.iter().map(|&f| views_of(&cams_at(f), gamma, args.equalize)).collect();
     let style_spec = StyleSpec { layers: args.layers.clone(), layer_weights: vec![1.0; args.layers.len()] };
     let loss = ViewLoss::new(&vgg, &style, &style_spec)?;
-    let params = SequenceParams { frame: frame_params(&args, vmax, &view), alpha: args.ema };
+    let params = SequenceParams { frame: frame_params(&args, vmax, &views[0][0]), alpha: args.ema };
 
+    let work = match &args.work_dir {
+        Some(w) => w.clone(),
+        None => {
+            let out_dir = args.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+            out_dir.join(".nst3d-work").join(format!("{:016x}", job_hash(&args, &sim.paths)?))
+        }
+    };
+    if args.force && work.exists() {
+        std::fs::remove_dir_all(&work).with_context(|| format!("cannot clear the work folder {}", work.display()))?;
+    }
+    let mut store = DiskStore::open(&work)?;
     let n = sim.len();
-    let mut store = MemoryStore::default();
-    let mut progress = Progress::new((args.octaves * args.iters * n) as u64);
-    stylize_sequence(&sim, &loss, std::slice::from_ref(&view), &params, &mut store, &mut |p| {
+    let per_octave = args.iters * n;
+    let mut done_steps = 0;
+    if let Some(r) = store.resume_point() {
+        done_steps = (r.octave * args.iters + r.sweeps_done) * n;
+        if r.octave + 1 == r.octaves && r.sweeps_done == args.iters {
+            eprintln!("optimisation already complete in {}; writing the missing frames", work.display());
+        } else {
+            eprintln!("resuming at octave {} sweep {} from {}", r.octave + 1, r.sweeps_done + 1, work.display());
+        }
+    }
+    // A resumed run counts only the steps left.
+    let mut progress = Progress::new((args.octaves * per_octave).saturating_sub(done_steps) as u64);
+    stylize_sequence_with(&sim, &loss, &|t| views[t].clone(), &params, &mut store, &mut |p| {
         progress.step(format!(
             "octave {} sweep {}/{} frame {} loss {:.4e}",
             p.octave + 1,
             p.iteration,
             args.iters,
-            frames[p.frame],
+            run_frames[p.frame],
             p.loss
         ))
     })?;
     progress.finish();
 
-    let transform = transform.expect("at least one frame");
-    let mut stylized = Vec::with_capacity(n);
+    // Write every frame we can; one that fails is reported and the others still land.
+    let mut failures = Vec::new();
     let mut losses = 0.0;
-    for t in 0..n {
-        let d = stylized_density(&sim, &mut store, t)?;
-        if d.data.iter().any(|v| !v.is_finite()) {
-            bail!("frame {}: stylization produced non-finite densities (try a smaller --lr)", frames[t]);
+    let (mut flicker_sum, mut pairs) = (0.0f64, 0usize);
+    let mut prev: Option<(usize, Grid3)> = None;
+    for &t in &todo {
+        let result = (|| -> Result<Grid3> {
+            let d = sim.density(t)?;
+            let st = store.load(t)?.context("the frame has no optimised field")?;
+            let d = st.field.transport(&d);
+            if d.data.iter().any(|v| !v.is_finite()) {
+                bail!("stylization produced non-finite densities (try a smaller --lr)");
+            }
+            let file = read_vdb(&sim.paths[t])?;
+            let src = file.grid(&args.grid).context("the grid vanished")?;
+            let mut out = VdbGrid::from_dense(&src.name, transform.clone(), origin, &d, 0.0);
+            out.metadata = src.metadata.clone();
+            out.class = src.class.clone();
+            let grids: Vec<VdbGrid> = file
+                .grids
+                .iter()
+                .filter(|g| !matches!(g.values, GridValues::Unsupported { .. }))
+                .map(|g| if g.name == src.name { out.clone() } else { g.clone() })
+                .collect();
+            write_vdb(&outs[t], &grids)?;
+            Ok(d)
+        })();
+        match result {
+            Ok(d) => {
+                losses += mean_loss(&loss, &d, &views[t])?;
+                // Flicker of consecutive written frames, computed pairwise so
+                // memory holds two frames.
+                if let Some((tp, dp)) = &prev {
+                    if *tp + 1 == t {
+                        let vel = sim.velocity(*tp)?;
+                        let render = |g: &Grid3| loss.image(g, &views[t][0]).expect("the view rendered during optimisation");
+                        flicker_sum += nst3d_sequence::flicker::flicker(&[dp.clone(), d.clone()], &[vel, None], render) as f64;
+                        pairs += 1;
+                    }
+                }
+                prev = Some((t, d));
+            }
+            Err(e) => {
+                eprintln!("nst3d: frame {} failed: {e:#}", run_frames[t]);
+                failures.push(run_frames[t]);
+            }
         }
-        losses += loss.loss(&d, &view)?;
-        let file = read_vdb(&sim.paths[t])?;
-        let src = file.grid(&args.grid).expect("checked above");
-        let mut out = VdbGrid::from_dense(&src.name, transform.clone(), origin, &d, 0.0);
-        out.metadata = src.metadata.clone();
-        out.class = src.class.clone();
-        let grids: Vec<VdbGrid> = file
-            .grids
-            .iter()
-            .filter(|g| !matches!(g.values, GridValues::Unsupported { .. }))
-            .map(|g| if g.name == src.name { out.clone() } else { g.clone() })
-            .collect();
-        write_vdb(&outs[t], &grids)?;
-        stylized.push(d);
     }
-    let velocities: Vec<_> = (0..n).map(|t| sim.velocity(t)).collect::<Result<_, _>>()?;
-    let render = |d: &Grid3| loss.image(d, &view).expect("the view rendered during optimisation");
-    let flicker = nst3d_sequence::flicker::flicker(&stylized, &velocities, render);
+    if !failures.is_empty() {
+        bail!("{} of {} frames failed: {:?} (rerun to retry them; finished frames are kept)", failures.len(), todo.len(), failures);
+    }
+    // Every frame landed: the states are no longer needed (they are large).
+    let _ = std::fs::remove_dir_all(&work);
+    let ok = todo.len();
     println!(
-        "{} frames stylized ({:?} mode, EMA {}); mean style loss {:.4e}; flicker {:.5}; wrote {}",
-        n,
+        "{} frames stylized ({:?} mode, EMA {}, {} camera{}); mean style loss {:.4e}; flicker {:.5}; wrote {}",
+        ok,
         args.mode,
         args.ema,
-        losses / n as f32,
-        flicker,
+        views[0].len(),
+        if views[0].len() == 1 { "" } else { "s" },
+        losses / ok as f32,
+        if pairs > 0 { flicker_sum / pairs as f64 } else { 0.0 },
         output
     );
     Ok(())

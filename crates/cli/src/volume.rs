@@ -4,7 +4,7 @@
 //! may carry smoke a little outside its original shape, Sec. 3.3), stylized
 //! by [`nst3d_stylize::stylize_frame`], and written back sparse into the same
 //! index space with the same transform. A before/after preview is rendered
-//! from the optimised camera.
+//! from the first camera of the set.
 
 use std::path::{Path, PathBuf};
 
@@ -12,9 +12,9 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use nst3d_core::{Grid3, Image};
 use nst3d_features::{Vgg19, VggLayer};
-use nst3d_io::vdb::{read_vdb, write_vdb, GridValues, VdbGrid};
-use nst3d_render::{Camera, Projection};
-use nst3d_stylize::{stylize_frame, FrameParams, Limits, Mode, StyleSpec, ViewLoss, ViewSpec};
+use nst3d_io::vdb::{read_vdb, write_vdb, GridValues, Transform, VdbGrid};
+use nst3d_render::{Camera, CameraRig, Projection};
+use nst3d_stylize::{stylize_frame_views, FrameParams, Limits, Mode, StyleSpec, ViewLoss, ViewSpec};
 
 use crate::progress::Progress;
 use nst3d_io::image::resize_to_height;
@@ -100,6 +100,162 @@ pub struct VolumeArgs {
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache; see tools/fetch_weights.sh).
     #[arg(long)]
     pub(crate) weights: Option<PathBuf>,
+    /// Camera set Θ whose style losses are summed each iteration: `front`,
+    /// `omniview:N` (N Poisson-disk cameras on a sphere, Sec. 4) or
+    /// `ring:N[:ELEV]` (a turntable of N cameras at ELEV degrees).
+    #[arg(long, default_value = "front", conflicts_with = "camera_file")]
+    pub(crate) cameras: String,
+    /// Shot camera or camera path (JSON, world space; see docs/CAMERAS.md).
+    #[arg(long)]
+    pub(crate) camera_file: Option<PathBuf>,
+    /// Seed of the omniview camera placement.
+    #[arg(long, default_value_t = 0)]
+    pub(crate) camera_seed: u64,
+    /// Also report the style loss seen from this camera set (same syntax as
+    /// --cameras), before and after: views the optimiser never saw.
+    #[arg(long)]
+    pub(crate) eval_cameras: Option<String>,
+    /// Farm chunk: stylize and write only frames START-END of --frames.
+    #[arg(long, requires = "frames")]
+    pub(crate) chunk: Option<String>,
+    /// Frames of overlap a chunk also optimises on each side (not written),
+    /// so its EMA sees the same neighbours as one whole run (docs/FARM.md).
+    #[arg(long, default_value_t = 0)]
+    pub(crate) warmup: i64,
+    /// Redo frames whose output file already exists.
+    #[arg(long)]
+    pub(crate) force: bool,
+    /// Folder for per-frame optimisation state and the checkpoint (default:
+    /// `<out dir>/.nst3d-work/<hash of the job's inputs and settings>`).
+    #[arg(long)]
+    pub(crate) work_dir: Option<PathBuf>,
+}
+
+/// A camera set as named on the command line.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) enum CameraSet {
+    /// The default front camera.
+    Front,
+    /// `omniview:N`.
+    Omniview(usize),
+    /// `ring:N[:ELEV]`.
+    Ring(usize, f32),
+}
+
+impl CameraSet {
+    /// Parses `front`, `omniview:N` or `ring:N[:ELEV]`.
+    pub(crate) fn parse(s: &str) -> Result<Self> {
+        let parts: Vec<&str> = s.split(':').collect();
+        let count = |p: &str| -> Result<usize> {
+            match p.parse::<usize>() {
+                Ok(n) if (1..=1024).contains(&n) => Ok(n),
+                _ => bail!("camera set '{s}': count must be a whole number from 1 to 1024"),
+            }
+        };
+        match parts.as_slice() {
+            ["front"] => Ok(Self::Front),
+            ["omniview", n] => Ok(Self::Omniview(count(n)?)),
+            ["ring", n] => Ok(Self::Ring(count(n)?, 0.0)),
+            ["ring", n, e] => match e.parse::<f32>() {
+                Ok(el) if (-89.0..=89.0).contains(&el) => Ok(Self::Ring(count(n)?, el)),
+                _ => bail!("camera set '{s}': elevation must be degrees in [-89, 89]"),
+            },
+            _ => bail!("unknown camera set '{s}' (expected front, omniview:N or ring:N[:ELEV])"),
+        }
+    }
+
+    /// The cameras for a grid of `dims` voxels. Omniview and ring cameras
+    /// are built around +y and turned so their axis is the file's up axis.
+    pub(crate) fn cameras(&self, args: &VolumeArgs, dims: [usize; 3]) -> Vec<Camera> {
+        let projection = projection(args.camera);
+        let (yup_dims, turn): ([usize; 3], fn([f32; 3]) -> [f32; 3]) = match args.up {
+            UpAxis::Y => (dims, |v| v),
+            // Frame y is index z, frame z is index −y: the ring's first
+            // camera then sits on the −y side, as the z-up front camera.
+            UpAxis::Z => ([dims[0], dims[2], dims[1]], |v| [v[0], -v[2], v[1]]),
+        };
+        let cams = match *self {
+            Self::Front => return vec![front_camera(dims, args.up, args.camera, args.fov)],
+            Self::Omniview(n) => nst3d_render::omniview(n, args.camera_seed, yup_dims, projection),
+            Self::Ring(n, el) => nst3d_render::ring(n, el, yup_dims, projection),
+        };
+        let (c_frame, c_index) = (yup_dims.map(|n| (n as f32 - 1.0) * 0.5), dims.map(|n| (n as f32 - 1.0) * 0.5));
+        let point = |p: [f32; 3]| {
+            let r = turn(std::array::from_fn(|a| p[a] - c_frame[a]));
+            std::array::from_fn(|a| c_index[a] + r[a])
+        };
+        cams.into_iter().map(|c| Camera { eye: point(c.eye), target: point(c.target), up: turn(c.up), ..c }).collect()
+    }
+}
+
+fn projection(kind: CameraKind) -> Projection {
+    match kind {
+        CameraKind::Orthographic => Projection::Orthographic,
+        CameraKind::Perspective => Projection::Perspective,
+    }
+}
+
+/// Where the cameras come from: a named set or a camera file.
+pub(crate) enum Cameras {
+    /// The same set for every frame, in the dense box's index space.
+    Set(CameraSet),
+    /// A shot camera or path, mapped per frame.
+    Rig(CameraRig),
+}
+
+impl Cameras {
+    /// Reads --cameras / --camera-file.
+    pub(crate) fn from_args(args: &VolumeArgs) -> Result<Self> {
+        Ok(match &args.camera_file {
+            Some(p) => Self::Rig(CameraRig::from_json_file(p)?),
+            None => Self::Set(CameraSet::parse(&args.cameras)?),
+        })
+    }
+
+    /// Θ at `frame` for a dense box of `dims` whose voxel (0,0,0) is index
+    /// `origin` of a grid with `transform`.
+    pub(crate) fn at(&self, args: &VolumeArgs, frame: f64, dims: [usize; 3], transform: &Transform, origin: [i32; 3]) -> Vec<Camera> {
+        match self {
+            Self::Set(set) => set.cameras(args, dims),
+            Self::Rig(rig) => vec![rig.at_frame(frame, &dense_index_to_world(transform, origin))],
+        }
+    }
+}
+
+/// Index-to-world matrix of a dense box starting at index `origin`: the
+/// grid's transform after a translation by the origin.
+pub(crate) fn dense_index_to_world(transform: &Transform, origin: [i32; 3]) -> [[f64; 4]; 4] {
+    let mut m = transform.index_to_world;
+    for r in 0..3 {
+        m[r][3] += (0..3).map(|c| transform.index_to_world[r][c] * origin[c] as f64).sum::<f64>();
+    }
+    m
+}
+
+/// Absorption from --absorption, or the smallest [`auto_absorption`] over
+/// every density and camera given, so no view of any frame saturates.
+pub(crate) fn absorption_for<'a>(args: &VolumeArgs, pairs: impl Iterator<Item = (&'a Grid3, &'a Camera)>) -> Result<f32> {
+    match args.absorption {
+        Some(g) if g.is_finite() && g > 0.0 => Ok(g),
+        Some(g) => bail!("--absorption must be a positive number, got {g}"),
+        None => {
+            let mut best = f32::INFINITY;
+            for (d, c) in pairs {
+                if let Ok(g) = auto_absorption(d, c) {
+                    best = best.min(g);
+                }
+            }
+            if !best.is_finite() {
+                bail!("the density is zero everywhere in view: nothing to stylize");
+            }
+            Ok(best)
+        }
+    }
+}
+
+/// Views for `cameras` with absorption `gamma`.
+pub(crate) fn views_of(cameras: &[Camera], gamma: f32, equalize: bool) -> Vec<ViewSpec> {
+    cameras.iter().map(|c| ViewSpec { camera: Some(*c), gamma, exposure: gamma, equalize }).collect()
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -177,10 +333,7 @@ pub(crate) fn front_camera(dims: [usize; 3], up: UpAxis, kind: CameraKind, fov: 
         // y up: look along -z from the +z side, as Houdini's default camera.
         UpAxis::Y => ([0.0, 0.0, -1.0], [0.0, 1.0, 0.0]),
     };
-    let projection = match kind {
-        CameraKind::Orthographic => Projection::Orthographic,
-        CameraKind::Perspective => Projection::Perspective,
-    };
+    let projection = projection(kind);
     // Horizontal extent over vertical extent of the grid as seen from this side.
     let aspect = match up {
         UpAxis::Z => dims[0] as f32 / dims[2].max(1) as f32,
@@ -216,19 +369,26 @@ pub fn run(args: VolumeArgs) -> Result<()> {
         Mode::Density => 0,
     };
     let padded = pad(&dense, margin);
-    let camera = front_camera(padded.dims, args.up, args.camera, args.fov);
-    let gamma = match args.absorption {
-        Some(g) if g.is_finite() && g > 0.0 => g,
-        Some(g) => bail!("--absorption must be a positive number, got {g}"),
-        None => auto_absorption(&padded, &camera)?,
-    };
-    let view = ViewSpec { camera: Some(camera), gamma, exposure: gamma, equalize: args.equalize };
+    let origin = bx.origin.map(|o| o - margin as i32);
+    let cameras = Cameras::from_args(&args)?.at(&args, 0.0, padded.dims, &grid.transform, origin);
+    let gamma = absorption_for(&args, cameras.iter().map(|c| (&padded, c)))?;
+    let views = views_of(&cameras, gamma, args.equalize);
+    let view = views[0].clone();
     let spec = StyleSpec { layers: args.layers.clone(), layer_weights: vec![1.0; args.layers.len()] };
     let loss = ViewLoss::new(&vgg, &style, &spec)?;
     let params = frame_params(&args, vmax, &view);
+    let held_out = match &args.eval_cameras {
+        Some(e) => {
+            let cams = CameraSet::parse(e)?.cameras(&args, padded.dims);
+            let g = absorption_for(&args, cams.iter().map(|c| (&padded, c)))?;
+            views_of(&cams, g, args.equalize)
+        }
+        None => Vec::new(),
+    };
+    let held_out_before = mean_loss(&loss, &padded, &held_out)?;
 
     let mut progress = Progress::new((args.octaves * args.iters) as u64);
-    let result = stylize_frame(&padded, &loss, &params, &mut |p| {
+    let result = stylize_frame_views(&padded, &loss, &params, &views, &mut |p| {
         progress.step(format!(
             "octave {}/{} iteration {}/{} loss {:.4e}",
             p.octave + 1,
@@ -243,7 +403,6 @@ pub fn run(args: VolumeArgs) -> Result<()> {
         bail!("stylization produced non-finite densities (try a smaller --lr)");
     }
 
-    let origin = bx.origin.map(|o| o - margin as i32);
     let mut out_grid = VdbGrid::from_dense(&grid.name, grid.transform.clone(), origin, &result.density, 0.0);
     out_grid.metadata = grid.metadata.clone();
     out_grid.class = grid.class.clone();
@@ -271,20 +430,35 @@ pub fn run(args: VolumeArgs) -> Result<()> {
         let sheet = nst3d_io::image::side_by_side(&[&before, &after, &painting]);
         nst3d_io::image::write_png(preview, &sheet)?;
     }
+    if !held_out.is_empty() {
+        let after = mean_loss(&loss, &result.density, &held_out)?;
+        println!("held-out cameras {}: mean style loss {:.4e} -> {:.4e}", args.eval_cameras.as_deref().unwrap_or(""), held_out_before, after);
+    }
     println!(
-        "{}: grid '{}' {}x{}x{} stylized ({:?} mode); style loss {:.4e} -> {:.4e} ({:.0}% lower); wrote {}",
+        "{}: grid '{}' {}x{}x{} stylized ({:?} mode, {} camera{}); style loss {:.4e} -> {:.4e} ({:.0}% lower); wrote {}",
         args.input.display(),
         grid.name,
         bx.dims[0],
         bx.dims[1],
         bx.dims[2],
         args.mode,
+        views.len(),
+        if views.len() == 1 { "" } else { "s" },
         result.loss_before,
         result.loss_after,
         100.0 * result.loss_drop(),
         args.out.display()
     );
     Ok(())
+}
+
+/// Mean style loss of `d` over `views` (0 for none).
+pub(crate) fn mean_loss(loss: &ViewLoss, d: &Grid3, views: &[ViewSpec]) -> Result<f32> {
+    let mut total = 0.0;
+    for v in views {
+        total += loss.loss(d, v)?;
+    }
+    Ok(total / views.len().max(1) as f32)
 }
 
 /// Height of the preview sheet in pixels.

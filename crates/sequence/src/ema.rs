@@ -27,6 +27,9 @@ pub enum SequenceError {
     /// Scoring a view failed.
     #[error(transparent)]
     View(#[from] ViewError),
+    /// The work folder's saved state cannot be used (the message says why).
+    #[error("work folder: {0}")]
+    Checkpoint(String),
 }
 
 /// The simulation, frame by frame, on one common dense domain.
@@ -59,6 +62,19 @@ pub struct FrameState {
     pub step: u64,
 }
 
+/// A point of Algorithm 1 at which every frame's state is consistent: the
+/// end of sweep `sweeps_done` of octave `octave` (0 = coarsest); 0 sweeps done
+/// means the octave's fields were just carried up from the coarser octave.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SweepMark {
+    /// Octave, coarse first (0-based).
+    pub octave: usize,
+    /// Number of octaves of the run.
+    pub octaves: usize,
+    /// Sweeps of this octave completed.
+    pub sweeps_done: usize,
+}
+
 /// Where per-frame state lives between sweeps: memory for short sequences,
 /// disk when the sequence does not fit (memory then stays a few frames).
 pub trait StateStore {
@@ -66,6 +82,15 @@ pub trait StateStore {
     fn load(&mut self, t: usize) -> Result<Option<FrameState>, SequenceError>;
     /// Saves the state of frame `t`.
     fn save(&mut self, t: usize, state: FrameState) -> Result<(), SequenceError>;
+    /// Called when every frame has been saved for `mark`: a persistent store
+    /// makes those states the ones a restart resumes from. Memory does nothing.
+    fn commit(&mut self, _mark: SweepMark) -> Result<(), SequenceError> {
+        Ok(())
+    }
+    /// The last committed mark, where a restarted run picks up (`None`: start afresh).
+    fn resume_point(&self) -> Option<SweepMark> {
+        None
+    }
 }
 
 /// All states in memory.
@@ -134,6 +159,21 @@ pub fn stylize_sequence(
     store: &mut dyn StateStore,
     progress: &mut dyn FnMut(&SweepProgress),
 ) -> Result<(), SequenceError> {
+    stylize_sequence_with(sim, loss, &|_| views.to_vec(), params, store, progress)
+}
+
+/// [`stylize_sequence`] with a camera set per frame (a camera path: `views(t)`
+/// is Θ for frame `t`, full resolution). If `store` has a
+/// [`StateStore::resume_point`], the run picks up after it; every completed
+/// sweep is [`StateStore::commit`]ted, so a killed run loses at most one sweep.
+pub fn stylize_sequence_with(
+    sim: &dyn Simulation,
+    loss: &ViewLoss,
+    views: &dyn Fn(usize) -> Vec<ViewSpec>,
+    params: &SequenceParams,
+    store: &mut dyn StateStore,
+    progress: &mut dyn FnMut(&SweepProgress),
+) -> Result<(), SequenceError> {
     let n = sim.len();
     let fp = &params.frame;
     // Octave dims from the common domain, as the single-frame pyramid does.
@@ -147,21 +187,45 @@ pub fn stylize_sequence(
         dims.push(next);
     }
     let octaves = dims.len();
+    let resume = store.resume_point();
+    if let Some(r) = resume {
+        if r.octaves != octaves || r.octave >= octaves || r.sweeps_done > fp.iterations {
+            return Err(SequenceError::Checkpoint(format!(
+                "checkpoint at octave {}/{} sweep {} does not fit a run of {} octaves x {} sweeps",
+                r.octave + 1,
+                r.octaves,
+                r.sweeps_done,
+                octaves,
+                fp.iterations
+            )));
+        }
+    }
     for (k, level) in (0..octaves).rev().enumerate() {
+        // Octaves wholly before the checkpoint are done.
+        let first_sweep = match resume {
+            Some(r) if k < r.octave => continue,
+            Some(r) if k == r.octave => Some(r.sweeps_done),
+            _ => None,
+        };
         let here = dims[level];
         let factor = (1usize << level) as f32;
-        let level_views: Vec<ViewSpec> = views.iter().map(|v| nst3d_stylize::frame::view_at(v, factor)).collect();
+        let level_views = |t: usize| -> Vec<ViewSpec> {
+            views(t).iter().map(|v| nst3d_stylize::frame::view_at(v, factor)).collect()
+        };
         let vmax_here = fp.limits.vmax / factor;
-        // Carry fields up from the coarser octave; fresh Adam moments.
-        for t in 0..n {
-            let field = match store.load(t)? {
-                None => Field::identity(fp.mode, here.iter().product()),
-                Some(s) => s.field.resize(dims[level + 1], here),
-            };
-            let len = field.len();
-            store.save(t, FrameState { field, m: vec![0.0; len], v: vec![0.0; len], step: 0 })?;
+        if first_sweep.is_none() {
+            // Carry fields up from the coarser octave; fresh Adam moments.
+            for t in 0..n {
+                let field = match store.load(t)? {
+                    None => Field::identity(fp.mode, here.iter().product()),
+                    Some(s) => s.field.resize(dims[level + 1], here),
+                };
+                let len = field.len();
+                store.save(t, FrameState { field, m: vec![0.0; len], v: vec![0.0; len], step: 0 })?;
+            }
+            store.commit(SweepMark { octave: k, octaves, sweeps_done: 0 })?;
         }
-        for it in 0..fp.iterations {
+        for it in first_sweep.unwrap_or(0)..fp.iterations {
             let forward = it % 2 == 0;
             let order: Vec<usize> = if forward { (0..n).collect() } else { (0..n).rev().collect() };
             // The previous frame's updated field, already carried to this frame's time.
@@ -173,6 +237,10 @@ pub fn stylize_sequence(
                     frame: t,
                     message: "lost its optimisation state".into(),
                 })?;
+                let per_voxel = if matches!(st.field, Field::Velocity(_)) { 3 } else { 1 };
+                if st.field.len() != per_voxel * here.iter().product::<usize>() {
+                    return Err(SequenceError::Checkpoint(format!("frame {t}: saved state does not match octave dims {here:?}")));
+                }
                 if let Some(c) = &carried {
                     st.field.blend(c, params.alpha);
                     st.field.constrain(&fp.limits, vmax_here);
@@ -180,7 +248,7 @@ pub fn stylize_sequence(
                 let dstar = st.field.transport(&d);
                 let mut grad = vec![0.0f32; st.field.len()];
                 let mut total = 0.0;
-                for view in &level_views {
+                for view in &level_views(t) {
                     let (l, g) = loss.loss_and_grad(&dstar, view)?;
                     total += l;
                     for (a, b) in grad.iter_mut().zip(st.field.transport_backward(&d, &g.data)) {
@@ -214,6 +282,7 @@ pub fn stylize_sequence(
                 };
                 store.save(t, st)?;
             }
+            store.commit(SweepMark { octave: k, octaves, sweeps_done: it + 1 })?;
         }
     }
     Ok(())

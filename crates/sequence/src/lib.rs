@@ -7,5 +7,7 @@ pub mod calibrate;
 pub mod ema;
 pub mod flicker;
 pub mod frames;
+pub mod store;
 
 pub use frames::{expand_pattern, FrameSpec, FramesError};
+pub use store::DiskStore;

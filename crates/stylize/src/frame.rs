@@ -104,20 +104,35 @@ fn coarse_camera(mut cam: Camera, factor: f32) -> Camera {
     cam
 }
 
-/// Stylises one density grid. `progress` is called after every iteration.
+/// Stylises one density grid seen from `params.view`. `progress` is called
+/// after every iteration.
 pub fn stylize_frame(
     d: &Grid3,
     loss: &ViewLoss,
     params: &FrameParams,
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<FrameResult, ViewError> {
+    stylize_frame_views(d, loss, params, std::slice::from_ref(&params.view), progress)
+}
+
+/// Stylises one density grid for a camera set Θ (eq. 1): every iteration
+/// sums the style losses and gradients of all `views` (full resolution; an
+/// empty set falls back to `params.view`). The reported losses are sums too.
+pub fn stylize_frame_views(
+    d: &Grid3,
+    loss: &ViewLoss,
+    params: &FrameParams,
+    views: &[ViewSpec],
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<FrameResult, ViewError> {
+    let views = if views.is_empty() { std::slice::from_ref(&params.view) } else { views };
     let levels = pyramid(d, params.octaves.max(1));
     let octaves = levels.len();
     let mut field: Option<(Field, [usize; 3])> = None;
 
     for (k, level) in levels.iter().rev().enumerate() {
         let factor = (1usize << (octaves - 1 - k)) as f32;
-        let view = view_at(&params.view, factor);
+        let level_views: Vec<ViewSpec> = views.iter().map(|v| view_at(v, factor)).collect();
         let mut f = match field.take() {
             None => Field::identity(params.mode, level.len()),
             Some((f, dims)) => f.resize(dims, level.dims),
@@ -129,7 +144,13 @@ pub fn stylize_frame(
         let mut adam = Adam::new(f.len(), params.learning_rate);
         for it in 0..params.iterations {
             let dstar = f.transport(level);
-            let (l, grad_dstar) = loss.loss_and_grad(&dstar, &view)?;
+            let mut l = 0.0;
+            let mut grad_dstar = Grid3::zeros(level.dims);
+            for view in &level_views {
+                let (lv, gv) = loss.loss_and_grad(&dstar, view)?;
+                l += lv;
+                grad_dstar.data.iter_mut().zip(&gv.data).for_each(|(a, b)| *a += b);
+            }
             let grad = f.transport_backward(level, &grad_dstar.data);
             adam.step(f.params_mut(), &grad);
             f.constrain(&params.limits, vmax_here);
@@ -141,7 +162,10 @@ pub fn stylize_frame(
     let (field, dims) = field.expect("at least one octave");
     let field = if dims == d.dims { field } else { field.resize(dims, d.dims) };
     let density = field.transport(d);
-    let loss_before = loss.loss(d, &params.view)?;
-    let loss_after = loss.loss(&density, &params.view)?;
+    let (mut loss_before, mut loss_after) = (0.0, 0.0);
+    for view in views {
+        loss_before += loss.loss(d, view)?;
+        loss_after += loss.loss(&density, view)?;
+    }
     Ok(FrameResult { density, field, loss_before, loss_after })
 }

@@ -13,5 +13,5 @@ pub mod frame;
 pub mod view;
 
 pub use field::{Field, Limits, Mode};
-pub use frame::{stylize_frame, FrameParams, FrameResult, Progress};
+pub use frame::{stylize_frame, stylize_frame_views, FrameParams, FrameResult, Progress};
 pub use view::{StyleSpec, ViewError, ViewLoss, ViewSpec};

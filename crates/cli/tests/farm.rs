@@ -1,0 +1,232 @@
+//! Render-farm behaviour of `nst3d volume --frames`: chunks with warm-up
+//! blend at their seams, a killed run resumes from its checkpoint and loses
+//! no finished frame, finished frames are skipped, a missing frame fails the
+//! job with its name; and omniview cameras stylize views they never saw.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+use nst3d_core::Grid3;
+
+fn shared(rel: &str) -> PathBuf {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
+    assert!(p.exists(), "shared test data missing: {} (the repo expects ../shared beside it)", p.display());
+    p
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn plume() -> PathBuf {
+    shared("volumes/plume48").join("fluid_data_####.vdb")
+}
+
+/// `nst3d volume` over plume frames with fast settings (1 octave, 4 sweeps).
+fn sequence_cmd(frames: &str, out: &Path, extra: &[&str]) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_nst3d"));
+    c.args(["--threads", "2", "volume", "--input", s(&plume()), "--frames", frames])
+        .args(["--style", s(&shared("styles/starry_night.jpg")), "--out", s(out)])
+        .args(["--iters", "4", "--octaves", "1"])
+        .args(extra);
+    c
+}
+
+fn ok(o: &Output) -> String {
+    assert!(o.status.success(), "nst3d failed: {}", String::from_utf8_lossy(&o.stderr));
+    String::from_utf8_lossy(&o.stdout).to_string()
+}
+
+/// The density of `path` in a fixed index box, so files with different
+/// active boxes compare voxel for voxel.
+fn density(path: &Path) -> Grid3 {
+    const LO: i32 = -16;
+    const N: usize = 96;
+    let file = nst3d_io::vdb::read_vdb(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let (bx, d) = file.grid("density").unwrap().to_dense().unwrap();
+    let mut out = Grid3::zeros([N; 3]);
+    for z in 0..bx.dims[2] {
+        for y in 0..bx.dims[1] {
+            for x in 0..bx.dims[0] {
+                let p = [x, y, z].map(|v| v as i32);
+                let q: [usize; 3] = std::array::from_fn(|a| (bx.origin[a] + p[a] - LO) as usize);
+                assert!(q.iter().all(|&v| v < N), "grid outside the comparison box");
+                let i = out.index(q[0], q[1], q[2]);
+                out.data[i] = d.data[d.index(x, y, z)];
+            }
+        }
+    }
+    out
+}
+
+/// `‖a − b‖ / ‖a − input‖`: a difference between two stylizations measured
+/// against how much the stylization changed the smoke at all.
+fn relative(a: &Grid3, b: &Grid3, input: &Grid3) -> f64 {
+    let sq = |x: &Grid3, y: &Grid3| x.data.iter().zip(&y.data).map(|(p, q)| ((p - q) as f64).powi(2)).sum::<f64>();
+    (sq(a, b) / sq(a, input).max(1e-30)).sqrt()
+}
+
+fn max_abs(a: &Grid3, b: &Grid3) -> f32 {
+    a.data.iter().zip(&b.data).map(|(p, q)| (p - q).abs()).fold(0.0, f32::max)
+}
+
+/// 12 frames as one run and as 3 chunks of 4. Without warm-up the seam
+/// frames are stylized differently (the EMA of a chunk starts cold); with 4
+/// frames of warm-up they move towards the single run's, and the frames a
+/// chunk's warm-up covers entirely are identical (docs/FARM.md has the
+/// numbers for longer sequences).
+#[test]
+fn chunks_with_warmup_blend_at_the_seams() {
+    let dir = tempfile::tempdir().unwrap();
+    let full = dir.path().join("full/s_####.vdb");
+    ok(&sequence_cmd("20-31", &full, &[]).output().unwrap());
+    let seams = [23, 24, 27, 28];
+    let mut worst = Vec::new();
+    for k in [0, 4] {
+        let out = dir.path().join(format!("k{k}/s_####.vdb"));
+        for chunk in ["20-23", "24-27", "28-31"] {
+            let stdout = ok(&sequence_cmd("20-31", &out, &["--chunk", chunk, "--warmup", &k.to_string()]).output().unwrap());
+            assert!(stdout.contains("4 frames stylized"), "{stdout}");
+        }
+        let mut rel = Vec::new();
+        for f in seams {
+            let name = format!("s_{f:04}.vdb");
+            let a = density(&dir.path().join("full").join(&name));
+            let b = density(&dir.path().join(format!("k{k}")).join(&name));
+            let input = density(&shared(&format!("volumes/plume48/fluid_data_{f:04}.vdb")));
+            rel.push(relative(&a, &b, &input));
+            eprintln!("warm-up {k}: frame {f}: max |chunk - full| {:.4}, relative {:.3}", max_abs(&a, &b), rel.last().unwrap());
+        }
+        worst.push(rel);
+    }
+    // Chunk 24-27 with 4 frames of warm-up sees all of 20-31: exact.
+    assert_eq!(worst[1][1], 0.0);
+    assert_eq!(worst[1][2], 0.0);
+    // The seams a warm-up only partly covers are still closer than cold chunks.
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    assert!(mean(&worst[1]) < 0.6 * mean(&worst[0]), "warm-up did not bring the seams closer: {worst:?}");
+    assert!(worst[1][0] < 0.5 && worst[1][3] < 1.0, "seams too far from the single run: {worst:?}");
+}
+
+/// Kill a run during sweep 2, rerun the same command: it says where it
+/// resumes and ends with the same bytes as an uninterrupted run. Then the
+/// finished frames are skipped, a deleted one is redone, --force redoes all.
+#[test]
+fn a_killed_run_resumes_and_loses_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let clean = dir.path().join("clean/s_####.vdb");
+    ok(&sequence_cmd("20-23", &clean, &[]).output().unwrap());
+
+    let out = dir.path().join("killed/s_####.vdb");
+    let mut child = sequence_cmd("20-23", &out, &[]).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    let mut seen = false;
+    for line in BufReader::new(child.stderr.take().unwrap()).lines() {
+        if line.unwrap().contains("sweep 2/4") {
+            seen = true;
+            child.kill().unwrap();
+            break;
+        }
+    }
+    child.wait().unwrap();
+    assert!(seen, "never saw sweep 2 in the progress lines");
+    let work = dir.path().join("killed/.nst3d-work");
+    assert!(work.exists(), "no work folder after the kill");
+
+    let o = sequence_cmd("20-23", &out, &[]).output().unwrap();
+    ok(&o);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("resuming at octave 1 sweep "), "{err}");
+    assert!(!err.contains("sweep 1/4"), "the resumed run redid sweep 1: {err}");
+    for f in 20..=23 {
+        let name = format!("s_{f:04}.vdb");
+        let a = std::fs::read(dir.path().join("clean").join(&name)).unwrap();
+        let b = std::fs::read(dir.path().join("killed").join(&name)).unwrap();
+        assert!(a == b, "frame {f} differs from the uninterrupted run");
+    }
+    assert!(std::fs::read_dir(&work).unwrap().next().is_none(), "work folder not cleaned up after success");
+
+    let again = ok(&sequence_cmd("20-23", &out, &[]).output().unwrap());
+    assert!(again.contains("nothing to do"), "{again}");
+    let redo = dir.path().join("killed/s_0022.vdb");
+    std::fs::remove_file(&redo).unwrap();
+    let one = ok(&sequence_cmd("20-23", &out, &[]).output().unwrap());
+    assert!(one.contains("1 frames stylized"), "{one}");
+    assert!(std::fs::read(&redo).unwrap() == std::fs::read(dir.path().join("clean/s_0022.vdb")).unwrap());
+    let all = ok(&sequence_cmd("20-23", &out, &["--force"]).output().unwrap());
+    assert!(all.contains("4 frames stylized"), "{all}");
+}
+
+/// A frame missing in the middle of the range fails the job (exit 1) with
+/// an error naming the file, before any slow work.
+#[test]
+fn a_missing_frame_fails_the_job_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    for f in [20, 21, 23] {
+        let name = format!("fluid_data_{f:04}.vdb");
+        std::fs::copy(shared("volumes/plume48").join(&name), dir.path().join(&name)).unwrap();
+    }
+    let o = Command::new(env!("CARGO_BIN_EXE_nst3d"))
+        .args(["volume", "--input", s(&dir.path().join("fluid_data_####.vdb")), "--frames", "20-23"])
+        .args(["--style", s(&shared("styles/starry_night.jpg")), "--out", s(&dir.path().join("o_####.vdb"))])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("fluid_data_0022.vdb"), "{err}");
+    assert!(!dir.path().join("o_0020.vdb").exists(), "wrote frames of a job that cannot complete");
+}
+
+/// Parses "held-out cameras ...: mean style loss A -> B" into B.
+fn held_out(stdout: &str) -> f32 {
+    let line = stdout.lines().find(|l| l.starts_with("held-out cameras")).unwrap_or_else(|| panic!("{stdout}"));
+    line.rsplit("-> ").next().unwrap().trim().parse().unwrap()
+}
+
+/// Omniview (8 Poisson-disk cameras) against the single front camera on one
+/// plume frame, both scored from a 4-camera ring at 30° elevation that
+/// neither optimised: omniview's held-out style loss is lower.
+#[test]
+fn omniview_lowers_the_held_out_style_loss() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut losses = Vec::new();
+    for cams in ["front", "omniview:8"] {
+        let o = Command::new(env!("CARGO_BIN_EXE_nst3d"))
+            .args(["--threads", "2", "volume", "--input", s(&shared("volumes/plume48/fluid_data_0030.vdb"))])
+            .args(["--style", s(&shared("styles/starry_night.jpg")), "--out", s(&dir.path().join("o.vdb"))])
+            .args(["--iters", "8", "--octaves", "1", "--cameras", cams, "--eval-cameras", "ring:4:30"])
+            .output()
+            .unwrap();
+        let stdout = ok(&o);
+        eprintln!("{cams}: {stdout}");
+        losses.push(held_out(&stdout));
+    }
+    assert!(losses[1] < 0.9 * losses[0], "omniview {} vs front {}", losses[1], losses[0]);
+}
+
+/// Camera options: a bad set is one clean error; a camera file drives a
+/// sequence (the camera follows its path) and a single frame.
+#[test]
+fn camera_sets_and_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_nst3d"))
+        .args(["volume", "--input", s(&shared("volumes/plume48/fluid_data_0030.vdb"))])
+        .args(["--style", s(&shared("styles/starry_night.jpg")), "--out", s(&dir.path().join("o.vdb"))])
+        .args(["--cameras", "omniview:x"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("omniview:x"));
+
+    // A path around the plume (Blender world space: the plume fills about [0.3, 1.6]² x [0.1, 1.75], z up).
+    let cam = dir.path().join("shot.json");
+    std::fs::write(
+        &cam,
+        r#"{"up": [0, 0, 1], "frames": {"20": {"position": [1, -5, 1], "look_at": [1, 1, 1]},
+                                        "22": {"position": [7, 1, 1], "look_at": [1, 1, 1]}}}"#,
+    )
+    .unwrap();
+    let out = dir.path().join("c_####.vdb");
+    let stdout = ok(&sequence_cmd("20-22", &out, &["--camera-file", s(&cam)]).output().unwrap());
+    assert!(stdout.contains("3 frames stylized"), "{stdout}");
+}

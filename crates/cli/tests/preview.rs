@@ -1,0 +1,254 @@
+//! `nst3d preview` end to end on the shared smoke files: every mode writes the
+//! pictures it promises (upright, centred, one size per set), and every bad
+//! input is one error line with nothing left on disk.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn shared(rel: &str) -> PathBuf {
+    let p = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/volumes")).join(rel);
+    // A pattern is checked through its first frame.
+    let probe = p.to_string_lossy().replace("####", "0001").replace('#', "1");
+    assert!(Path::new(&probe).exists(), "shared test data missing: {probe} (the repo expects ../shared beside it)");
+    p
+}
+
+fn plume(frame: u32) -> PathBuf {
+    shared(&format!("plume48/fluid_data_{frame:04}.vdb"))
+}
+
+fn nst3d(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_nst3d")).arg("preview").args(args).output().expect("run nst3d")
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn ok(o: &Output) -> String {
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "nst3d preview failed: {err}");
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// Grey levels of a PNG, row-major, with its width and height.
+fn grey(p: &Path) -> (Vec<f32>, usize, usize) {
+    let img = image::open(p).unwrap_or_else(|e| panic!("{}: {e}", p.display())).to_rgb8();
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    (img.pixels().map(|px| px.0.iter().map(|&c| c as f32).sum::<f32>() / (3.0 * 255.0)).collect(), w, h)
+}
+
+/// Brightness-weighted centre of a picture in `[0, 1]²` (x right, y down).
+fn centroid(p: &Path) -> [f32; 2] {
+    let (g, w, h) = grey(p);
+    let (mut sx, mut sy, mut sum) = (0.0, 0.0, 0.0);
+    for (i, v) in g.iter().enumerate() {
+        sx += v * ((i % w) as f32 + 0.5) / w as f32;
+        sy += v * ((i / w) as f32 + 0.5) / h as f32;
+        sum += v;
+    }
+    assert!(sum > 0.0, "{} is black", p.display());
+    [sx / sum, sy / sum]
+}
+
+/// Files in `dir`, sorted.
+fn listing(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .map(|r| r.filter_map(|e| e.ok()).map(|e| e.file_name().to_string_lossy().into_owned()).collect())
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+/// A clean failure: exit 1, one line naming `needle`, no panic, nothing written in `dir`.
+fn assert_fails(o: &Output, dir: &Path, needle: &str) {
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "expected exit 1, stderr: {err}");
+    let lines: Vec<&str> = err.lines().collect();
+    assert_eq!(lines.len(), 1, "expected one error line, got: {err}");
+    assert!(lines[0].starts_with("nst3d: error: "), "not an error line: {err}");
+    assert!(lines[0].contains(needle), "error should mention '{needle}': {err}");
+    assert!(!err.contains("panicked") && !err.contains("internal error"), "panic: {err}");
+    assert!(listing(dir).is_empty(), "a failed run left files: {:?}", listing(dir));
+}
+
+#[test]
+fn front_view_is_upright_and_centred() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("preview.png");
+    let msg = ok(&nst3d(&["--input", s(&plume(30)), "--out", s(&out)]));
+    assert!(msg.contains("wrote 1 preview picture") && msg.contains("absorption"), "{msg}");
+    let (g, w, h) = grey(&out);
+    assert_eq!(h, 384);
+    // plume48's box is 32 wide by 48 high at most: a portrait picture.
+    assert!((150..384).contains(&w), "width {w}");
+    // Smoke is there but not flat white (auto absorption: optical depth 3 at most).
+    let lit = g.iter().filter(|&&v| v > 0.1).count() as f32 / g.len() as f32;
+    assert!((0.15..0.9).contains(&lit), "lit fraction {lit}");
+    assert!(g.iter().cloned().fold(0.0, f32::max) > 0.6);
+    // Centred left-right; the z-up plume's cap rises, so its top half is the heavier one.
+    let [cx, _] = centroid(&out);
+    assert!((cx - 0.5).abs() < 0.08, "not centred: x {cx}");
+    let rows = |r: std::ops::Range<usize>| r.map(|y| g[y * w..][..w].iter().sum::<f32>()).sum::<f32>();
+    assert!(rows(0..h / 3) > rows(2 * h / 3..h), "cap should be at the top");
+
+    // Other cameras, axes and sizes render too.
+    let small = dir.path().join("small.png");
+    ok(&nst3d(&["--input", s(&plume(30)), "--out", s(&small), "--camera", "orthographic", "--height", "96"]));
+    assert_eq!(grey(&small).2, 96);
+    let yup = dir.path().join("yup.png");
+    ok(&nst3d(&["--input", s(&shared("smoke_000003.vdb")), "--out", s(&yup), "--up", "y", "--absorption", "0.05"]));
+    assert_eq!(grey(&yup).2, 384);
+}
+
+#[test]
+fn turntable_writes_one_equal_sized_picture_per_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    let pattern = dir.path().join("turn_####.png");
+    let msg = ok(&nst3d(&["--input", s(&shared("smoke_000003.vdb")), "--turntable", "4", "--out", s(&pattern)]));
+    assert!(msg.contains("wrote 4 preview pictures"), "{msg}");
+    assert_eq!(listing(dir.path()), ["turn_0001.png", "turn_0002.png", "turn_0003.png", "turn_0004.png"]);
+    let sizes: Vec<(usize, usize)> = listing(dir.path())
+        .iter()
+        .map(|f| {
+            let (_, w, h) = grey(&dir.path().join(f));
+            (w, h)
+        })
+        .collect();
+    assert!(sizes.iter().all(|&sz| sz == sizes[0]), "flipbook sizes differ: {sizes:?}");
+    assert_eq!(sizes[0].1, 384);
+    // Every view sees the smoke near the middle of the canvas.
+    for f in listing(dir.path()) {
+        let [cx, _] = centroid(&dir.path().join(&f));
+        assert!((cx - 0.5).abs() < 0.15, "{f} off centre: {cx}");
+    }
+    // The first turntable view is the front view.
+    let front = dir.path().join("front.png");
+    ok(&nst3d(&["--input", s(&shared("smoke_000003.vdb")), "--out", s(&front), "--camera", "orthographic"]));
+    let first = dir.path().join("o_#.png");
+    ok(&nst3d(&[
+        "--input",
+        s(&shared("smoke_000003.vdb")),
+        "--out",
+        s(&first),
+        "--camera",
+        "orthographic",
+        "--turntable",
+        "1",
+        "--elevation",
+        "0",
+    ]));
+    let (a, wa, ha) = grey(&front);
+    let (b, wb, hb) = grey(&dir.path().join("o_1.png"));
+    assert_eq!((wa, ha), (wb, hb));
+    let diff = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).sum::<f32>() / a.len() as f32;
+    assert!(diff < 0.02, "turntable view 1 differs from the front view by {diff}");
+}
+
+#[test]
+fn compare_sheet_uses_one_camera_and_absorption() {
+    let dir = tempfile::tempdir().unwrap();
+    let single = dir.path().join("single.png");
+    ok(&nst3d(&["--input", s(&plume(30)), "--out", s(&single)]));
+    let (one, w1, h1) = grey(&single);
+
+    // A file compared with itself: two identical halves around a thin bar.
+    let sheet = dir.path().join("sheet.png");
+    ok(&nst3d(&["--input", s(&plume(30)), "--compare", s(&plume(30)), "--out", s(&sheet)]));
+    let (g, w, h) = grey(&sheet);
+    assert_eq!(h, h1);
+    assert!(w > 2 * w1 && w <= 2 * w1 + 8, "sheet width {w} for pictures {w1} wide");
+    let right = w - w1;
+    for y in 0..h {
+        for x in 0..w1 {
+            assert_eq!(g[y * w + x], g[y * w + right + x], "halves differ at ({x}, {y})");
+            assert_eq!(g[y * w + x], one[y * w1 + x], "left half differs from the single picture");
+        }
+    }
+
+    // Different boxes line up in their union, and the input alone sets γ:
+    // the young puff of frame 10 stays inside the frame-30 plume's picture.
+    let mixed = dir.path().join("mixed.png");
+    let msg = ok(&nst3d(&["--input", s(&plume(10)), "--compare", s(&plume(30)), "--out", s(&mixed)]));
+    let alone = ok(&nst3d(&["--input", s(&plume(10)), "--out", s(&dir.path().join("ten.png"))]));
+    let gamma = |m: &str| m.rsplit("absorption ").next().unwrap().trim().to_string();
+    let (_, wm, _) = grey(&mixed);
+    assert!(wm > 2 * 100, "mixed sheet width {wm}");
+    assert!(!gamma(&msg).is_empty());
+    // γ is from frame 10 in both runs up to the perspective of a larger box.
+    let (g1, g2): (f32, f32) = (gamma(&msg).parse().unwrap(), gamma(&alone).parse().unwrap());
+    assert!((g1 / g2 - 1.0).abs() < 0.25, "compare γ {g1} vs alone {g2}");
+}
+
+#[test]
+fn sequence_writes_one_picture_per_frame_with_a_fixed_camera_and_gamma() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = shared("plume48/fluid_data_####.vdb");
+    let out = dir.path().join("prev/p_####.png");
+    let msg = ok(&nst3d(&["--input", s(&input), "--frames", "1-40:13", "--out", s(&out)]));
+    assert!(msg.contains("wrote 4 preview pictures"), "{msg}");
+    let prev = dir.path().join("prev");
+    assert_eq!(listing(&prev), ["p_0001.png", "p_0014.png", "p_0027.png", "p_0040.png"]);
+    let pics: Vec<_> = listing(&prev).iter().map(|f| grey(&prev.join(f))).collect();
+    assert!(pics.iter().all(|p| (p.1, p.2) == (pics[0].1, pics[0].2)), "frame sizes differ");
+    // Fixed camera: the plume grows upwards from the same inflow, so the lit
+    // area grows and the brightness centre rises frame by frame.
+    let lit: Vec<usize> = pics.iter().map(|p| p.0.iter().filter(|&&v| v > 0.1).count()).collect();
+    assert!(lit.windows(2).all(|w| w[0] < w[1]), "lit areas {lit:?}");
+    let ys: Vec<f32> = listing(&prev).iter().map(|f| centroid(&prev.join(f))[1]).collect();
+    assert!(ys.windows(2).all(|w| w[0] > w[1]), "centroid heights {ys:?}");
+    // γ from the densest frame: no frame turns flat white.
+    for (f, p) in listing(&prev).iter().zip(&pics) {
+        let white = p.0.iter().filter(|&&v| v > 0.98).count() as f32 / p.0.len() as f32;
+        assert!(white < 0.05, "{f} is {white:.2} white");
+    }
+
+    // Side by side per frame, and empty frames render black instead of failing.
+    let cmp = dir.path().join("cmp/c_%04d.png");
+    ok(&nst3d(&["--input", s(&input), "--frames", "5,6", "--compare", s(&input), "--out", s(&cmp)]));
+    assert_eq!(listing(&dir.path().join("cmp")), ["c_0005.png", "c_0006.png"]);
+    assert!(grey(&dir.path().join("cmp/c_0005.png")).1 > 2 * pics[0].1);
+    let smoke = shared("smoke_00000#.vdb");
+    let msg = ok(&nst3d(&["--input", s(&smoke), "--frames", "1-3", "--out", s(&dir.path().join("sm/s_#.png"))]));
+    assert!(msg.contains("wrote 3"), "{msg}");
+    let (first, ..) = grey(&dir.path().join("sm/s_1.png"));
+    assert!(first.iter().all(|&v| v == 0.0), "the empty frame should be black");
+}
+
+#[test]
+fn bad_inputs_give_one_line_errors_and_no_files() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("out");
+    std::fs::create_dir(&dir).unwrap();
+    let out = dir.join("p.png");
+    let pat = dir.join("p_####.png");
+    let frames = shared("plume48/fluid_data_####.vdb");
+    let f1 = plume(1);
+    let (jpg, empty, empty_frames) =
+        (shared("../styles/shipwreck.jpg"), shared("smoke_000001.vdb"), shared("smoke_00000#.vdb"));
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (vec!["--input", "/nonexistent/missing.vdb", "--out", s(&out)], "missing.vdb"),
+        (vec!["--input", s(&jpg), "--out", s(&out)], "not an OpenVDB file"),
+        (vec!["--input", s(&f1), "--grid", "smoke", "--out", s(&out)], "no grid named 'smoke'"),
+        (vec!["--input", s(&f1), "--grid", "velocity", "--out", s(&out)], "vec3s"),
+        (vec!["--input", s(&empty), "--out", s(&out)], "empty"),
+        (vec!["--input", s(&f1), "--compare", "/nonexistent/styled.vdb", "--out", s(&out)], "styled.vdb"),
+        (vec!["--input", s(&frames), "--out", s(&out)], "give --frames"),
+        (vec!["--input", s(&f1), "--frames", "1-3", "--out", s(&pat)], "placeholder"),
+        (vec!["--input", s(&frames), "--frames", "1-3", "--out", s(&out)], "placeholder"),
+        (vec!["--input", s(&frames), "--frames", "1-3", "--compare", s(&f1), "--out", s(&pat)], "placeholder"),
+        (vec!["--input", s(&f1), "--turntable", "3", "--out", s(&out)], "placeholder"),
+        (vec!["--input", s(&frames), "--frames", "3-1", "--out", s(&pat)], "bad frame spec"),
+        // Frame 41 does not exist: frames 38-40 must not be written either.
+        (vec!["--input", s(&frames), "--frames", "38-41", "--out", s(&pat)], "fluid_data_0041.vdb"),
+        (vec!["--input", s(&empty_frames), "--frames", "1", "--out", s(&pat)], "empty in every frame"),
+        (vec!["--input", s(&f1), "--turntable", "0", "--out", s(&pat)], "--turntable"),
+        (vec!["--input", s(&frames), "--frames", "1-2", "--turntable", "2", "--out", s(&pat)], "cannot be combined"),
+        (vec!["--input", s(&f1), "--absorption", "-1", "--out", s(&out)], "--absorption"),
+        (vec!["--input", s(&f1), "--height", "0", "--out", s(&out)], "--height"),
+        (vec!["--input", s(&f1), "--turntable", "2", "--elevation", "95", "--out", s(&pat)], "--elevation"),
+    ];
+    for (args, needle) in cases {
+        assert_fails(&nst3d(&args), &dir, needle);
+    }
+}

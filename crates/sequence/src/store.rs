@@ -1,0 +1,277 @@
+//! Per-frame optimisation state on disk, so a long simulation needs memory
+//! for a few frames rather than for the whole sequence, and a killed farm
+//! task resumes from its last completed sweep.
+//!
+//! # Layout of the work folder
+//! * `frame_TTTTTT.gGGGGGGGG.bin`: the [`FrameState`] of frame `T` (index in
+//!   the run, not the frame number) as written during generation `G`
+//!   (one generation per [`SweepMark`]).
+//! * `checkpoint`: one line, `nst3d-checkpoint generation G octave K octaves N sweeps S`,
+//!   the last generation whose states are complete.
+//!
+//! A sweep rewrites every frame, so while it runs some frames are one
+//! generation ahead of the others. Files of the committed generation are
+//! only deleted after the next one is committed, and on opening, files of an
+//! uncommitted generation are discarded: a kill at any moment leaves a
+//! consistent set of states, the ones of the checkpoint. Every file is
+//! written to a temporary name and renamed, so none is ever half-written.
+
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use nst3d_stylize::Field;
+
+use crate::ema::{FrameState, SequenceError, StateStore, SweepMark};
+
+/// First bytes of a state file (format version 1).
+const MAGIC: &[u8; 8] = b"NST3DFS1";
+/// Name of the checkpoint file inside the work folder.
+const CHECKPOINT: &str = "checkpoint";
+
+/// A [`StateStore`] keeping every frame's field and Adam moments in a work
+/// folder; memory holds only the frame being worked on.
+pub struct DiskStore {
+    dir: PathBuf,
+    /// Generation that `save` writes: one past the committed one.
+    generation: u64,
+    /// Newest generation on disk per frame.
+    latest: Vec<Option<u64>>,
+    /// Committed generation per frame (kept until the next commit).
+    committed: Vec<Option<u64>>,
+    mark: Option<SweepMark>,
+}
+
+fn io_err(path: &Path, e: impl std::fmt::Display) -> SequenceError {
+    SequenceError::Checkpoint(format!("{}: {e}", path.display()))
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same folder and
+/// a rename, so readers see the old content or the new, never a part.
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SequenceError> {
+    let tmp = path.with_extension(format!("tmp{}", std::process::id()));
+    let result = (|| {
+        let mut f = fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        fs::rename(&tmp, path)
+    })();
+    if let Err(e) = result {
+        let _ = fs::remove_file(&tmp);
+        return Err(io_err(path, e));
+    }
+    Ok(())
+}
+
+/// `frame_TTTTTT.gGGGGGGGG.bin` → `(T, G)`.
+fn parse_name(name: &str) -> Option<(usize, u64)> {
+    let rest = name.strip_prefix("frame_")?.strip_suffix(".bin")?;
+    let (t, g) = rest.split_once(".g")?;
+    Some((t.parse().ok()?, g.parse().ok()?))
+}
+
+impl DiskStore {
+    /// Opens (creating it if needed) a work folder. A checkpoint found there
+    /// becomes the [`StateStore::resume_point`]; states written after it by
+    /// a run that was killed mid-sweep are discarded. Without a checkpoint
+    /// any old state files are removed and the run starts afresh.
+    pub fn open(dir: &Path) -> Result<Self, SequenceError> {
+        fs::create_dir_all(dir).map_err(|e| io_err(dir, e))?;
+        let cp_path = dir.join(CHECKPOINT);
+        let (committed_gen, mark) = match fs::read_to_string(&cp_path) {
+            Ok(text) => {
+                let (g, m) = parse_checkpoint(&text).ok_or_else(|| io_err(&cp_path, "unreadable checkpoint (delete the work folder to start afresh)"))?;
+                (Some(g), Some(m))
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => (None, None),
+            Err(e) => return Err(io_err(&cp_path, e)),
+        };
+        let mut store = Self {
+            dir: dir.to_path_buf(),
+            generation: committed_gen.map_or(1, |g| g + 1),
+            latest: Vec::new(),
+            committed: Vec::new(),
+            mark,
+        };
+        let mut files: Vec<(usize, u64, PathBuf)> = Vec::new();
+        for entry in fs::read_dir(dir).map_err(|e| io_err(dir, e))? {
+            let entry = entry.map_err(|e| io_err(dir, e))?;
+            let name = entry.file_name().to_string_lossy().to_string();
+            if name.contains(".tmp") {
+                let _ = fs::remove_file(entry.path());
+            } else if let Some((t, g)) = parse_name(&name) {
+                files.push((t, g, entry.path()));
+            }
+        }
+        // Newest committed file per frame survives; the rest is stale or uncommitted.
+        files.sort();
+        for (t, g, path) in files.iter().rev() {
+            let keep = committed_gen.is_some_and(|c| *g <= c) && store.slot(*t).is_none();
+            if keep {
+                store.latest[*t] = Some(*g);
+                store.committed[*t] = Some(*g);
+            } else {
+                fs::remove_file(path).map_err(|e| io_err(path, e))?;
+            }
+        }
+        Ok(store)
+    }
+
+    /// The work folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Newest generation of frame `t`, growing the tables as needed.
+    fn slot(&mut self, t: usize) -> Option<u64> {
+        if self.latest.len() <= t {
+            self.latest.resize(t + 1, None);
+            self.committed.resize(t + 1, None);
+        }
+        self.latest[t]
+    }
+
+    fn path(&self, t: usize, g: u64) -> PathBuf {
+        self.dir.join(format!("frame_{t:06}.g{g:08}.bin"))
+    }
+}
+
+fn parse_checkpoint(text: &str) -> Option<(u64, SweepMark)> {
+    let w: Vec<&str> = text.split_whitespace().collect();
+    match w.as_slice() {
+        ["nst3d-checkpoint", "generation", g, "octave", k, "octaves", n, "sweeps", s] => Some((
+            g.parse().ok()?,
+            SweepMark { octave: k.parse().ok()?, octaves: n.parse().ok()?, sweeps_done: s.parse().ok()? },
+        )),
+        _ => None,
+    }
+}
+
+/// Serialises a state: magic, mode (0 velocity, 1 scale), step, parameter
+/// count, then field, first and second moments as little-endian f32.
+fn encode(st: &FrameState) -> Vec<u8> {
+    let params = st.field.params();
+    let mut out = Vec::with_capacity(32 + 12 * params.len());
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&(matches!(st.field, Field::Scale(_)) as u64).to_le_bytes());
+    out.extend_from_slice(&st.step.to_le_bytes());
+    out.extend_from_slice(&(params.len() as u64).to_le_bytes());
+    for v in params.iter().chain(&st.m).chain(&st.v) {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
+fn decode(bytes: &[u8]) -> Option<FrameState> {
+    let word = |i: usize| Some(u64::from_le_bytes(bytes.get(8 * i..8 * i + 8)?.try_into().ok()?));
+    if bytes.get(..8)? != MAGIC {
+        return None;
+    }
+    let (scale, step, len) = (word(1)?, word(2)?, word(3)? as usize);
+    let body = bytes.get(32..)?;
+    if body.len() != 12 * len || (scale == 0 && len % 3 != 0) {
+        return None;
+    }
+    let floats: Vec<f32> = body.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+    let (p, rest) = floats.split_at(len);
+    let (m, v) = rest.split_at(len);
+    let field = if scale == 1 {
+        Field::Scale(p.to_vec())
+    } else {
+        Field::Velocity(p.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+    };
+    Some(FrameState { field, m: m.to_vec(), v: v.to_vec(), step })
+}
+
+impl StateStore for DiskStore {
+    fn load(&mut self, t: usize) -> Result<Option<FrameState>, SequenceError> {
+        let Some(g) = self.slot(t) else { return Ok(None) };
+        let path = self.path(t, g);
+        let bytes = fs::read(&path).map_err(|e| io_err(&path, e))?;
+        decode(&bytes).map(Some).ok_or_else(|| io_err(&path, "corrupt state file (delete the work folder to start afresh)"))
+    }
+
+    fn save(&mut self, t: usize, state: FrameState) -> Result<(), SequenceError> {
+        self.slot(t);
+        let g = self.generation;
+        write_atomic(&self.path(t, g), &encode(&state))?;
+        // A second save in one generation replaces the first; anything older
+        // than the committed file is already gone.
+        self.latest[t] = Some(g);
+        Ok(())
+    }
+
+    fn commit(&mut self, mark: SweepMark) -> Result<(), SequenceError> {
+        let g = self.generation;
+        let line = format!(
+            "nst3d-checkpoint generation {g} octave {} octaves {} sweeps {}\n",
+            mark.octave, mark.octaves, mark.sweeps_done
+        );
+        write_atomic(&self.dir.join(CHECKPOINT), line.as_bytes())?;
+        for t in 0..self.latest.len() {
+            if let (Some(new), Some(old)) = (self.latest[t], self.committed[t]) {
+                if old < new {
+                    let path = self.path(t, old);
+                    fs::remove_file(&path).map_err(|e| io_err(&path, e))?;
+                }
+            }
+            self.committed[t] = self.latest[t];
+        }
+        self.generation += 1;
+        self.mark = Some(mark);
+        Ok(())
+    }
+
+    fn resume_point(&self) -> Option<SweepMark> {
+        self.mark
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn state(x: f32) -> FrameState {
+        FrameState { field: Field::Velocity(vec![[x, 2.0 * x, -x]; 4]), m: vec![x; 12], v: vec![0.5; 12], step: 7 }
+    }
+
+    fn first(st: &FrameState) -> f32 {
+        st.field.params()[0]
+    }
+
+    #[test]
+    fn states_round_trip_and_commit_is_what_a_restart_sees() {
+        let dir = std::env::temp_dir().join(format!("nst3d-diskstore-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        let mark = |s| SweepMark { octave: 0, octaves: 1, sweeps_done: s };
+        {
+            let mut store = DiskStore::open(&dir).unwrap();
+            assert_eq!(store.resume_point(), None);
+            for t in 0..3 {
+                store.save(t, state(t as f32)).unwrap();
+            }
+            store.commit(mark(1)).unwrap();
+            let back = store.load(2).unwrap().unwrap();
+            assert_eq!(back.field.params(), state(2.0).field.params());
+            assert_eq!((back.m, back.step), (state(2.0).m, 7));
+            // A sweep that is killed after one frame.
+            store.save(0, state(10.0)).unwrap();
+            assert_eq!(first(&store.load(0).unwrap().unwrap()), 10.0);
+        }
+        let mut store = DiskStore::open(&dir).unwrap();
+        assert_eq!(store.resume_point(), Some(mark(1)));
+        assert_eq!(first(&store.load(0).unwrap().unwrap()), 0.0, "the uncommitted save is discarded");
+        assert_eq!(first(&store.load(1).unwrap().unwrap()), 1.0);
+        for t in 0..3 {
+            store.save(t, state(20.0 + t as f32)).unwrap();
+        }
+        store.commit(mark(2)).unwrap();
+        let files = fs::read_dir(&dir).unwrap().count();
+        assert_eq!(files, 4, "one file per frame plus the checkpoint");
+        let mut store = DiskStore::open(&dir).unwrap();
+        assert_eq!(first(&store.load(2).unwrap().unwrap()), 22.0);
+        fs::write(dir.join(CHECKPOINT), "garbage").unwrap();
+        assert!(DiskStore::open(&dir).is_err());
+        fs::remove_dir_all(&dir).unwrap();
+    }
+}
