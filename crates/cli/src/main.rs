@@ -3,8 +3,10 @@
 //! non-zero exit code; the work itself lives in the library crates.
 
 mod bench;
+mod preview;
 mod progress;
 mod sequence;
+mod strands;
 mod volume;
 
 use clap::{Parser, Subcommand};
@@ -26,6 +28,10 @@ enum Command {
     Volume(volume::VolumeArgs),
     /// Run a benchmark (see docs/PERFORMANCE.md).
     Bench(bench::BenchArgs),
+    /// Draw smoke as PNGs: a front view, a turntable, original | stylized, or a sequence.
+    Preview(preview::PreviewArgs),
+    /// Stylize a hair or fur groom (strand style transfer, one frame).
+    Strands(strands::StrandsArgs),
 }
 
 fn main() {
@@ -50,10 +56,27 @@ fn main() {
     let result = match cli.command {
         Command::Volume(args) => volume::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::Preview(args) => preview::run(args),
+        Command::Strands(args) => strands::run(args),
     };
     if let Err(e) = result {
-        // `{:#}` joins the context chain into a single line.
-        eprintln!("nst3d: error: {e:#}");
+        eprintln!("nst3d: error: {}", one_line(&e));
         std::process::exit(1);
     }
+}
+
+/// The error and its causes on one line. Library errors often repeat their
+/// cause in their own message; a cause already said is not said twice.
+fn one_line(e: &anyhow::Error) -> String {
+    let mut msg = String::new();
+    for cause in e.chain() {
+        let s = cause.to_string();
+        if !msg.contains(&s) {
+            if !msg.is_empty() {
+                msg.push_str(": ");
+            }
+            msg.push_str(&s);
+        }
+    }
+    msg.replace('\n', " ")
 }

@@ -20,7 +20,9 @@ use nst3d_sequence::{expand_pattern, DiskStore, FrameSpec};
 use nst3d_stylize::{Mode, StyleSpec, ViewLoss, ViewSpec};
 
 use crate::progress::Progress;
-use crate::volume::{absorption_for, check_args, frame_params, load_style_and_vgg, mean_loss, views_of, Cameras, VolumeArgs};
+use crate::volume::{
+    absorption_for, check_args, frame_params, load_style_and_vgg, mean_loss, views_of, Cameras, VolumeArgs,
+};
 
 /// Velocity grid names solvers write: Blender `velocity`, Houdini `vel` or `v`.
 const VELOCITY_NAMES: [&str; 3] = ["velocity", "vel", "v"];
@@ -97,7 +99,8 @@ impl Simulation for VdbSimulation {
             for y in 0..ny {
                 for x in 0..nx {
                     let i = g.index(x, y, z);
-                    let upper = [(x + 1 < nx).then(|| i + 1), (y + 1 < ny).then(|| i + nx), (z + 1 < nz).then(|| i + nx * ny)];
+                    let upper =
+                        [(x + 1 < nx).then(|| i + 1), (y + 1 < ny).then(|| i + nx), (z + 1 < nz).then(|| i + nx * ny)];
                     for a in 0..3 {
                         let c = &comps[a].data;
                         let v = match (staggered, upper[a]) {
@@ -174,7 +177,8 @@ fn job_hash(args: &VolumeArgs, run_paths: &[PathBuf]) -> Result<u64> {
     }
     for p in run_paths {
         let meta = std::fs::metadata(p).with_context(|| format!("{}", p.display()))?;
-        let mtime = meta.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map_or(0, |d| d.as_nanos());
+        let mtime =
+            meta.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map_or(0, |d| d.as_nanos());
         h = fnv1a(format!("{}|{}|{mtime}", p.display(), meta.len()).as_bytes(), h);
     }
     Ok(h)
@@ -202,11 +206,14 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     // The chunk optimises its frames plus the warm-up on each side.
     let run_frames = spec.within(start.saturating_sub(args.warmup), end.saturating_add(args.warmup));
     let path_of = |f: i64| expand_pattern(&input, f).map(PathBuf::from);
-    let out_of = |f: i64| expand_pattern(&output, f).map(PathBuf::from).context("--out must be a pattern too when --frames is given");
+    let out_of = |f: i64| {
+        expand_pattern(&output, f).map(PathBuf::from).context("--out must be a pattern too when --frames is given")
+    };
     let paths: Vec<PathBuf> = all.iter().map(|&f| path_of(f)).collect::<Result<_, _>>()?;
     let outs: Vec<PathBuf> = run_frames.iter().map(|&f| out_of(f)).collect::<Result<_, _>>()?;
     let is_written = |f: i64| (start..=end).contains(&f);
-    let todo: Vec<usize> = (0..run_frames.len()).filter(|&i| is_written(run_frames[i]) && (args.force || !outs[i].exists())).collect();
+    let todo: Vec<usize> =
+        (0..run_frames.len()).filter(|&i| is_written(run_frames[i]) && (args.force || !outs[i].exists())).collect();
     let existing = written.len() - todo.len();
     if todo.is_empty() {
         println!("all {} frames {start}-{end} already exist; nothing to do (--force redoes them)", written.len());
@@ -225,9 +232,7 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     let mut velocity_grid = args.velocity_grid.clone();
     for p in &paths {
         let file = read_vdb(p)?;
-        let grid = file
-            .grid(&args.grid)
-            .with_context(|| format!("{}: no grid named '{}'", p.display(), args.grid))?;
+        let grid = file.grid(&args.grid).with_context(|| format!("{}: no grid named '{}'", p.display(), args.grid))?;
         if matches!(grid.values, GridValues::Unsupported { .. } | GridValues::Vec3(_)) {
             bail!("{}: grid '{}' is not a float grid", p.display(), args.grid);
         }
@@ -237,7 +242,12 @@ pub fn run(args: VolumeArgs) -> Result<()> {
         match &transform {
             None => transform = Some(grid.transform.clone()),
             Some(t) if t.voxel_size != grid.transform.voxel_size => {
-                bail!("{}: voxel size {:?} differs from the first frame's {:?}", p.display(), grid.transform.voxel_size, t.voxel_size)
+                bail!(
+                    "{}: voxel size {:?} differs from the first frame's {:?}",
+                    p.display(),
+                    grid.transform.voxel_size,
+                    t.voxel_size
+                )
             }
             _ => {}
         }
@@ -266,7 +276,14 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     if dims.iter().product::<usize>() > (1 << 28) {
         bail!("the frames' common box {dims:?} is too large to stylize densely");
     }
-    let mut full = VdbSimulation { paths: paths.clone(), grid: args.grid.clone(), velocity_grid, velocity_scale: 1.0, origin, dims };
+    let mut full = VdbSimulation {
+        paths: paths.clone(),
+        grid: args.grid.clone(),
+        velocity_grid,
+        velocity_scale: 1.0,
+        origin,
+        dims,
+    };
     if full.velocity_grid.is_some() {
         full.velocity_scale = match args.velocity_scale {
             Some(s) if s.is_finite() && s >= 0.0 => s,
@@ -391,8 +408,10 @@ pub fn run(args: VolumeArgs) -> Result<()> {
                 if let Some((tp, dp)) = &prev {
                     if *tp + 1 == t {
                         let vel = sim.velocity(*tp)?;
-                        let render = |g: &Grid3| loss.image(g, &views[t][0]).expect("the view rendered during optimisation");
-                        flicker_sum += nst3d_sequence::flicker::flicker(&[dp.clone(), d.clone()], &[vel, None], render) as f64;
+                        let render =
+                            |g: &Grid3| loss.image(g, &views[t][0]).expect("the view rendered during optimisation");
+                        flicker_sum +=
+                            nst3d_sequence::flicker::flicker(&[dp.clone(), d.clone()], &[vel, None], render) as f64;
                         pairs += 1;
                     }
                 }
@@ -405,7 +424,12 @@ pub fn run(args: VolumeArgs) -> Result<()> {
         }
     }
     if !failures.is_empty() {
-        bail!("{} of {} frames failed: {:?} (rerun to retry them; finished frames are kept)", failures.len(), todo.len(), failures);
+        bail!(
+            "{} of {} frames failed: {:?} (rerun to retry them; finished frames are kept)",
+            failures.len(),
+            todo.len(),
+            failures
+        );
     }
     // Every frame landed: the states are no longer needed (they are large).
     let _ = std::fs::remove_dir_all(&work);
@@ -433,7 +457,13 @@ fn calibrate(sim: &VdbSimulation) -> Result<f32> {
             continue;
         }
         let saved = sim.velocity_scale;
-        let unit = VdbSimulation { velocity_scale: 1.0, paths: sim.paths.clone(), grid: sim.grid.clone(), velocity_grid: sim.velocity_grid.clone(), ..*sim };
+        let unit = VdbSimulation {
+            velocity_scale: 1.0,
+            paths: sim.paths.clone(),
+            grid: sim.grid.clone(),
+            velocity_grid: sim.velocity_grid.clone(),
+            ..*sim
+        };
         let _ = saved;
         if let Some(u) = unit.velocity(t)? {
             if let Some(s) = nst3d_sequence::calibrate::velocity_scale(&d0, &d1, &u) {

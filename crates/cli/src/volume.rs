@@ -214,7 +214,14 @@ impl Cameras {
 
     /// Θ at `frame` for a dense box of `dims` whose voxel (0,0,0) is index
     /// `origin` of a grid with `transform`.
-    pub(crate) fn at(&self, args: &VolumeArgs, frame: f64, dims: [usize; 3], transform: &Transform, origin: [i32; 3]) -> Vec<Camera> {
+    pub(crate) fn at(
+        &self,
+        args: &VolumeArgs,
+        frame: f64,
+        dims: [usize; 3],
+        transform: &Transform,
+        origin: [i32; 3],
+    ) -> Vec<Camera> {
         match self {
             Self::Set(set) => set.cameras(args, dims),
             Self::Rig(rig) => vec![rig.at_frame(frame, &dense_index_to_world(transform, origin))],
@@ -234,7 +241,10 @@ pub(crate) fn dense_index_to_world(transform: &Transform, origin: [i32; 3]) -> [
 
 /// Absorption from --absorption, or the smallest [`auto_absorption`] over
 /// every density and camera given, so no view of any frame saturates.
-pub(crate) fn absorption_for<'a>(args: &VolumeArgs, pairs: impl Iterator<Item = (&'a Grid3, &'a Camera)>) -> Result<f32> {
+pub(crate) fn absorption_for<'a>(
+    args: &VolumeArgs,
+    pairs: impl Iterator<Item = (&'a Grid3, &'a Camera)>,
+) -> Result<f32> {
     match args.absorption {
         Some(g) if g.is_finite() && g > 0.0 => Ok(g),
         Some(g) => bail!("--absorption must be a positive number, got {g}"),
@@ -432,7 +442,12 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     }
     if !held_out.is_empty() {
         let after = mean_loss(&loss, &result.density, &held_out)?;
-        println!("held-out cameras {}: mean style loss {:.4e} -> {:.4e}", args.eval_cameras.as_deref().unwrap_or(""), held_out_before, after);
+        println!(
+            "held-out cameras {}: mean style loss {:.4e} -> {:.4e}",
+            args.eval_cameras.as_deref().unwrap_or(""),
+            held_out_before,
+            after
+        );
     }
     println!(
         "{}: grid '{}' {}x{}x{} stylized ({:?} mode, {} camera{}); style loss {:.4e} -> {:.4e} ({:.0}% lower); wrote {}",

@@ -144,12 +144,8 @@ fn stylizes_real_smoke_in_both_modes() {
     let input_voxel = input.split(' ').nth(1).unwrap().to_string();
     for mode in ["density", "velocity"] {
         let preview = dir.path().join(format!("{mode}.png"));
-        let (o, out) = volume(
-            &smoke,
-            &shared("styles/starry_night.jpg"),
-            dir.path(),
-            &["--mode", mode, "--preview", s(&preview)],
-        );
+        let (o, out) =
+            volume(&smoke, &shared("styles/starry_night.jpg"), dir.path(), &["--mode", mode, "--preview", s(&preview)]);
         let stdout = String::from_utf8_lossy(&o.stdout);
         assert!(o.status.success(), "{mode}: {}", String::from_utf8_lossy(&o.stderr));
         let drop = loss_drop(&stdout);
@@ -166,7 +162,10 @@ fn stylizes_real_smoke_in_both_modes() {
         let bbox: Vec<i64> = f[5..].iter().map(|v| v.parse().unwrap()).collect();
         let slack = if mode == "velocity" { 5 } else { 0 };
         for a in 0..3 {
-            assert!(bbox[a] >= input_fields[a] - slack && bbox[a + 3] <= input_fields[a + 3] + slack, "{summary} vs {input}");
+            assert!(
+                bbox[a] >= input_fields[a] - slack && bbox[a + 3] <= input_fields[a + 3] + slack,
+                "{summary} vs {input}"
+            );
             assert!(bbox[a + 3] - bbox[a] > (input_fields[a + 3] - input_fields[a]) / 2, "{summary} vs {input}");
         }
     }
@@ -241,7 +240,8 @@ fn identical_inputs_give_identical_files() {
     for run in 0..2 {
         let sub = dir.path().join(format!("run{run}"));
         std::fs::create_dir_all(&sub).unwrap();
-        let (o, out) = volume(&shared("volumes/smoke_000002.vdb"), &shared("styles/shipwreck.jpg"), &sub, &["--iters", "3"]);
+        let (o, out) =
+            volume(&shared("volumes/smoke_000002.vdb"), &shared("styles/shipwreck.jpg"), &sub, &["--iters", "3"]);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         outputs.push(std::fs::read(out).unwrap());
     }

@@ -86,7 +86,8 @@ fn chunks_with_warmup_blend_at_the_seams() {
     for k in [0, 4] {
         let out = dir.path().join(format!("k{k}/s_####.vdb"));
         for chunk in ["20-23", "24-27", "28-31"] {
-            let stdout = ok(&sequence_cmd("20-31", &out, &["--chunk", chunk, "--warmup", &k.to_string()]).output().unwrap());
+            let stdout =
+                ok(&sequence_cmd("20-31", &out, &["--chunk", chunk, "--warmup", &k.to_string()]).output().unwrap());
             assert!(stdout.contains("4 frames stylized"), "{stdout}");
         }
         let mut rel = Vec::new();
@@ -96,7 +97,11 @@ fn chunks_with_warmup_blend_at_the_seams() {
             let b = density(&dir.path().join(format!("k{k}")).join(&name));
             let input = density(&shared(&format!("volumes/plume48/fluid_data_{f:04}.vdb")));
             rel.push(relative(&a, &b, &input));
-            eprintln!("warm-up {k}: frame {f}: max |chunk - full| {:.4}, relative {:.3}", max_abs(&a, &b), rel.last().unwrap());
+            eprintln!(
+                "warm-up {k}: frame {f}: max |chunk - full| {:.4}, relative {:.3}",
+                max_abs(&a, &b),
+                rel.last().unwrap()
+            );
         }
         worst.push(rel);
     }

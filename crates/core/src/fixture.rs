@@ -8,8 +8,8 @@ use std::path::Path;
 /// script to run when the file is missing: a test never skips silently.
 pub fn load_f32(crate_dir: &str, name: &str, script: &str) -> Vec<f32> {
     let path = Path::new(crate_dir).join("tests/fixtures").join(name);
-    let bytes = std::fs::read(&path)
-        .unwrap_or_else(|e| panic!("missing fixture {} ({e}); run {script}", path.display()));
+    let bytes =
+        std::fs::read(&path).unwrap_or_else(|e| panic!("missing fixture {} ({e}); run {script}", path.display()));
     bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
 }
 

@@ -21,7 +21,11 @@ enum Kernel {
     Winograd(WinogradWeights),
     /// Direct loops for few channels: `wt` is `[tap][cin][cout]` when the
     /// output is wide (vectorised over outputs), else `[cout][tap][cin]`.
-    Direct { cin: usize, cout: usize, wt: Vec<f32> },
+    Direct {
+        cin: usize,
+        cout: usize,
+        wt: Vec<f32>,
+    },
 }
 
 impl Kernel {
@@ -64,7 +68,16 @@ fn wide_output(cout: usize) -> bool {
 
 /// Direct "valid" 3x3 convolution (see [`Kernel::Direct`] for the layouts).
 #[allow(clippy::too_many_arguments)]
-fn direct(inp: &Padded, out_h: usize, out_w: usize, cin: usize, cout: usize, wt: &[f32], bias: Option<&[f32]>, relu: bool) -> FeatureMap {
+fn direct(
+    inp: &Padded,
+    out_h: usize,
+    out_w: usize,
+    cin: usize,
+    cout: usize,
+    wt: &[f32],
+    bias: Option<&[f32]>,
+    relu: bool,
+) -> FeatureMap {
     // Every value is set below (bias first), so a pooled buffer's old
     // contents never show.
     let mut data = take_buffer(out_h * out_w * cout);
@@ -147,11 +160,26 @@ pub struct Conv3x3 {
 
 impl Conv3x3 {
     /// `weight` in PyTorch layout `[cout][cin][3][3]`, `bias` of `cout`.
-    pub fn new(cin: usize, cout: usize, weight: Vec<f32>, bias: Vec<f32>, padding: Padding) -> Result<Self, FeaturesError> {
+    pub fn new(
+        cin: usize,
+        cout: usize,
+        weight: Vec<f32>,
+        bias: Vec<f32>,
+        padding: Padding,
+    ) -> Result<Self, FeaturesError> {
         if cin == 0 || cout == 0 || weight.len() != cout * cin * 9 || bias.len() != cout {
             return Err(FeaturesError::BadConv { cin, cout, weight: weight.len(), bias: bias.len() });
         }
-        Ok(Self { algorithm: ConvAlgorithm::Auto, cin, cout, padding, weight, bias, fwd: OnceLock::new(), bwd: OnceLock::new() })
+        Ok(Self {
+            algorithm: ConvAlgorithm::Auto,
+            cin,
+            cout,
+            padding,
+            weight,
+            bias,
+            fwd: OnceLock::new(),
+            bwd: OnceLock::new(),
+        })
     }
 
     /// The same convolution computed with `algorithm`.
@@ -375,7 +403,8 @@ mod tests {
 
     fn check_forward(cin: usize, cout: usize, h: usize, w: usize, mode: Padding) {
         // Realistic activations: non-negative (post-ReLU) inputs, He-scaled weights.
-        let x = FeatureMap::from_vec(h, w, cin, pseudo_random(h * w * cin, 5).iter().map(|v| v.max(0.0) * 3.0).collect());
+        let x =
+            FeatureMap::from_vec(h, w, cin, pseudo_random(h * w * cin, 5).iter().map(|v| v.max(0.0) * 3.0).collect());
         let scale = (6.0 / (9.0 * cin as f32)).sqrt();
         let wt: Vec<f32> = pseudo_random(cout * cin * 9, 6).iter().map(|v| v * scale).collect();
         let b = pseudo_random(cout, 7);
@@ -435,7 +464,9 @@ mod tests {
     #[test]
     fn backward_is_adjoint_of_forward() {
         for mode in [Padding::Zero, Padding::Reflect] {
-            for (cin, cout, h, w) in [(256, 512, 5, 5), (16, 32, 2, 3), (32, 64, 10, 9), (64, 3, 6, 7), (3, 64, 5, 4), (32, 32, 3, 2)] {
+            for (cin, cout, h, w) in
+                [(256, 512, 5, 5), (16, 32, 2, 3), (32, 64, 10, 9), (64, 3, 6, 7), (3, 64, 5, 4), (32, 32, 3, 2)]
+            {
                 let conv = Conv3x3::new(cin, cout, pseudo_random(cout * cin * 9, 41), vec![0.0; cout], mode).unwrap();
                 let x = fm(h, w, cin, 42);
                 let g = fm(h, w, cout, 43);

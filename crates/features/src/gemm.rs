@@ -42,10 +42,7 @@ pub(crate) fn has_avx512() -> bool {
     {
         use std::sync::OnceLock;
         static HAS: OnceLock<bool> = OnceLock::new();
-        *HAS.get_or_init(|| {
-            is_x86_feature_detected!("avx512f")
-                && std::env::var_os("NST3D_NO_AVX512").is_none()
-        })
+        *HAS.get_or_init(|| is_x86_feature_detected!("avx512f") && std::env::var_os("NST3D_NO_AVX512").is_none())
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -71,7 +68,15 @@ pub(crate) unsafe fn kernel(bl: Blocking, a: *const f32, lda: usize, b: *const f
 }
 
 /// Portable reference of [`kernel`] (same contract).
-pub(crate) unsafe fn kernel_portable(bl: Blocking, a: *const f32, lda: usize, b: *const f32, k: usize, c: *mut f32, ldc: usize) {
+pub(crate) unsafe fn kernel_portable(
+    bl: Blocking,
+    a: *const f32,
+    lda: usize,
+    b: *const f32,
+    k: usize,
+    c: *mut f32,
+    ldc: usize,
+) {
     let mut acc = [[0f32; 64]; 12];
     for kk in 0..k {
         let brow = std::slice::from_raw_parts(b.add(kk * bl.nr), bl.nr);
@@ -93,7 +98,14 @@ pub(crate) unsafe fn kernel_portable(bl: Blocking, a: *const f32, lda: usize, b:
 /// pointers spilled and ran at a third of this speed).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn kernel_avx512<const M: usize, const NV: usize>(a: *const f32, lda: usize, b: *const f32, k: usize, c: *mut f32, ldc: usize) {
+unsafe fn kernel_avx512<const M: usize, const NV: usize>(
+    a: *const f32,
+    lda: usize,
+    b: *const f32,
+    k: usize,
+    c: *mut f32,
+    ldc: usize,
+) {
     use std::arch::x86_64::*;
     let mut acc = [[_mm512_setzero_ps(); NV]; M];
     let (mut ap, mut bp) = (a, b);

@@ -48,29 +48,31 @@ impl MaxPool2x2 {
         let (oh, ow) = (self.out_size(h), self.out_size(w));
         let mut out = FeatureMap::pooled_zeros(oh, ow, c);
         let mut index = vec![0u32; oh * ow * c];
-        out.data.par_chunks_mut((ow * c).max(1)).zip(index.par_chunks_mut((ow * c).max(1))).enumerate().for_each(|(oy, (orow, irow))| {
-            for ox in 0..ow {
-                let (ov, oi) = (&mut orow[ox * c..(ox + 1) * c], &mut irow[ox * c..(ox + 1) * c]);
-                // Window in PyTorch's scan order; the first candidate seeds the maximum.
-                let mut first = true;
-                for (dy, dx) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
-                    let (y, xx) = (2 * oy + dy, 2 * ox + dx);
-                    if y >= h || xx >= w {
-                        continue;
-                    }
-                    let base = (y * w + xx) * c;
-                    let src = &x.data[base..base + c];
-                    for (ch, ((o, i), v)) in ov.iter_mut().zip(oi.iter_mut()).zip(src).enumerate() {
-                        // Strictly greater keeps the first maximum; NaN wins like PyTorch.
-                        if first || *v > *o || v.is_nan() {
-                            *o = *v;
-                            *i = (base + ch) as u32;
+        out.data.par_chunks_mut((ow * c).max(1)).zip(index.par_chunks_mut((ow * c).max(1))).enumerate().for_each(
+            |(oy, (orow, irow))| {
+                for ox in 0..ow {
+                    let (ov, oi) = (&mut orow[ox * c..(ox + 1) * c], &mut irow[ox * c..(ox + 1) * c]);
+                    // Window in PyTorch's scan order; the first candidate seeds the maximum.
+                    let mut first = true;
+                    for (dy, dx) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
+                        let (y, xx) = (2 * oy + dy, 2 * ox + dx);
+                        if y >= h || xx >= w {
+                            continue;
                         }
+                        let base = (y * w + xx) * c;
+                        let src = &x.data[base..base + c];
+                        for (ch, ((o, i), v)) in ov.iter_mut().zip(oi.iter_mut()).zip(src).enumerate() {
+                            // Strictly greater keeps the first maximum; NaN wins like PyTorch.
+                            if first || *v > *o || v.is_nan() {
+                                *o = *v;
+                                *i = (base + ch) as u32;
+                            }
+                        }
+                        first = false;
                     }
-                    first = false;
                 }
-            }
-        });
+            },
+        );
         (out, PoolArgmax { in_height: h, in_width: w, index })
     }
 

@@ -48,14 +48,16 @@ impl FeatureMap {
         let (c, plane) = (img.channels, img.plane());
         let mut data = take_buffer(img.data.len());
         // Rows of pixels in parallel; each pixel gathers its channels.
-        data.spare_capacity_mut()[..img.data.len()].par_chunks_mut((img.width * c).max(1)).enumerate().for_each(|(y, row)| {
-            for x in 0..img.width {
-                let p = y * img.width + x;
-                for ch in 0..c {
-                    row[x * c + ch].write(img.data[ch * plane + p]);
+        data.spare_capacity_mut()[..img.data.len()].par_chunks_mut((img.width * c).max(1)).enumerate().for_each(
+            |(y, row)| {
+                for x in 0..img.width {
+                    let p = y * img.width + x;
+                    for ch in 0..c {
+                        row[x * c + ch].write(img.data[ch * plane + p]);
+                    }
                 }
-            }
-        });
+            },
+        );
         // SAFETY: every element was written above.
         unsafe { data.set_len(img.data.len()) };
         Self { height: img.height, width: img.width, channels: c, data }
@@ -70,16 +72,18 @@ impl FeatureMap {
         // Blocks of channels in parallel so each output plane is written by
         // one task; pixels in runs of 64 so the reads of a run stay in cache.
         let chunk = 16.min(c.max(1));
-        data.spare_capacity_mut()[..self.data.len()].par_chunks_mut((plane * chunk).max(1)).enumerate().for_each(|(blk, out)| {
-            let c0 = blk * chunk;
-            let nc = out.len() / plane.max(1);
-            for p in 0..plane {
-                let src = &self.data[p * c + c0..p * c + c0 + nc];
-                for (k, v) in src.iter().enumerate() {
-                    out[k * plane + p].write(*v);
+        data.spare_capacity_mut()[..self.data.len()].par_chunks_mut((plane * chunk).max(1)).enumerate().for_each(
+            |(blk, out)| {
+                let c0 = blk * chunk;
+                let nc = out.len() / plane.max(1);
+                for p in 0..plane {
+                    let src = &self.data[p * c + c0..p * c + c0 + nc];
+                    for (k, v) in src.iter().enumerate() {
+                        out[k * plane + p].write(*v);
+                    }
                 }
-            }
-        });
+            },
+        );
         // SAFETY: every element was written above.
         unsafe { data.set_len(self.data.len()) };
         Image::from_vec(c, self.height, self.width, data)

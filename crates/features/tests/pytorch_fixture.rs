@@ -37,7 +37,8 @@ fn check(flavor: VggFlavor, algorithm: ConvAlgorithm, file: &str) {
     let f = net.forward(&img, &taps, true);
     for (t, l) in f.taps().iter().zip(&taps) {
         let (sums, samples) = (take(t.channels), take(NSAMPLE));
-        let ours: Vec<f32> = (0..t.channels).map(|c| t.channel(c).iter().map(|v| *v as f64).sum::<f64>() as f32).collect();
+        let ours: Vec<f32> =
+            (0..t.channels).map(|c| t.channel(c).iter().map(|v| *v as f64).sum::<f64>() as f32).collect();
         let e = rel_err(&ours, &sums);
         assert!(e < 1e-4, "{flavor:?} {l} channel sums: rel err {e}");
         let n = t.data.len();
@@ -64,7 +65,8 @@ fn check(flavor: VggFlavor, algorithm: ConvAlgorithm, file: &str) {
     let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs() as f64));
     let off = g.data.iter().zip(&want).filter(|(a, b)| (**a as f64 - **b as f64).abs() > 1e-3 * scale).count();
     let l2 = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
-    let rel_l2 = l2(&mut g.data.iter().zip(&want).map(|(a, b)| *a as f64 - *b as f64)) / l2(&mut want.iter().map(|b| *b as f64));
+    let rel_l2 =
+        l2(&mut g.data.iter().zip(&want).map(|(a, b)| *a as f64 - *b as f64)) / l2(&mut want.iter().map(|b| *b as f64));
     eprintln!("{flavor:?} input gradient: rel L2 {rel_l2:.2e}, entries off by > 1e-3 of max: {off} / {}", want.len());
     match algorithm {
         ConvAlgorithm::Direct => assert_eq!(off, 0, "{flavor:?} input gradient: {off} entries off by > 1e-3 of max"),

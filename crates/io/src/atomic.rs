@@ -22,10 +22,7 @@ where
         fs::create_dir_all(dir)?;
     }
     // Same folder as the target so the rename is a same-filesystem atomic move.
-    let tmp = tempfile::Builder::new()
-        .prefix(".nst3d-")
-        .suffix(".tmp")
-        .tempfile_in(dir)?;
+    let tmp = tempfile::Builder::new().prefix(".nst3d-").suffix(".tmp").tempfile_in(dir)?;
     {
         let mut w = BufWriter::new(tmp.as_file());
         fill(&mut w)?;

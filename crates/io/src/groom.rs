@@ -51,11 +51,7 @@ pub struct Strand {
 impl Strand {
     /// A strand with points only.
     pub fn new(points: Vec<[f32; 3]>) -> Self {
-        Self {
-            points,
-            widths: None,
-            colors: None,
-        }
+        Self { points, widths: None, colors: None }
     }
 }
 
@@ -104,34 +100,17 @@ impl Groom {
         if self.strands.is_empty() {
             return Err(GroomError::NoStrands { path: path.into() });
         }
-        let bad = |strand: usize, reason: String| GroomError::InvalidStrand {
-            path: path.into(),
-            strand,
-            reason,
-        };
+        let bad = |strand: usize, reason: String| GroomError::InvalidStrand { path: path.into(), strand, reason };
         for (i, s) in self.strands.iter().enumerate() {
             if s.points.len() < 2 {
-                return Err(bad(
-                    i,
-                    format!("has {} point(s), need at least 2", s.points.len()),
-                ));
+                return Err(bad(i, format!("has {} point(s), need at least 2", s.points.len())));
             }
-            if let Some(j) = s
-                .points
-                .iter()
-                .position(|p| p.iter().any(|c| !c.is_finite()))
-            {
-                return Err(bad(
-                    i,
-                    format!("point {j} is not finite: {:?}", s.points[j]),
-                ));
+            if let Some(j) = s.points.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
+                return Err(bad(i, format!("point {j} is not finite: {:?}", s.points[j])));
             }
             if let Some(w) = &s.widths {
                 if w.len() != s.points.len() {
-                    return Err(bad(
-                        i,
-                        format!("{} widths for {} points", w.len(), s.points.len()),
-                    ));
+                    return Err(bad(i, format!("{} widths for {} points", w.len(), s.points.len())));
                 }
                 if let Some(j) = w.iter().position(|c| !c.is_finite()) {
                     return Err(bad(i, format!("width {j} is not finite")));
@@ -139,10 +118,7 @@ impl Groom {
             }
             if let Some(c) = &s.colors {
                 if c.len() != s.points.len() {
-                    return Err(bad(
-                        i,
-                        format!("{} colours for {} points", c.len(), s.points.len()),
-                    ));
+                    return Err(bad(i, format!("{} colours for {} points", c.len(), s.points.len())));
                 }
             }
         }
@@ -171,9 +147,7 @@ pub enum GroomError {
         reason: String,
     },
     /// The file ends before the structure it announces.
-    #[error(
-        "{path}: truncated: needed {needed} more bytes at offset {offset} while reading {what}"
-    )]
+    #[error("{path}: truncated: needed {needed} more bytes at offset {offset} while reading {what}")]
     Truncated {
         /// File concerned.
         path: PathBuf,
@@ -236,34 +210,18 @@ impl GroomError {
     /// Attaches the file name to a format-level error.
     pub(crate) fn from_format(path: &Path, e: FormatError) -> Self {
         match e {
-            FormatError::Truncated {
-                what,
-                offset,
-                needed,
-            } => GroomError::Truncated {
-                path: path.into(),
-                what,
-                offset,
-                needed,
-            },
-            FormatError::Corrupt(reason) => GroomError::Corrupt {
-                path: path.into(),
-                reason,
-            },
-            FormatError::Unsupported(reason) => GroomError::Unsupported {
-                path: path.into(),
-                reason,
-            },
+            FormatError::Truncated { what, offset, needed } => {
+                GroomError::Truncated { path: path.into(), what, offset, needed }
+            }
+            FormatError::Corrupt(reason) => GroomError::Corrupt { path: path.into(), reason },
+            FormatError::Unsupported(reason) => GroomError::Unsupported { path: path.into(), reason },
         }
     }
 }
 
 /// Reads a whole file, naming it in the error.
 pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>, GroomError> {
-    std::fs::read(path).map_err(|source| GroomError::Open {
-        path: path.into(),
-        source,
-    })
+    std::fs::read(path).map_err(|source| GroomError::Open { path: path.into(), source })
 }
 
 /// The groom formats [`read_groom`] recognises.
@@ -298,10 +256,7 @@ pub fn detect_groom_format(path: &Path, bytes: &[u8]) -> Option<GroomFormat> {
     if bytes.starts_with(b"Ogawa") {
         return Some(GroomFormat::Alembic);
     }
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(|e| e.to_ascii_lowercase());
+    let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
     match ext.as_deref() {
         Some("data") => return Some(GroomFormat::HairSalon),
         Some("hair") => return Some(GroomFormat::CyHair),

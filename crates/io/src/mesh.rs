@@ -40,9 +40,7 @@ pub enum MeshError {
         path: PathBuf,
     },
     /// The file ends before the structure it announces.
-    #[error(
-        "{path}: truncated: needed {needed} more bytes at offset {offset} while reading {what}"
-    )]
+    #[error("{path}: truncated: needed {needed} more bytes at offset {offset} while reading {what}")]
     Truncated {
         /// File concerned.
         path: PathBuf,
@@ -74,24 +72,11 @@ pub enum MeshError {
 impl MeshError {
     fn from_format(path: &Path, e: FormatError) -> Self {
         match e {
-            FormatError::Truncated {
-                what,
-                offset,
-                needed,
-            } => MeshError::Truncated {
-                path: path.into(),
-                what,
-                offset,
-                needed,
-            },
-            FormatError::Corrupt(reason) => MeshError::Corrupt {
-                path: path.into(),
-                reason,
-            },
-            FormatError::Unsupported(reason) => MeshError::Unsupported {
-                path: path.into(),
-                reason,
-            },
+            FormatError::Truncated { what, offset, needed } => {
+                MeshError::Truncated { path: path.into(), what, offset, needed }
+            }
+            FormatError::Corrupt(reason) => MeshError::Corrupt { path: path.into(), reason },
+            FormatError::Unsupported(reason) => MeshError::Unsupported { path: path.into(), reason },
         }
     }
 }
@@ -111,11 +96,7 @@ impl TriMesh {
             let (a, b, c) = (p(t[0]), p(t[1]), p(t[2]));
             let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
             let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-            let n = [
-                u[1] * v[2] - u[2] * v[1],
-                u[2] * v[0] - u[0] * v[2],
-                u[0] * v[1] - u[1] * v[0],
-            ];
+            let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
             for &i in t {
                 for a in 0..3 {
                     acc[i as usize][a] += n[a];
@@ -137,17 +118,13 @@ impl TriMesh {
     /// Axis-aligned bounds `(min, max)`; `None` without vertices.
     pub fn bbox(&self) -> Option<([f32; 3], [f32; 3])> {
         let first = *self.vertices.first()?;
-        Some(
-            self.vertices
-                .iter()
-                .fold((first, first), |(mut lo, mut hi), p| {
-                    for a in 0..3 {
-                        lo[a] = lo[a].min(p[a]);
-                        hi[a] = hi[a].max(p[a]);
-                    }
-                    (lo, hi)
-                }),
-        )
+        Some(self.vertices.iter().fold((first, first), |(mut lo, mut hi), p| {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+            (lo, hi)
+        }))
     }
 }
 
@@ -156,20 +133,14 @@ impl TriMesh {
 /// (the last corner naming a vertex wins) and kept only when every corner
 /// names one. Texture coordinates and materials are ignored.
 pub fn read_mesh(path: &Path) -> Result<TriMesh, MeshError> {
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Open {
-        path: path.into(),
-        source,
-    })?;
+    let bytes = std::fs::read(path).map_err(|source| MeshError::Open { path: path.into(), source })?;
     read_mesh_bytes(path, &bytes)
 }
 
 /// [`read_mesh`] on bytes in memory; `path` names them in errors and its
 /// extension picks the format when the content has no magic.
 pub fn read_mesh_bytes(path: &Path, bytes: &[u8]) -> Result<TriMesh, MeshError> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(|e| e.to_ascii_lowercase());
+    let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
     let mesh = if bytes.starts_with(b"ply") {
         parse_ply_mesh(bytes)
     } else {
@@ -183,22 +154,12 @@ pub fn read_mesh_bytes(path: &Path, bytes: &[u8]) -> Result<TriMesh, MeshError> 
 }
 
 /// Appends the fan triangulation of `poly`, checking every index.
-fn push_fan(
-    out: &mut Vec<[u32; 3]>,
-    poly: &[u32],
-    vertex_count: usize,
-    face: usize,
-) -> Result<(), FormatError> {
+fn push_fan(out: &mut Vec<[u32; 3]>, poly: &[u32], vertex_count: usize, face: usize) -> Result<(), FormatError> {
     if poly.len() < 3 {
-        return Err(corrupt(format!(
-            "face {face} has {} corners, need at least 3",
-            poly.len()
-        )));
+        return Err(corrupt(format!("face {face} has {} corners, need at least 3", poly.len())));
     }
     if let Some(&i) = poly.iter().find(|&&i| i as usize >= vertex_count) {
-        return Err(corrupt(format!(
-            "face {face} names vertex {i} but there are {vertex_count} vertices"
-        )));
+        return Err(corrupt(format!("face {face} names vertex {i} but there are {vertex_count} vertices")));
     }
     for k in 1..poly.len() - 1 {
         out.push([poly[0], poly[k], poly[k + 1]]);
@@ -212,26 +173,13 @@ fn parse_ply_mesh(bytes: &[u8]) -> Result<TriMesh, FormatError> {
         "face" => matches!(prop, "vertex_indices" | "vertex_index"),
         _ => false,
     })?;
-    let vertex = ply
-        .element("vertex")
-        .ok_or_else(|| corrupt("PLY has no 'vertex' element"))?;
-    let (Some(x), Some(y), Some(z)) = (vertex.scalar("x"), vertex.scalar("y"), vertex.scalar("z"))
-    else {
+    let vertex = ply.element("vertex").ok_or_else(|| corrupt("PLY has no 'vertex' element"))?;
+    let (Some(x), Some(y), Some(z)) = (vertex.scalar("x"), vertex.scalar("y"), vertex.scalar("z")) else {
         return Err(corrupt("PLY vertex element lacks scalar x, y, z"));
     };
-    let vertices: Vec<[f32; 3]> = (0..x.len())
-        .map(|i| [x[i] as f32, y[i] as f32, z[i] as f32])
-        .collect();
-    let normals = match (
-        vertex.scalar("nx"),
-        vertex.scalar("ny"),
-        vertex.scalar("nz"),
-    ) {
-        (Some(a), Some(b), Some(c)) => Some(
-            (0..a.len())
-                .map(|i| [a[i] as f32, b[i] as f32, c[i] as f32])
-                .collect(),
-        ),
+    let vertices: Vec<[f32; 3]> = (0..x.len()).map(|i| [x[i] as f32, y[i] as f32, z[i] as f32]).collect();
+    let normals = match (vertex.scalar("nx"), vertex.scalar("ny"), vertex.scalar("nz")) {
+        (Some(a), Some(b), Some(c)) => Some((0..a.len()).map(|i| [a[i] as f32, b[i] as f32, c[i] as f32]).collect()),
         _ => None,
     };
     let mut triangles = Vec::new();
@@ -253,30 +201,21 @@ fn parse_ply_mesh(bytes: &[u8]) -> Result<TriMesh, FormatError> {
             push_fan(&mut triangles, &poly, vertices.len(), f)?;
         }
     }
-    Ok(TriMesh {
-        vertices,
-        triangles,
-        normals,
-    })
+    Ok(TriMesh { vertices, triangles, normals })
 }
 
 /// Resolves an OBJ index (1-based, or negative = relative to the end).
 fn obj_index(tok: &str, len: usize, line: usize, what: &str) -> Result<u32, FormatError> {
-    let i: i64 = tok
-        .parse()
-        .map_err(|_| corrupt(format!("line {line}: bad {what} index '{tok}'")))?;
+    let i: i64 = tok.parse().map_err(|_| corrupt(format!("line {line}: bad {what} index '{tok}'")))?;
     let resolved = if i > 0 { i - 1 } else { len as i64 + i };
     if i == 0 || resolved < 0 || resolved >= len as i64 {
-        return Err(corrupt(format!(
-            "line {line}: {what} index {i} out of range (have {len})"
-        )));
+        return Err(corrupt(format!("line {line}: {what} index {i} out of range (have {len})")));
     }
     Ok(resolved as u32)
 }
 
 fn parse_obj(bytes: &[u8]) -> Result<TriMesh, FormatError> {
-    let text =
-        std::str::from_utf8(bytes).map_err(|e| corrupt(format!("OBJ is not UTF-8 text ({e})")))?;
+    let text = std::str::from_utf8(bytes).map_err(|e| corrupt(format!("OBJ is not UTF-8 text ({e})")))?;
     let mut vertices: Vec<[f32; 3]> = Vec::new();
     let mut vn: Vec<[f32; 3]> = Vec::new();
     let mut vt_count = 0usize;
@@ -286,18 +225,11 @@ fn parse_obj(bytes: &[u8]) -> Result<TriMesh, FormatError> {
     let mut all_corners_have_normals = true;
     let mut poly: Vec<u32> = Vec::new();
     let mut faces = 0usize;
-    let vec3 = |w: &mut std::str::SplitAsciiWhitespace,
-                line: usize,
-                what: &str|
-     -> Result<[f32; 3], FormatError> {
+    let vec3 = |w: &mut std::str::SplitAsciiWhitespace, line: usize, what: &str| -> Result<[f32; 3], FormatError> {
         let mut v = [0f32; 3];
         for c in v.iter_mut() {
-            let tok = w
-                .next()
-                .ok_or_else(|| corrupt(format!("line {line}: {what} needs 3 numbers")))?;
-            *c = tok
-                .parse()
-                .map_err(|_| corrupt(format!("line {line}: bad number '{tok}' in {what}")))?;
+            let tok = w.next().ok_or_else(|| corrupt(format!("line {line}: {what} needs 3 numbers")))?;
+            *c = tok.parse().map_err(|_| corrupt(format!("line {line}: bad number '{tok}' in {what}")))?;
         }
         Ok(v)
     };
@@ -320,10 +252,7 @@ fn parse_obj(bytes: &[u8]) -> Result<TriMesh, FormatError> {
                         obj_index(t, vt_count, line, "texture")?;
                     }
                     match parts.next().filter(|n| !n.is_empty()) {
-                        Some(n) => {
-                            corner_normal[v as usize] =
-                                Some(obj_index(n, vn.len(), line, "normal")?)
-                        }
+                        Some(n) => corner_normal[v as usize] = Some(obj_index(n, vn.len(), line, "normal")?),
                         None => all_corners_have_normals = false,
                     }
                     poly.push(v);
@@ -338,18 +267,9 @@ fn parse_obj(bytes: &[u8]) -> Result<TriMesh, FormatError> {
         }
     }
     let normals = if faces > 0 && all_corners_have_normals && !vn.is_empty() {
-        Some(
-            corner_normal
-                .iter()
-                .map(|n| n.map_or([0.0; 3], |i| vn[i as usize]))
-                .collect(),
-        )
+        Some(corner_normal.iter().map(|n| n.map_or([0.0; 3], |i| vn[i as usize])).collect())
     } else {
         None
     };
-    Ok(TriMesh {
-        vertices,
-        triangles,
-        normals,
-    })
+    Ok(TriMesh { vertices, triangles, normals })
 }

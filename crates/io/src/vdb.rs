@@ -61,9 +61,7 @@ pub enum VdbError {
         version: u32,
     },
     /// The file ends before the structure it announces.
-    #[error(
-        "{path}: truncated: needed {needed} more bytes at offset {offset} while reading {what}"
-    )]
+    #[error("{path}: truncated: needed {needed} more bytes at offset {offset} while reading {what}")]
     Truncated {
         /// File concerned.
         path: PathBuf,
@@ -257,11 +255,7 @@ impl Transform {
     pub fn from_matrix(map_type: &str, index_to_world: [[f64; 4]; 4]) -> Self {
         let m = index_to_world;
         let len = |c: usize| (m[0][c] * m[0][c] + m[1][c] * m[1][c] + m[2][c] * m[2][c]).sqrt();
-        Self {
-            map_type: map_type.to_string(),
-            voxel_size: [len(0), len(1), len(2)],
-            index_to_world,
-        }
+        Self { map_type: map_type.to_string(), voxel_size: [len(0), len(1), len(2)], index_to_world }
     }
 
     /// World position of index-space point `ijk` (voxel centres are integers).
@@ -355,10 +349,7 @@ pub struct DenseBox {
 
 /// Reads every grid of an OpenVDB file.
 pub fn read_vdb(path: &Path) -> Result<VdbFile, VdbError> {
-    let bytes = std::fs::read(path).map_err(|source| VdbError::Open {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let bytes = std::fs::read(path).map_err(|source| VdbError::Open { path: path.to_path_buf(), source })?;
     read::parse(path, &bytes)
 }
 
@@ -371,23 +362,16 @@ pub fn read_vdb_bytes(path: &Path, bytes: &[u8]) -> Result<VdbFile, VdbError> {
 /// floats where [`VdbGrid::saved_as_half`]), atomically.
 pub fn write_vdb(path: &Path, grids: &[VdbGrid]) -> Result<(), VdbError> {
     let bytes = write_vdb_bytes(path, grids)?;
-    crate::atomic::write_atomic(path, |w| w.write_all(&bytes)).map_err(|source| VdbError::Write {
-        path: path.to_path_buf(),
-        source,
-    })
+    crate::atomic::write_atomic(path, |w| w.write_all(&bytes))
+        .map_err(|source| VdbError::Write { path: path.to_path_buf(), source })
 }
 
 /// Encodes `grids` as an OpenVDB file in memory (what [`write_vdb`] writes);
 /// `path` only names the output in errors. Fails on an
 /// [`GridValues::Unsupported`] grid.
 pub fn write_vdb_bytes(path: &Path, grids: &[VdbGrid]) -> Result<Vec<u8>, VdbError> {
-    if let Some(g) = grids
-        .iter()
-        .find(|g| matches!(g.values, GridValues::Unsupported { .. }))
-    {
-        let GridValues::Unsupported { tree_type } = &g.values else {
-            unreachable!()
-        };
+    if let Some(g) = grids.iter().find(|g| matches!(g.values, GridValues::Unsupported { .. })) {
+        let GridValues::Unsupported { tree_type } = &g.values else { unreachable!() };
         return Err(VdbError::UnsupportedValueType {
             path: path.to_path_buf(),
             grid: g.name.clone(),
@@ -399,9 +383,7 @@ pub fn write_vdb_bytes(path: &Path, grids: &[VdbGrid]) -> Result<Vec<u8>, VdbErr
 
 impl VdbGrid {
     fn source_name(&self) -> String {
-        self.source_path
-            .as_ref()
-            .map_or_else(|| "<memory>".to_string(), |p| p.display().to_string())
+        self.source_path.as_ref().map_or_else(|| "<memory>".to_string(), |p| p.display().to_string())
     }
 
     /// Number of active voxels.
@@ -426,14 +408,8 @@ impl VdbGrid {
     /// First active voxel holding NaN or ±inf, if any.
     pub fn first_non_finite(&self) -> Option<[i32; 3]> {
         match &self.values {
-            GridValues::Float(g) => g
-                .iter_active()
-                .find(|(_, v)| !v.is_finite())
-                .map(|(c, _)| c),
-            GridValues::Vec3(g) => g
-                .iter_active()
-                .find(|(_, v)| v.iter().any(|c| !c.is_finite()))
-                .map(|(c, _)| c),
+            GridValues::Float(g) => g.iter_active().find(|(_, v)| !v.is_finite()).map(|(c, _)| c),
+            GridValues::Vec3(g) => g.iter_active().find(|(_, v)| v.iter().any(|c| !c.is_finite())).map(|(c, _)| c),
             GridValues::Unsupported { .. } => None,
         }
     }
@@ -446,10 +422,9 @@ impl VdbGrid {
     /// The dense box covering the active voxels, checked against
     /// [`MAX_DENSE_VOXELS`] and for non-finite values.
     fn dense_box(&self) -> Result<DenseBox, VdbError> {
-        let (lo, hi) = self.active_bbox().ok_or_else(|| VdbError::EmptyGrid {
-            file: self.source_name(),
-            grid: self.name.clone(),
-        })?;
+        let (lo, hi) = self
+            .active_bbox()
+            .ok_or_else(|| VdbError::EmptyGrid { file: self.source_name(), grid: self.name.clone() })?;
         let dims = [0, 1, 2].map(|a| (i64::from(hi[a]) - i64::from(lo[a]) + 1) as u128);
         let voxels = dims[0] * dims[1] * dims[2];
         if voxels > u128::from(MAX_DENSE_VOXELS) {
@@ -461,16 +436,9 @@ impl VdbGrid {
             });
         }
         if let Some(ijk) = self.first_non_finite() {
-            return Err(VdbError::NonFinite {
-                file: self.source_name(),
-                grid: self.name.clone(),
-                ijk,
-            });
+            return Err(VdbError::NonFinite { file: self.source_name(), grid: self.name.clone(), ijk });
         }
-        Ok(DenseBox {
-            origin: lo,
-            dims: dims.map(|d| d as usize),
-        })
+        Ok(DenseBox { origin: lo, dims: dims.map(|d| d as usize) })
     }
 
     /// Dense copy of a float grid over its active bounding box (voxels
@@ -501,10 +469,7 @@ impl VdbGrid {
     fn wrong_type(&self, expected: &'static str) -> VdbError {
         if let GridValues::Unsupported { tree_type } = &self.values {
             return VdbError::UnsupportedValueType {
-                path: self
-                    .source_path
-                    .clone()
-                    .unwrap_or_else(|| PathBuf::from("<memory>")),
+                path: self.source_path.clone().unwrap_or_else(|| PathBuf::from("<memory>")),
                 grid: self.name.clone(),
                 tree_type: tree_type.clone(),
             };
@@ -520,13 +485,7 @@ impl VdbGrid {
     /// A fog-volume float grid from a dense block whose voxel `(0,0,0)` is at
     /// index `origin`. Voxels with value `<= threshold` become inactive
     /// background (0); the rest are active with their value.
-    pub fn from_dense(
-        name: &str,
-        transform: Transform,
-        origin: [i32; 3],
-        grid: &Grid3,
-        threshold: f32,
-    ) -> VdbGrid {
+    pub fn from_dense(name: &str, transform: Transform, origin: [i32; 3], grid: &Grid3, threshold: f32) -> VdbGrid {
         let mut sparse = SparseGrid::new(0.0f32);
         let [nx, ny, nz] = grid.dims;
         for z in 0..nz {
@@ -534,18 +493,8 @@ impl VdbGrid {
                 let row = &grid.data[grid.index(0, y, z)..grid.index(0, y, z) + nx];
                 for (x, &v) in row.iter().enumerate() {
                     // NaN is kept active so `has_non_finite` can report it.
-                    if !matches!(
-                        v.partial_cmp(&threshold),
-                        Some(Ordering::Less | Ordering::Equal)
-                    ) {
-                        sparse.set_active(
-                            [
-                                origin[0] + x as i32,
-                                origin[1] + y as i32,
-                                origin[2] + z as i32,
-                            ],
-                            v,
-                        );
+                    if !matches!(v.partial_cmp(&threshold), Some(Ordering::Less | Ordering::Equal)) {
+                        sparse.set_active([origin[0] + x as i32, origin[1] + y as i32, origin[2] + z as i32], v);
                     }
                 }
             }
@@ -572,18 +521,8 @@ impl VdbGrid {
                     let i = components[0].index(x, y, z);
                     let v = components.map(|c| c.data[i]);
                     let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                    if !matches!(
-                        len.partial_cmp(&threshold),
-                        Some(Ordering::Less | Ordering::Equal)
-                    ) {
-                        sparse.set_active(
-                            [
-                                origin[0] + x as i32,
-                                origin[1] + y as i32,
-                                origin[2] + z as i32,
-                            ],
-                            v,
-                        );
+                    if !matches!(len.partial_cmp(&threshold), Some(Ordering::Less | Ordering::Equal)) {
+                        sparse.set_active([origin[0] + x as i32, origin[1] + y as i32, origin[2] + z as i32], v);
                     }
                 }
             }
@@ -606,17 +545,10 @@ impl VdbGrid {
 }
 
 /// Copies a sparse grid into `N` dense component grids over `bx`.
-fn densify<T: Copy, const N: usize>(
-    g: &SparseGrid<T>,
-    bx: &DenseBox,
-    split: impl Fn(T) -> [f32; N],
-) -> [Grid3; N] {
+fn densify<T: Copy, const N: usize>(g: &SparseGrid<T>, bx: &DenseBox, split: impl Fn(T) -> [f32; N]) -> [Grid3; N] {
     let [nx, ny, nz] = bx.dims;
     let bg = split(g.background);
-    let mut out: [Grid3; N] = std::array::from_fn(|c| Grid3 {
-        dims: bx.dims,
-        data: vec![bg[c]; nx * ny * nz],
-    });
+    let mut out: [Grid3; N] = std::array::from_fn(|c| Grid3 { dims: bx.dims, data: vec![bg[c]; nx * ny * nz] });
     let lo = bx.origin;
     let hi = [0, 1, 2].map(|a| lo[a] + bx.dims[a] as i32 - 1);
     for leaf in g.leaves() {
@@ -629,8 +561,7 @@ fn densify<T: Copy, const N: usize>(
             if (0..3).any(|a| c[a] < lo[a] || c[a] > hi[a]) {
                 continue;
             }
-            let i = (((c[2] - lo[2]) as usize * ny) + (c[1] - lo[1]) as usize) * nx
-                + (c[0] - lo[0]) as usize;
+            let i = (((c[2] - lo[2]) as usize * ny) + (c[1] - lo[1]) as usize) * nx + (c[0] - lo[0]) as usize;
             let v = split(leaf.values[n]);
             for k in 0..N {
                 out[k].data[i] = v[k];

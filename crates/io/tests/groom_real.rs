@@ -8,15 +8,8 @@ use std::path::{Path, PathBuf};
 use nst3d_io::groom::*;
 
 fn grooms() -> PathBuf {
-    let dir = PathBuf::from(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../../shared/data/grooms"
-    ));
-    assert!(
-        dir.is_dir(),
-        "test data missing: {} (the shared/ data folder must sit beside the repo)",
-        dir.display()
-    );
+    let dir = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/grooms"));
+    assert!(dir.is_dir(), "test data missing: {} (the shared/ data folder must sit beside the repo)", dir.display());
     dir
 }
 
@@ -33,21 +26,12 @@ fn bangs(name: &str) -> Groom {
 fn assert_same_points(a: &Groom, b: &Groom, what: &str) {
     assert_eq!(a.strand_count(), b.strand_count(), "{what}: strand count");
     let (lo, hi) = a.bbox().unwrap();
-    let scale = (0..3)
-        .map(|k| (hi[k] - lo[k]).abs().max(lo[k].abs()).max(hi[k].abs()))
-        .fold(0f32, f32::max);
+    let scale = (0..3).map(|k| (hi[k] - lo[k]).abs().max(lo[k].abs()).max(hi[k].abs())).fold(0f32, f32::max);
     for (i, (sa, sb)) in a.strands.iter().zip(&b.strands).enumerate() {
-        assert_eq!(
-            sa.points.len(),
-            sb.points.len(),
-            "{what}: strand {i} length"
-        );
+        assert_eq!(sa.points.len(), sb.points.len(), "{what}: strand {i} length");
         for (j, (p, q)) in sa.points.iter().zip(&sb.points).enumerate() {
             for k in 0..3 {
-                assert!(
-                    (p[k] - q[k]).abs() <= 1e-5 * scale,
-                    "{what}: strand {i} point {j}: {p:?} vs {q:?}"
-                );
+                assert!((p[k] - q[k]).abs() <= 1e-5 * scale, "{what}: strand {i} point {j}: {p:?} vs {q:?}");
             }
         }
     }
@@ -67,21 +51,9 @@ fn all_bangs_formats_agree() {
     // The explicit readers agree with the dispatching one.
     let dir = grooms();
     assert_eq!(read_cyhair(&dir.join("Bangs_100.hair")).unwrap(), hair);
-    assert_same_points(
-        &hair,
-        &read_hairsalon(&dir.join("Bangs_100.data")).unwrap(),
-        "hairsalon",
-    );
-    assert_same_points(
-        &hair,
-        &read_ply_strands(&dir.join("Bangs_100_binary.ply")).unwrap(),
-        "ply",
-    );
-    assert_same_points(
-        &hair,
-        &read_alembic_curves(&dir.join("Bangs_100.abc")).unwrap(),
-        "abc",
-    );
+    assert_same_points(&hair, &read_hairsalon(&dir.join("Bangs_100.data")).unwrap(), "hairsalon");
+    assert_same_points(&hair, &read_ply_strands(&dir.join("Bangs_100_binary.ply")).unwrap(), "ply");
+    assert_same_points(&hair, &read_alembic_curves(&dir.join("Bangs_100.abc")).unwrap(), "abc");
 }
 
 #[test]
@@ -91,11 +63,7 @@ fn bangs_is_bit_identical_across_binary_formats() {
     let hair = bangs("Bangs_100.hair");
     for name in ["Bangs_100.data", "Bangs_100_binary.ply", "Bangs_100.abc"] {
         let g = bangs(name);
-        let same = hair
-            .strands
-            .iter()
-            .zip(&g.strands)
-            .all(|(a, b)| a.points == b.points);
+        let same = hair.strands.iter().zip(&g.strands).all(|(a, b)| a.points == b.points);
         assert!(same, "{name} differs bitwise from the .hair file");
     }
 }
@@ -111,17 +79,9 @@ fn format_detection_by_content() {
         ("basisCurves.usda", GroomFormat::Usda),
     ] {
         let bytes = std::fs::read(dir.join(name)).unwrap();
-        assert_eq!(
-            detect_groom_format(&dir.join(name), &bytes),
-            Some(f),
-            "{name}"
-        );
+        assert_eq!(detect_groom_format(&dir.join(name), &bytes), Some(f), "{name}");
         // Without an extension only HairSalon relies on its exact-size check.
-        assert_eq!(
-            detect_groom_format(Path::new("noext"), &bytes),
-            Some(f),
-            "{name} (no extension)"
-        );
+        assert_eq!(detect_groom_format(Path::new("noext"), &bytes), Some(f), "{name} (no extension)");
     }
 }
 
@@ -138,10 +98,7 @@ fn openusd_basis_curves_example() {
         .flat_map(|l| {
             let open = l.find("= [").unwrap() + 3;
             let inside = &l[open..open + l[open..].find(']').unwrap()];
-            inside
-                .split(',')
-                .map(|x| x.trim().parse::<usize>().unwrap())
-                .collect::<Vec<_>>()
+            inside.split(',').map(|x| x.trim().parse::<usize>().unwrap()).collect::<Vec<_>>()
         })
         .collect();
     assert_eq!(prims, 10);
@@ -174,32 +131,16 @@ fn matches_reference_usd_library() {
     )
     .unwrap();
     let check = |g: &Groom, r: &serde_json::Value, what: &str| {
-        let counts: Vec<usize> = r["curveVertexCounts"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|v| v.as_u64().unwrap() as usize)
-            .collect();
-        assert_eq!(
-            g.strands.iter().map(|s| s.points.len()).collect::<Vec<_>>(),
-            counts,
-            "{what}"
-        );
-        let pts: Vec<[f32; 3]> = g
-            .strands
-            .iter()
-            .flat_map(|s| s.points.iter().copied())
-            .collect();
+        let counts: Vec<usize> =
+            r["curveVertexCounts"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap() as usize).collect();
+        assert_eq!(g.strands.iter().map(|s| s.points.len()).collect::<Vec<_>>(), counts, "{what}");
+        let pts: Vec<[f32; 3]> = g.strands.iter().flat_map(|s| s.points.iter().copied()).collect();
         let refp = r["points"].as_array().unwrap();
         assert_eq!(refp.len(), pts.len().min(refp.len()));
         for (i, q) in refp.iter().enumerate() {
             for k in 0..3 {
                 let v = q[k].as_f64().unwrap() as f32;
-                assert!(
-                    (pts[i][k] - v).abs() <= 1e-5 * v.abs().max(1.0),
-                    "{what}: point {i}: {:?} vs {q}",
-                    pts[i]
-                );
+                assert!((pts[i][k] - v).abs() <= 1e-5 * v.abs().max(1.0), "{what}: point {i}: {:?} vs {q}", pts[i]);
             }
         }
     };
@@ -237,36 +178,18 @@ fn usda_and_ply_round_trips_are_exact() {
     let example = read_usda_curves(&grooms().join("basisCurves.usda")).unwrap();
     let mut synthetic = ply_groom.clone();
     for (i, s) in synthetic.strands.iter_mut().enumerate() {
-        s.widths = Some(
-            (0..s.points.len())
-                .map(|j| 0.01 * (i + j) as f32 + 1e-7)
-                .collect(),
-        );
+        s.widths = Some((0..s.points.len()).map(|j| 0.01 * (i + j) as f32 + 1e-7).collect());
         s.points[0][0] += std::f32::consts::PI * 1e-3;
     }
-    for (name, g) in [
-        ("bangs", &ply_groom),
-        ("example", &example),
-        ("synthetic", &synthetic),
-    ] {
+    for (name, g) in [("bangs", &ply_groom), ("example", &example), ("synthetic", &synthetic)] {
         let usda = dir.path().join(format!("{name}.usda"));
         write_usda_curves(&usda, g).unwrap();
-        assert_eq!(
-            &read_usda_curves(&usda).unwrap(),
-            g,
-            "{name} usda round trip"
-        );
+        assert_eq!(&read_usda_curves(&usda).unwrap(), g, "{name} usda round trip");
         let ply = dir.path().join(format!("{name}.ply"));
         write_ply_strands(&ply, g).unwrap();
         let back = read_ply_strands(&ply).unwrap();
         // PLY keeps points exactly; widths are not part of the layout.
-        assert!(
-            g.strands
-                .iter()
-                .zip(&back.strands)
-                .all(|(a, b)| a.points == b.points),
-            "{name} ply points"
-        );
+        assert!(g.strands.iter().zip(&back.strands).all(|(a, b)| a.points == b.points), "{name} ply points");
         assert_eq!(back.strand_count(), g.strand_count());
     }
     // Our PLY has the shared file's header, byte for byte, but its comment.
@@ -274,23 +197,13 @@ fn usda_and_ply_round_trips_are_exact() {
     let ours = std::fs::read(&ply).unwrap();
     let theirs = std::fs::read(grooms().join("Bangs_100_binary.ply")).unwrap();
     let header = |b: &[u8]| {
-        let s =
-            String::from_utf8_lossy(&b[..b.windows(10).position(|w| w == b"end_header").unwrap()])
-                .into_owned();
-        s.lines()
-            .filter(|l| !l.starts_with("comment"))
-            .map(str::to_string)
-            .collect::<Vec<_>>()
+        let s = String::from_utf8_lossy(&b[..b.windows(10).position(|w| w == b"end_header").unwrap()]).into_owned();
+        s.lines().filter(|l| !l.starts_with("comment")).map(str::to_string).collect::<Vec<_>>()
     };
     assert_eq!(header(&ours), header(&theirs));
-    assert_eq!(
-        read_ply_strands(&ply).unwrap(),
-        ply_groom,
-        "colours survive too"
-    );
+    assert_eq!(read_ply_strands(&ply).unwrap(), ply_groom, "colours survive too");
     // Same layout, same values: the body is byte-identical to hairutil's.
-    let body =
-        |b: &[u8]| b[b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11..].to_vec();
+    let body = |b: &[u8]| b[b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11..].to_vec();
     assert_eq!(body(&ours), body(&theirs));
 }
 
@@ -314,29 +227,20 @@ fn ascii_ply_and_other_strand_delimiters() {
     for (i, text) in cases.iter().enumerate() {
         let p = dir.path().join(format!("case{i}.ply"));
         std::fs::write(&p, text).unwrap();
-        assert_eq!(
-            read_ply_strands(&p).unwrap_or_else(|e| panic!("case {i}: {e}")),
-            expect,
-            "case {i}"
-        );
+        assert_eq!(read_ply_strands(&p).unwrap_or_else(|e| panic!("case {i}: {e}")), expect, "case {i}");
     }
 }
 
 #[test]
 fn validate_names_the_strand() {
-    let mut g = Groom {
-        strands: vec![Strand::new(vec![[0.0; 3], [1.0; 3]]); 3],
-    };
+    let mut g = Groom { strands: vec![Strand::new(vec![[0.0; 3], [1.0; 3]]); 3] };
     g.validate().unwrap();
     g.strands[2].points[1][1] = f32::NAN;
     let e = g.validate().unwrap_err().to_string();
     assert!(e.contains("strand 2") && e.contains("not finite"), "{e}");
     g.strands[1].points.truncate(1);
     assert!(g.validate().unwrap_err().to_string().contains("strand 1"));
-    assert!(matches!(
-        Groom::default().validate(),
-        Err(GroomError::NoStrands { .. })
-    ));
+    assert!(matches!(Groom::default().validate(), Err(GroomError::NoStrands { .. })));
     assert_eq!(g.bbox().map(|b| b.0), Some([0.0; 3]));
     // Writers refuse invalid grooms instead of writing garbage.
     let dir = tempfile::tempdir().unwrap();
@@ -346,16 +250,9 @@ fn validate_names_the_strand() {
 
 #[test]
 fn missing_file_is_a_named_error() {
-    let e = read_groom(Path::new("/nonexistent/dir/x.hair"))
-        .unwrap_err()
-        .to_string();
-    assert!(
-        e.contains("/nonexistent/dir/x.hair") && e.contains("cannot read"),
-        "{e}"
-    );
-    let e = read_groom_bytes(Path::new("thing.xyz"), b"hello")
-        .unwrap_err()
-        .to_string();
+    let e = read_groom(Path::new("/nonexistent/dir/x.hair")).unwrap_err().to_string();
+    assert!(e.contains("/nonexistent/dir/x.hair") && e.contains("cannot read"), "{e}");
+    let e = read_groom_bytes(Path::new("thing.xyz"), b"hello").unwrap_err().to_string();
     assert!(e.contains("thing.xyz"), "{e}");
 }
 
@@ -363,13 +260,7 @@ fn missing_file_is_a_named_error() {
 /// naming the file.
 #[test]
 fn truncated_files_fail_cleanly() {
-    for name in [
-        "Bangs_100.hair",
-        "Bangs_100.data",
-        "Bangs_100_binary.ply",
-        "Bangs_100.abc",
-        "basisCurves.usda",
-    ] {
+    for name in ["Bangs_100.hair", "Bangs_100.data", "Bangs_100_binary.ply", "Bangs_100.abc", "basisCurves.usda"] {
         let path = grooms().join(name);
         let bytes = std::fs::read(&path).unwrap();
         let step = (bytes.len() / 300).max(1);
@@ -389,10 +280,7 @@ fn truncated_files_fail_cleanly() {
                 }
                 Err(e) => {
                     let msg = e.to_string();
-                    assert!(
-                        msg.contains(name) && !msg.contains('\n'),
-                        "cut {cut}: {msg}"
-                    );
+                    assert!(msg.contains(name) && !msg.contains('\n'), "cut {cut}: {msg}");
                 }
             }
         }
@@ -410,17 +298,9 @@ fn random_and_corrupted_bytes_never_panic() {
         x ^= x << 17;
         x
     };
-    let names = [
-        "Bangs_100.hair",
-        "Bangs_100.data",
-        "Bangs_100_binary.ply",
-        "Bangs_100.abc",
-        "basisCurves.usda",
-    ];
-    let files: Vec<(PathBuf, Vec<u8>)> = names
-        .iter()
-        .map(|n| (grooms().join(n), std::fs::read(grooms().join(n)).unwrap()))
-        .collect();
+    let names = ["Bangs_100.hair", "Bangs_100.data", "Bangs_100_binary.ply", "Bangs_100.abc", "basisCurves.usda"];
+    let files: Vec<(PathBuf, Vec<u8>)> =
+        names.iter().map(|n| (grooms().join(n), std::fs::read(grooms().join(n)).unwrap())).collect();
     for trial in 0..3000 {
         let (path, real) = &files[trial % files.len()];
         let len = (rnd() % 2048) as usize;

@@ -21,10 +21,7 @@ fn passes_through_control_points_with_chord_length_knots() {
     let mut chord = 0.0f64;
     for (i, q) in p.iter().enumerate() {
         if i > 0 {
-            chord += (0..3)
-                .map(|a| (q[a] as f64 - p[i - 1][a] as f64).powi(2))
-                .sum::<f64>()
-                .sqrt();
+            chord += (0..3).map(|a| (q[a] as f64 - p[i - 1][a] as f64).powi(2)).sum::<f64>().sqrt();
         }
         assert!((s.knots()[i] - chord).abs() < 1e-9);
         let e = s.eval(s.knots()[i]);
@@ -44,25 +41,16 @@ fn natural_end_conditions_and_c2_continuity() {
     let m = s.second_derivatives();
     assert_eq!(m[0], [0.0; 3]);
     assert_eq!(m[6], [0.0; 3]);
-    assert!(
-        m[3].iter().any(|c| c.abs() > 1e-2),
-        "interior curvature expected"
-    );
+    assert!(m[3].iter().any(|c| c.abs() > 1e-2), "interior curvature expected");
     // Numerically: the change of the tangent right at each end is ~0,
     // while inside the strand it is not.
     let h = 1e-3 * s.length_param();
     let curvature = |t: f64| {
         let (a, b) = (s.tangent(t), s.tangent(t + h));
-        (0..3)
-            .map(|k| ((b[k] - a[k]) as f64 / h).abs())
-            .fold(0.0, f64::max)
+        (0..3).map(|k| ((b[k] - a[k]) as f64 / h).abs()).fold(0.0, f64::max)
     };
     let inner = curvature(s.knots()[3]);
-    assert!(
-        curvature(0.0) < 0.02 * inner,
-        "{} vs {inner}",
-        curvature(0.0)
-    );
+    assert!(curvature(0.0) < 0.02 * inner, "{} vs {inner}", curvature(0.0));
     assert!(curvature(s.length_param() - h) < 0.02 * inner);
     // Tangent is continuous across knots and matches finite differences.
     for k in 1..6 {
@@ -74,10 +62,7 @@ fn natural_end_conditions_and_c2_continuity() {
         let (ahead, behind, tan) = (s.eval(t + 1e-3), s.eval(t - 1e-3), s.tangent(t));
         for a in 0..3 {
             let fd = (ahead[a] - behind[a]) as f64 / 2e-3;
-            assert!(
-                (fd - tan[a] as f64).abs() < 1e-2,
-                "tangent vs FD at knot {k}"
-            );
+            assert!((fd - tan[a] as f64).abs() < 1e-2, "tangent vs FD at knot {k}");
         }
     }
 }
@@ -97,10 +82,7 @@ fn straight_line_stays_straight_and_resamples_evenly() {
     for (k, q) in r.iter().enumerate() {
         let t = 3.7 * k as f32 / 11.0;
         for a in 0..3 {
-            assert!(
-                (q[a] - (1.0 + dir[a] * t)).abs() < 1e-4,
-                "sample {k}: {q:?}"
-            );
+            assert!((q[a] - (1.0 + dir[a] * t)).abs() < 1e-4, "sample {k}: {q:?}");
         }
     }
     assert!((s.arc_length() as f32 - len).abs() < 1e-4);
@@ -112,23 +94,12 @@ fn resample_is_even_in_arc_length_on_a_curved_strand() {
     let r = s.resample(40);
     assert_eq!(r[0], s.eval(0.0));
     assert_eq!(r[39], s.eval(s.length_param()));
-    let seg: Vec<f32> = r
-        .windows(2)
-        .map(|w| {
-            (0..3)
-                .map(|a| (w[1][a] - w[0][a]).powi(2))
-                .sum::<f32>()
-                .sqrt()
-        })
-        .collect();
+    let seg: Vec<f32> = r.windows(2).map(|w| (0..3).map(|a| (w[1][a] - w[0][a]).powi(2)).sum::<f32>().sqrt()).collect();
     let mean = seg.iter().sum::<f32>() / seg.len() as f32;
     for (k, l) in seg.iter().enumerate() {
         assert!((l - mean).abs() < 0.01 * mean, "segment {k}: {l} vs {mean}");
     }
-    assert!(
-        s.arc_length() >= s.length_param(),
-        "arc length is at least chord length"
-    );
+    assert!(s.arc_length() >= s.length_param(), "arc length is at least chord length");
     assert!(s.resample(0).is_empty());
     assert_eq!(s.resample(1), vec![s.eval(0.0)]);
 }
@@ -160,9 +131,7 @@ fn basis_weights_gradient_matches_finite_differences() {
         let p = wavy(n);
         let s = StrandSpline::new(&p).unwrap();
         let knots = s.knots().to_vec();
-        let params: Vec<f64> = (0..17)
-            .map(|k| s.length_param() * (k as f64 + 0.3) / 17.0)
-            .collect();
+        let params: Vec<f64> = (0..17).map(|k| s.length_param() * (k as f64 + 0.3) / 17.0).collect();
         let upstream = pseudo_random(params.len() * 3, seed);
         let mut analytic = vec![0f32; n * 3];
         for (k, &t) in params.iter().enumerate() {
@@ -189,9 +158,7 @@ fn basis_weights_gradient_matches_finite_differences() {
 #[test]
 fn bad_control_points_are_errors() {
     assert!(StrandSpline::new(&[[0.0; 3]]).is_err());
-    let e = StrandSpline::new(&[[0.0; 3], [0.0; 3], [1.0; 3]])
-        .unwrap_err()
-        .to_string();
+    let e = StrandSpline::new(&[[0.0; 3], [0.0; 3], [1.0; 3]]).unwrap_err().to_string();
     assert!(e.contains("coincide"), "{e}");
     assert!(StrandSpline::new(&[[0.0; 3], [f32::NAN, 0.0, 0.0]]).is_err());
     assert!(StrandSpline::with_knots(&[[0.0; 3], [1.0; 3]], &[0.0]).is_err());
@@ -199,10 +166,7 @@ fn bad_control_points_are_errors() {
 
 #[test]
 fn splines_fit_every_bangs_strand() {
-    let dir = std::path::PathBuf::from(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../../shared/data/grooms"
-    ));
+    let dir = std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/grooms"));
     assert!(dir.is_dir(), "test data missing: {}", dir.display());
     let g = read_groom(&dir.join("Bangs_100.hair")).unwrap();
     for (i, st) in g.strands.iter().enumerate() {

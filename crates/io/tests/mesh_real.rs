@@ -8,11 +8,7 @@ use nst3d_io::mesh::*;
 
 fn data(rel: &str) -> PathBuf {
     let p = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data")).join(rel);
-    assert!(
-        p.exists(),
-        "test data missing: {} (the shared/ data folder must sit beside the repo)",
-        p.display()
-    );
+    assert!(p.exists(), "test data missing: {} (the shared/ data folder must sit beside the repo)", p.display());
     p
 }
 
@@ -32,17 +28,11 @@ fn bangs_head_ply() {
         let r = s.points[0];
         for a in 0..3 {
             let pad = 0.05 * (hi[a] - lo[a]);
-            assert!(
-                r[a] >= lo[a] - pad && r[a] <= hi[a] + pad,
-                "root {r:?} outside head {lo:?}..{hi:?}"
-            );
+            assert!(r[a] >= lo[a] - pad && r[a] <= hi[a] + pad, "root {r:?} outside head {lo:?}..{hi:?}");
         }
     }
     let n = m.vertex_normals();
-    let unit = n
-        .iter()
-        .filter(|v| ((v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) - 1.0).abs() < 1e-4)
-        .count();
+    let unit = n.iter().filter(|v| ((v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) - 1.0).abs() < 1e-4).count();
     assert!(unit > 3900, "{unit} unit normals");
 }
 
@@ -51,11 +41,8 @@ fn spot_obj_counts_match_its_lines() {
     let path = data("meshes/spot.obj");
     let text = std::fs::read_to_string(&path).unwrap();
     let v = text.lines().filter(|l| l.starts_with("v ")).count();
-    let tris: usize = text
-        .lines()
-        .filter(|l| l.starts_with("f "))
-        .map(|l| l.split_ascii_whitespace().count() - 3)
-        .sum();
+    let tris: usize =
+        text.lines().filter(|l| l.starts_with("f ")).map(|l| l.split_ascii_whitespace().count() - 3).sum();
     let m = read_mesh(&path).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(m.vertices.len(), v);
     assert_eq!(m.triangles.len(), tris);
@@ -73,16 +60,9 @@ fn spot_obj_counts_match_its_lines() {
     let (lo, hi) = m.bbox().unwrap();
     let c = [0, 1, 2].map(|a| 0.5 * (lo[a] + hi[a]));
     let n = m.vertex_normals();
-    let outward = m
-        .vertices
-        .iter()
-        .zip(&n)
-        .filter(|(p, n)| (0..3).map(|a| (p[a] - c[a]) * n[a]).sum::<f32>() > 0.0)
-        .count();
-    assert!(
-        outward as f32 > 0.8 * v as f32,
-        "{outward} of {v} normals point out"
-    );
+    let outward =
+        m.vertices.iter().zip(&n).filter(|(p, n)| (0..3).map(|a| (p[a] - c[a]) * n[a]).sum::<f32>() > 0.0).count();
+    assert!(outward as f32 > 0.8 * v as f32, "{outward} of {v} normals point out");
 }
 
 #[test]
@@ -112,25 +92,11 @@ fn ascii_ply_polygons_and_obj_forms() {
     )
     .unwrap();
     let m = read_mesh(&obj).unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!(
-        m.triangles,
-        vec![
-            [0, 1, 2],
-            [0, 2, 3],
-            [0, 1, 2],
-            [0, 2, 3],
-            [0, 1, 2],
-            [0, 2, 3]
-        ]
-    );
+    assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3], [0, 1, 2], [0, 2, 3], [0, 1, 2], [0, 2, 3]]);
     assert!(m.normals.is_none(), "not every corner names a normal");
 
     let obj2 = dir.path().join("normals.obj");
-    std::fs::write(
-        &obj2,
-        "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 -1\nf 1//1 3//1 2//1\n",
-    )
-    .unwrap();
+    std::fs::write(&obj2, "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 -1\nf 1//1 3//1 2//1\n").unwrap();
     let m = read_mesh(&obj2).unwrap();
     assert_eq!(m.normals, Some(vec![[0.0, 0.0, -1.0]; 3]));
     assert_eq!(m.vertex_normals(), vec![[0.0, 0.0, -1.0]; 3]);
@@ -138,12 +104,7 @@ fn ascii_ply_polygons_and_obj_forms() {
 
 #[test]
 fn binary_big_endian_ply_matches_little_endian() {
-    let verts = [
-        [0f32, 0.0, 0.0],
-        [1.0, 0.0, 0.0],
-        [0.0, 1.0, 0.0],
-        [0.0, 0.0, 1.0],
-    ];
+    let verts = [[0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
     let faces: [[i32; 3]; 2] = [[0, 1, 2], [0, 2, 3]];
     let dir = tempfile::tempdir().unwrap();
     let mut results = Vec::new();
@@ -157,11 +118,7 @@ fn binary_big_endian_ply_matches_little_endian() {
             for c in v {
                 b.extend(if be { c.to_be_bytes() } else { c.to_le_bytes() });
             }
-            b.extend(if be {
-                7.5f64.to_be_bytes()
-            } else {
-                7.5f64.to_le_bytes()
-            });
+            b.extend(if be { 7.5f64.to_be_bytes() } else { 7.5f64.to_le_bytes() });
         }
         for f in faces {
             b.push(3);
@@ -180,24 +137,13 @@ fn binary_big_endian_ply_matches_little_endian() {
 
 #[test]
 fn bad_indices_and_missing_files_are_named_errors() {
-    let e = read_mesh_bytes(Path::new("bad.obj"), b"v 0 0 0\nv 1 0 0\nf 1 2 3\n")
-        .unwrap_err()
-        .to_string();
+    let e = read_mesh_bytes(Path::new("bad.obj"), b"v 0 0 0\nv 1 0 0\nf 1 2 3\n").unwrap_err().to_string();
     assert!(e.contains("bad.obj") && e.contains("line 3"), "{e}");
-    let e = read_mesh_bytes(Path::new("zero.obj"), b"v 0 0 0\nf 0 1 1\n")
-        .unwrap_err()
-        .to_string();
+    let e = read_mesh_bytes(Path::new("zero.obj"), b"v 0 0 0\nf 0 1 1\n").unwrap_err().to_string();
     assert!(e.contains("zero.obj"), "{e}");
-    let e = read_mesh(Path::new("/nonexistent/head.ply"))
-        .unwrap_err()
-        .to_string();
-    assert!(
-        e.contains("/nonexistent/head.ply") && e.contains("cannot read"),
-        "{e}"
-    );
-    let e = read_mesh_bytes(Path::new("x.stl"), b"solid")
-        .unwrap_err()
-        .to_string();
+    let e = read_mesh(Path::new("/nonexistent/head.ply")).unwrap_err().to_string();
+    assert!(e.contains("/nonexistent/head.ply") && e.contains("cannot read"), "{e}");
+    let e = read_mesh_bytes(Path::new("x.stl"), b"solid").unwrap_err().to_string();
     assert!(e.contains("x.stl"), "{e}");
 }
 
@@ -214,17 +160,11 @@ fn truncated_files_fail_cleanly() {
             match read_mesh_bytes(&path, &bytes[..cut]) {
                 Err(e) => {
                     let msg = e.to_string();
-                    assert!(
-                        msg.contains(&name) && !msg.contains('\n'),
-                        "cut {cut}: {msg}"
-                    );
+                    assert!(msg.contains(&name) && !msg.contains('\n'), "cut {cut}: {msg}");
                 }
                 // OBJ has no counts: a prefix cut at a line end is a smaller
                 // valid mesh. A binary PLY prefix never is.
-                Ok(m) => assert!(
-                    rel.ends_with(".obj") && m.vertices.len() <= 2930,
-                    "{rel}: cut {cut} parsed"
-                ),
+                Ok(m) => assert!(rel.ends_with(".obj") && m.vertices.len() <= 2930, "{rel}: cut {cut} parsed"),
             }
         }
     }

@@ -7,15 +7,8 @@ use std::time::Instant;
 use nst3d_io::vdb::*;
 
 fn volumes() -> PathBuf {
-    let dir = PathBuf::from(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../../shared/data/volumes"
-    ));
-    assert!(
-        dir.is_dir(),
-        "test data missing: {} (the shared/ data folder must sit beside the repo)",
-        dir.display()
-    );
+    let dir = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/volumes"));
+    assert!(dir.is_dir(), "test data missing: {} (the shared/ data folder must sit beside the repo)", dir.display());
     dir
 }
 
@@ -54,20 +47,12 @@ fn smoke_000001_has_empty_grids_and_an_int_grid() {
     let err = density.to_dense().unwrap_err();
     assert!(matches!(err, VdbError::EmptyGrid { .. }), "{err}");
     let msg = err.to_string();
-    assert!(
-        msg.contains("smoke_000001.vdb") && msg.contains("'density'") && msg.contains("empty"),
-        "{msg}"
-    );
+    assert!(msg.contains("smoke_000001.vdb") && msg.contains("'density'") && msg.contains("empty"), "{msg}");
     // Houdini/Blender obstacle grid of int32: listed, but unusable with a clear error.
     let obstacles = f.grid("obstacles").expect("obstacles grid");
     let err = obstacles.to_dense().unwrap_err().to_string();
-    assert!(
-        err.contains("Tree_int32_5_4_3") && err.contains("obstacles"),
-        "{err}"
-    );
-    let err = write_vdb_bytes(Path::new("out.vdb"), &f.grids)
-        .unwrap_err()
-        .to_string();
+    assert!(err.contains("Tree_int32_5_4_3") && err.contains("obstacles"), "{err}");
+    let err = write_vdb_bytes(Path::new("out.vdb"), &f.grids).unwrap_err().to_string();
     assert!(err.contains("unsupported value type"), "{err}");
 }
 
@@ -82,20 +67,12 @@ fn all_plume48_frames_read() {
         let f = read_vdb(&path).unwrap_or_else(|e| panic!("{e}"));
         let mut names: Vec<&str> = f.grids.iter().map(|g| g.name.as_str()).collect();
         names.sort();
-        assert_eq!(
-            names,
-            ["density", "flame", "shadow", "temperature", "velocity"],
-            "frame {frame}"
-        );
+        assert_eq!(names, ["density", "flame", "shadow", "temperature", "velocity"], "frame {frame}");
         for g in &f.grids {
             assert!(g.saved_as_half, "{} frame {frame} should be half", g.name);
             assert_eq!(g.transform.voxel_size, [0.0625; 3]);
             assert!(!g.has_non_finite(), "{} frame {frame}", g.name);
-            let expect_type = if g.name == "velocity" {
-                "vec3s"
-            } else {
-                "float"
-            };
+            let expect_type = if g.name == "velocity" { "vec3s" } else { "float" };
             assert_eq!(g.values.type_name(), expect_type);
         }
         let vel = f.grid("velocity").unwrap();
@@ -109,24 +86,13 @@ fn all_plume48_frames_read() {
         }
         last = n;
         let (bx, d) = density.to_dense().unwrap();
-        assert!(
-            bx.dims.iter().zip([32, 32, 48]).all(|(&a, b)| a <= b),
-            "{bx:?}"
-        );
+        assert!(bx.dims.iter().zip([32, 32, 48]).all(|(&a, b)| a <= b), "{bx:?}");
         assert!(d.max() > 0.0);
         let (_, [vx, vy, vz]) = vel.to_dense_vec3().unwrap();
-        assert!(vx
-            .data
-            .iter()
-            .chain(&vy.data)
-            .chain(&vz.data)
-            .any(|&v| v != 0.0));
+        assert!(vx.data.iter().chain(&vy.data).chain(&vz.data).any(|&v| v != 0.0));
     }
     let ms = t.elapsed().as_secs_f64() * 1e3;
-    println!(
-        "40 plume48 frames read + densified in {ms:.1} ms ({:.2} ms/frame)",
-        ms / 40.0
-    );
+    println!("40 plume48 frames read + densified in {ms:.1} ms ({:.2} ms/frame)", ms / 40.0);
     assert!(grew > 5, "the plume should grow over the 40 frames");
 }
 
@@ -134,17 +100,10 @@ fn all_plume48_frames_read() {
 fn missing_file_and_bad_magic_are_named_errors() {
     let err = read_vdb(Path::new("/nonexistent/dir/x.vdb")).unwrap_err();
     assert!(matches!(err, VdbError::Open { .. }));
-    assert!(
-        err.to_string()
-            .starts_with("/nonexistent/dir/x.vdb: cannot read"),
-        "{err}"
-    );
+    assert!(err.to_string().starts_with("/nonexistent/dir/x.vdb: cannot read"), "{err}");
     let err = read_vdb_bytes(Path::new("a.png"), b"\x89PNG\r\n\x1a\n........").unwrap_err();
     assert!(matches!(err, VdbError::NotVdb { .. }), "{err}");
-    assert_eq!(
-        err.to_string(),
-        "a.png: not an OpenVDB file (bad magic number)"
-    );
+    assert_eq!(err.to_string(), "a.png: not an OpenVDB file (bad magic number)");
     let err = read_vdb_bytes(Path::new("e.vdb"), b"").unwrap_err();
     assert!(matches!(err, VdbError::NotVdb { .. }), "{err}");
 }
@@ -153,11 +112,7 @@ fn missing_file_and_bad_magic_are_named_errors() {
 /// panic, and the message names the file.
 #[test]
 fn truncated_files_fail_cleanly() {
-    for name in [
-        "smoke_000003.vdb",
-        "plume48/fluid_data_0030.vdb",
-        "smoke_000001.vdb",
-    ] {
+    for name in ["smoke_000003.vdb", "plume48/fluid_data_0030.vdb", "smoke_000001.vdb"] {
         let path = volumes().join(name);
         let bytes = std::fs::read(&path).unwrap();
         let step = (bytes.len() / 150).max(1);
@@ -167,15 +122,9 @@ fn truncated_files_fail_cleanly() {
         for cut in cuts {
             let err = read_vdb_bytes(&path, &bytes[..cut]).expect_err("prefix must not parse");
             let msg = err.to_string();
+            assert!(msg.contains(name) && !msg.contains('\n'), "cut {cut}: {msg}");
             assert!(
-                msg.contains(name) && !msg.contains('\n'),
-                "cut {cut}: {msg}"
-            );
-            assert!(
-                matches!(
-                    err,
-                    VdbError::Truncated { .. } | VdbError::Corrupt { .. } | VdbError::NotVdb { .. }
-                ),
+                matches!(err, VdbError::Truncated { .. } | VdbError::Corrupt { .. } | VdbError::NotVdb { .. }),
                 "cut {cut}: {msg}"
             );
         }
@@ -216,9 +165,7 @@ fn random_and_corrupted_bytes_never_panic() {
                 let _ = g.has_non_finite();
                 // A flipped tile bit can legitimately spread the bbox to a
                 // 640³ box; densify only what stays small to keep the test fast.
-                let small = g
-                    .active_bbox()
-                    .is_some_and(|(lo, hi)| (0..3).all(|a| hi[a] - lo[a] < 256));
+                let small = g.active_bbox().is_some_and(|(lo, hi)| (0..3).all(|a| hi[a] - lo[a] < 256));
                 if small {
                     let _ = g.to_dense();
                 }
@@ -234,10 +181,7 @@ fn non_finite_values_are_reported() {
     let v = VdbGrid::from_dense("density", Transform::uniform(0.1), [-2, 0, 5], &g, 0.0);
     assert!(v.has_non_finite());
     let err = v.to_dense().unwrap_err();
-    assert!(
-        matches!(err, VdbError::NonFinite { ijk: [1, 1, 5], .. }),
-        "{err}"
-    );
+    assert!(matches!(err, VdbError::NonFinite { ijk: [1, 1, 5], .. }), "{err}");
     assert!(err.to_string().contains("'density'"));
 }
 
@@ -246,12 +190,7 @@ fn absurd_bbox_is_refused_before_allocating() {
     let mut s = SparseGrid::new(0.0f32);
     s.set_active([-1_000_000, 0, 0], 1.0);
     s.set_active([1_000_000, 1_000_000, 1_000_000], 1.0);
-    let g = VdbGrid::new(
-        "huge",
-        "fog volume",
-        Transform::uniform(1.0),
-        GridValues::Float(s),
-    );
+    let g = VdbGrid::new("huge", "fog volume", Transform::uniform(1.0), GridValues::Float(s));
     let err = g.to_dense().unwrap_err();
     assert!(matches!(err, VdbError::TooLarge { .. }), "{err}");
     assert!(err.to_string().contains("'huge'"));
@@ -281,13 +220,7 @@ fn dense_round_trip_keeps_index_space() {
     assert_eq!(v.active_voxel_count(), 3);
     assert_eq!(v.active_bbox(), Some(([-18, 5, -2], [-9, 14, 5])));
     let (bx, d) = v.to_dense().unwrap();
-    assert_eq!(
-        bx,
-        DenseBox {
-            origin: [-18, 5, -2],
-            dims: [10, 10, 8]
-        }
-    );
+    assert_eq!(bx, DenseBox { origin: [-18, 5, -2], dims: [10, 10, 8] });
     for z in 0..8 {
         for y in 0..10 {
             for x in 0..10 {

@@ -12,21 +12,11 @@ use nst3d_io::vdb::*;
 use serde_json::{json, Value};
 
 const PYTHON: &str = "/usr/bin/python3";
-const SCRIPT: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/../../tools/fixtures/io_vdb_reference.py"
-);
+const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tools/fixtures/io_vdb_reference.py");
 
 fn volumes() -> PathBuf {
-    let dir = PathBuf::from(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../../shared/data/volumes"
-    ));
-    assert!(
-        dir.is_dir(),
-        "test data missing: {} (the shared/ data folder must sit beside the repo)",
-        dir.display()
-    );
+    let dir = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/volumes"));
+    assert!(dir.is_dir(), "test data missing: {} (the shared/ data folder must sit beside the repo)", dir.display());
     dir
 }
 
@@ -48,11 +38,7 @@ fn require_openvdb() {
 /// Runs the reference script; panics with its stderr on failure.
 fn reference(args: &[&str]) -> String {
     require_openvdb();
-    let out = Command::new(PYTHON)
-        .arg(SCRIPT)
-        .args(args)
-        .output()
-        .expect("run python3");
+    let out = Command::new(PYTHON).arg(SCRIPT).args(args).output().expect("run python3");
     assert!(
         out.status.success(),
         "io_vdb_reference.py {} failed:\n{}{}",
@@ -88,29 +74,12 @@ fn assert_info(g: &VdbGrid, info: &Value) {
     let name = info["name"].as_str().unwrap();
     assert_eq!(g.name, name);
     assert_eq!(g.class, info["class"].as_str().unwrap(), "{name} class");
-    assert_eq!(
-        g.values.type_name(),
-        info["value_type"].as_str().unwrap(),
-        "{name} type"
-    );
-    assert_eq!(
-        g.active_voxel_count(),
-        info["active_count"].as_u64().unwrap(),
-        "{name} active count"
-    );
+    assert_eq!(g.values.type_name(), info["value_type"].as_str().unwrap(), "{name} type");
+    assert_eq!(g.active_voxel_count(), info["active_count"].as_u64().unwrap(), "{name} active count");
     if g.active_voxel_count() > 0 {
-        assert_eq!(
-            g.active_bbox(),
-            Some((ijk(&info["bbox_min"]), ijk(&info["bbox_max"]))),
-            "{name} bbox"
-        );
+        assert_eq!(g.active_bbox(), Some((ijk(&info["bbox_min"]), ijk(&info["bbox_max"]))), "{name} bbox");
     }
-    let vs: Vec<f64> = info["voxel_size"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|v| v.as_f64().unwrap())
-        .collect();
+    let vs: Vec<f64> = info["voxel_size"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
     for a in 0..3 {
         assert!(
             (g.transform.voxel_size[a] - vs[a]).abs() < 1e-12,
@@ -118,11 +87,7 @@ fn assert_info(g: &VdbGrid, info: &Value) {
             g.transform.voxel_size
         );
     }
-    assert_eq!(
-        g.saved_as_half,
-        info["half"].as_bool().unwrap(),
-        "{name} half flag"
-    );
+    assert_eq!(g.saved_as_half, info["half"].as_bool().unwrap(), "{name} half flag");
 }
 
 /// (a) A file OpenVDB writes with known values (sparse voxels over many
@@ -138,28 +103,19 @@ fn openvdb_written_file_reads_exactly() {
     let file = read_vdb(&vdb).unwrap();
     assert_eq!(file.library_version.0, 10);
     for info in expect["grids"].as_array().unwrap() {
-        let g = file
-            .grid(info["name"].as_str().unwrap())
-            .expect("grid present");
+        let g = file.grid(info["name"].as_str().unwrap()).expect("grid present");
         assert_info(g, info);
     }
     let voxels: Vec<([i32; 3], f32)> = expect["voxels"]
         .as_array()
         .unwrap()
         .iter()
-        .map(|v| {
-            (
-                [0, 1, 2].map(|a| v[a].as_i64().unwrap() as i32),
-                v[3].as_f64().unwrap() as f32,
-            )
-        })
+        .map(|v| ([0, 1, 2].map(|a| v[a].as_i64().unwrap() as i32), v[3].as_f64().unwrap() as f32))
         .collect();
     for name in ["sparse", "sparse_half"] {
         let s = float_grid(file.grid(name).unwrap());
         // The fill below came after the sparse voxels and overwrote those in its box.
-        let in_fill = |c: [i32; 3]| {
-            (-16..=-9).contains(&c[0]) && (8..=15).contains(&c[1]) && (16..=23).contains(&c[2])
-        };
+        let in_fill = |c: [i32; 3]| (-16..=-9).contains(&c[0]) && (8..=15).contains(&c[1]) && (16..=23).contains(&c[2]);
         for &(c, v) in voxels.iter().filter(|(c, _)| !in_fill(*c)) {
             assert!(s.is_active(c), "{name} {c:?} inactive");
             assert_eq!(s.get(c), v, "{name} {c:?}");
@@ -173,11 +129,7 @@ fn openvdb_written_file_reads_exactly() {
     }
     let sparse = file.grid("sparse").unwrap();
     let w = sparse.transform.index_to_world([1.0, 2.0, 3.0]);
-    assert_eq!(
-        w,
-        [1.75, -1.0, 5.0],
-        "index (1,2,3) of 'sparse' in world space"
-    );
+    assert_eq!(w, [1.75, -1.0, 5.0], "index (1,2,3) of 'sparse' in world space");
     // A 128^3 active tile of a 32^3 node expands to 2M voxels.
     let tiles = float_grid(file.grid("tiles").unwrap());
     for c in [[128, -128, 0], [255, -1, 127], [200, -50, 64]] {
@@ -186,16 +138,10 @@ fn openvdb_written_file_reads_exactly() {
     assert_eq!(tiles.get([300, 2, 3]), -1.5);
     assert!(!tiles.is_active([127, -128, 0]));
     let vel = file.grid("velocity").unwrap();
-    let GridValues::Vec3(vel) = &vel.values else {
-        panic!("velocity not vec3")
-    };
+    let GridValues::Vec3(vel) = &vel.values else { panic!("velocity not vec3") };
     for &(c, _) in voxels.iter().step_by(3) {
         let [i, j, k] = c;
-        assert_eq!(
-            vel.get(c),
-            [known_value(i, j, k), -known_value(j, k, i), i as f32 * 0.5],
-            "velocity {c:?}"
-        );
+        assert_eq!(vel.get(c), [known_value(i, j, k), -known_value(j, k, i), i as f32 * 0.5], "velocity {c:?}");
     }
 }
 
@@ -229,14 +175,11 @@ fn our_files_read_in_openvdb() {
         &dense,
         0.0,
     );
-    let mut half =
-        VdbGrid::from_dense("density_half", Transform::uniform(0.1), origin, &dense, 0.5);
+    let mut half = VdbGrid::from_dense("density_half", Transform::uniform(0.1), origin, &dense, 0.5);
     half.saved_as_half = true;
     let comps = [0.0f32, 1.0, 2.0].map(|c| {
         let mut g = dense.clone();
-        g.data
-            .iter_mut()
-            .for_each(|v| *v = if *v > 0.0 { *v + c } else { 0.0 });
+        g.data.iter_mut().for_each(|v| *v = if *v > 0.0 { *v + c } else { 0.0 });
         g
     });
     let vel = VdbGrid::from_dense_vec3(
@@ -251,18 +194,10 @@ fn our_files_read_in_openvdb() {
     let (c, s) = (0.6, 0.8);
     let rot = Transform::from_matrix(
         "AffineMap",
-        [
-            [c * 2.0, -s * 2.0, 0.0, 4.0],
-            [s * 2.0, c * 2.0, 0.0, 5.0],
-            [0.0, 0.0, 2.0, 6.0],
-            [0.0, 0.0, 0.0, 1.0],
-        ],
+        [[c * 2.0, -s * 2.0, 0.0, 4.0], [s * 2.0, c * 2.0, 0.0, 5.0], [0.0, 0.0, 2.0, 6.0], [0.0, 0.0, 0.0, 1.0]],
     );
     let rotated = VdbGrid::from_dense("rotated", rot, [0, 0, 0], &dense, 0.0);
-    let mut smoke = read_vdb(&volumes().join("smoke_000003.vdb"))
-        .unwrap()
-        .grids
-        .remove(0);
+    let mut smoke = read_vdb(&volumes().join("smoke_000003.vdb")).unwrap().grids.remove(0);
     smoke.name = "smoke".into();
     let grids = vec![density, half, vel, rotated, smoke];
     write_vdb(&out, &grids).unwrap();
@@ -273,28 +208,15 @@ fn our_files_read_in_openvdb() {
     for (a, b) in grids.iter().zip(&back.grids) {
         assert_eq!(a.name, b.name);
         assert_eq!(a.class, b.class);
-        assert_eq!(
-            a.transform.index_to_world, b.transform.index_to_world,
-            "{}",
-            a.name
-        );
+        assert_eq!(a.transform.index_to_world, b.transform.index_to_world, "{}", a.name);
         assert_eq!(a.active_voxel_count(), b.active_voxel_count(), "{}", a.name);
         if a.saved_as_half {
             let (sa, sb) = (float_grid(a), float_grid(b));
             for (c, v) in sa.iter_active() {
-                assert_eq!(
-                    sb.get(c),
-                    half::f16::from_f32(v).to_f32(),
-                    "{} {c:?}",
-                    a.name
-                );
+                assert_eq!(sb.get(c), half::f16::from_f32(v).to_f32(), "{} {c:?}", a.name);
             }
         } else {
-            assert!(
-                a.values == b.values,
-                "{} values differ after round trip",
-                a.name
-            );
+            assert!(a.values == b.values, "{} values differ after round trip", a.name);
         }
     }
 
@@ -307,11 +229,7 @@ fn our_files_read_in_openvdb() {
         match &g.values {
             GridValues::Float(s) => {
                 for (c, v) in s.iter_active().step_by(37) {
-                    let v = if g.saved_as_half {
-                        half::f16::from_f32(v).to_f32()
-                    } else {
-                        v
-                    };
+                    let v = if g.saved_as_half { half::f16::from_f32(v).to_f32() } else { v };
                     probes.push(json!([c, v, true]));
                 }
                 probes.push(json!([[lo[0] - 1, lo[1], lo[2]], 0.0, false]));
@@ -339,11 +257,7 @@ fn our_files_read_in_openvdb() {
     }
     let expect_path = dir.path().join("expect.json");
     std::fs::write(&expect_path, json!({ "grids": expect }).to_string()).unwrap();
-    let said = reference(&[
-        "check",
-        out.to_str().unwrap(),
-        expect_path.to_str().unwrap(),
-    ]);
+    let said = reference(&["check", out.to_str().unwrap(), expect_path.to_str().unwrap()]);
     assert_eq!(said.trim(), "OK");
 }
 
@@ -352,14 +266,8 @@ fn our_files_read_in_openvdb() {
 #[test]
 fn real_frames_match_openvdb_voxel_for_voxel() {
     let dir = tempfile::tempdir().unwrap();
-    let mut pairs: Vec<(PathBuf, &str)> = (1..=40)
-        .map(|f| {
-            (
-                volumes().join(format!("plume48/fluid_data_{f:04}.vdb")),
-                "density",
-            )
-        })
-        .collect();
+    let mut pairs: Vec<(PathBuf, &str)> =
+        (1..=40).map(|f| (volumes().join(format!("plume48/fluid_data_{f:04}.vdb")), "density")).collect();
     pairs.push((volumes().join("plume48/fluid_data_0020.vdb"), "velocity"));
     pairs.push((volumes().join("plume48/fluid_data_0040.vdb"), "temperature"));
     pairs.push((volumes().join("smoke_000003.vdb"), "density"));
@@ -375,10 +283,7 @@ fn real_frames_match_openvdb_voxel_for_voxel() {
         let g = file.grid(name).unwrap();
         assert_info(g, &info);
         let raw = std::fs::read(dir.path().join(format!("{n}.bin"))).unwrap();
-        let theirs: Vec<f32> = raw
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
-            .collect();
+        let theirs: Vec<f32> = raw.chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
         // Reference order is C order over (i, j, k) (x slowest), vec3 interleaved.
         let (bx, comps): (DenseBox, Vec<Grid3>) = match &g.values {
             GridValues::Float(_) => {
@@ -407,11 +312,6 @@ fn real_frames_match_openvdb_voxel_for_voxel() {
                 }
             }
         }
-        assert_eq!(
-            mismatches,
-            0,
-            "{} grid {name}: {mismatches} voxels differ from OpenVDB",
-            path.display()
-        );
+        assert_eq!(mismatches, 0, "{} grid {name}: {mismatches} voxels differ from OpenVDB", path.display());
     }
 }

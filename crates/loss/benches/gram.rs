@@ -25,10 +25,7 @@ fn median_ms(reps: usize, mut f: impl FnMut()) -> (f64, f64) {
         .map(|_| {
             let (s, c) = (Instant::now(), cpu_ns());
             f();
-            (
-                s.elapsed().as_secs_f64() * 1e3,
-                (cpu_ns() - c) as f64 * 1e-6,
-            )
+            (s.elapsed().as_secs_f64() * 1e3, (cpu_ns() - c) as f64 * 1e-6)
         })
         .collect();
     t.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -37,12 +34,7 @@ fn median_ms(reps: usize, mut f: impl FnMut()) -> (f64, f64) {
 
 fn main() {
     println!("rayon threads: {}", rayon::current_num_threads());
-    let shapes = [
-        (64, 256, 256),
-        (128, 128, 128),
-        (256, 64, 64),
-        (512, 32, 32),
-    ];
+    let shapes = [(64, 256, 256), (128, 128, 128), (256, 64, 64), (512, 32, 32)];
     let feats: Vec<Image> = shapes
         .iter()
         .enumerate()
@@ -62,19 +54,9 @@ fn main() {
             bwd.1
         );
     }
-    let style: Vec<Image> = feats
-        .iter()
-        .map(|f| Image {
-            data: f.data.iter().map(|v| v * 0.5).collect(),
-            ..f.clone()
-        })
-        .collect();
+    let style: Vec<Image> =
+        feats.iter().map(|f| Image { data: f.data.iter().map(|v| v * 0.5).collect(), ..f.clone() }).collect();
     let target = StyleTarget::from_features(&style, &[]).unwrap();
-    let all = median_ms(9, || {
-        drop(std::hint::black_box(style_loss(&feats, &target).unwrap()))
-    });
-    println!(
-        "style_loss, 4 layers (relu1_1..relu4_1 at 256²): {:6.2} ms (cpu {:6.2})",
-        all.0, all.1
-    );
+    let all = median_ms(9, || drop(std::hint::black_box(style_loss(&feats, &target).unwrap())));
+    println!("style_loss, 4 layers (relu1_1..relu4_1 at 256²): {:6.2} ms (cpu {:6.2})", all.0, all.1);
 }

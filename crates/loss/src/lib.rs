@@ -112,14 +112,8 @@ fn matmul(
     }
     // The last element each operand's strides reach must be in bounds; this
     // is what makes the raw-pointer call below sound.
-    assert!(
-        (m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1 < lhs.len(),
-        "matmul lhs bounds"
-    );
-    assert!(
-        (k - 1) * rhs_strides.0 + (n - 1) * rhs_strides.1 < rhs.len(),
-        "matmul rhs bounds"
-    );
+    assert!((m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1 < lhs.len(), "matmul lhs bounds");
+    assert!((k - 1) * rhs_strides.0 + (n - 1) * rhs_strides.1 < rhs.len(), "matmul rhs bounds");
     // SAFETY: the bounds were checked above, dst is exclusively borrowed and
     // row-major m x n, and read_dst = false so its old contents are ignored.
     unsafe {
@@ -167,18 +161,7 @@ pub fn gram(f: &Image) -> Vec<f32> {
     let scale = 1.0 / p as f32;
     let mut g = if chunks == 1 {
         let mut g = vec![0.0; c * c];
-        matmul(
-            c,
-            c,
-            p,
-            &mut g,
-            &f.data,
-            (p, 1),
-            &f.data,
-            (1, p),
-            scale,
-            parallelism(c, c, p),
-        );
+        matmul(c, c, p, &mut g, &f.data, (p, 1), &f.data, (1, p), scale, parallelism(c, c, p));
         g
     } else {
         let width = p.div_ceil(chunks);
@@ -188,18 +171,7 @@ pub fn gram(f: &Image) -> Vec<f32> {
                 let (k0, k1) = (i * width, ((i + 1) * width).min(p));
                 let mut part = vec![0.0; c * c];
                 let cols = &f.data[k0..];
-                matmul(
-                    c,
-                    c,
-                    k1 - k0,
-                    &mut part,
-                    cols,
-                    (p, 1),
-                    cols,
-                    (1, p),
-                    scale,
-                    Parallelism::None,
-                );
+                matmul(c, c, k1 - k0, &mut part, cols, (p, 1), cols, (1, p), scale, Parallelism::None);
                 part
             })
             .collect::<Vec<_>>()
@@ -241,18 +213,7 @@ pub fn gram_backward(f: &Image, grad_g: &[f32]) -> Image {
     let mut out = Image::zeros(c, f.height, f.width);
     if p > 0 {
         let par = parallelism(c, p, c);
-        matmul(
-            c,
-            p,
-            c,
-            &mut out.data,
-            &sym,
-            (c, 1),
-            &f.data,
-            (p, 1),
-            1.0 / p as f32,
-            par,
-        );
+        matmul(c, p, c, &mut out.data, &sym, (c, 1), &f.data, (p, 1), 1.0 / p as f32, par);
     }
     out
 }
@@ -303,10 +264,7 @@ impl StyleTarget {
         } else if weights.len() == feats.len() {
             weights.to_vec()
         } else {
-            return Err(LossError::WeightCount {
-                weights: weights.len(),
-                layers: feats.len(),
-            });
+            return Err(LossError::WeightCount { weights: weights.len(), layers: feats.len() });
         };
         if let Some((layer, &value)) = weights.iter().enumerate().find(|(_, w)| !w.is_finite()) {
             return Err(LossError::NonFiniteWeight { layer, value });
@@ -344,12 +302,7 @@ impl StyleTarget {
 
 fn check_not_empty(layer: usize, f: &Image) -> Result<(), LossError> {
     if f.plane() == 0 {
-        return Err(LossError::EmptyLayer {
-            layer,
-            channels: f.channels,
-            height: f.height,
-            width: f.width,
-        });
+        return Err(LossError::EmptyLayer { layer, channels: f.channels, height: f.height, width: f.width });
     }
     Ok(())
 }
@@ -359,18 +312,11 @@ fn check_not_empty(layer: usize, f: &Image) -> Result<(), LossError> {
 /// shapes as `feats`), ready for the feature network's backward pass.
 pub fn style_loss(feats: &[Image], target: &StyleTarget) -> Result<(f32, Vec<Image>), LossError> {
     if feats.len() != target.layers() {
-        return Err(LossError::LayerCount {
-            got: feats.len(),
-            expected: target.layers(),
-        });
+        return Err(LossError::LayerCount { got: feats.len(), expected: target.layers() });
     }
     for (layer, f) in feats.iter().enumerate() {
         if f.channels != target.channels[layer] {
-            return Err(LossError::ChannelCount {
-                layer,
-                got: f.channels,
-                expected: target.channels[layer],
-            });
+            return Err(LossError::ChannelCount { layer, got: f.channels, expected: target.channels[layer] });
         }
         check_not_empty(layer, f)?;
     }
@@ -402,12 +348,7 @@ mod tests {
         let mut g = vec![0.0; c * c];
         for i in 0..c {
             for j in 0..c {
-                let s: f64 = f
-                    .channel(i)
-                    .iter()
-                    .zip(f.channel(j))
-                    .map(|(a, b)| *a as f64 * *b as f64)
-                    .sum();
+                let s: f64 = f.channel(i).iter().zip(f.channel(j)).map(|(a, b)| *a as f64 * *b as f64).sum();
                 g[i * c + j] = s / p as f64;
             }
         }
@@ -454,17 +395,11 @@ mod tests {
     #[test]
     fn style_loss_gradcheck_several_layers() {
         let shapes = [(4, 5, 6), (8, 3, 4), (3, 2, 9)];
-        let style: Vec<Image> = shapes
-            .iter()
-            .enumerate()
-            .map(|(i, &(c, h, w))| image(c, h, w, 100 + i as u64))
-            .collect();
+        let style: Vec<Image> =
+            shapes.iter().enumerate().map(|(i, &(c, h, w))| image(c, h, w, 100 + i as u64)).collect();
         let target = StyleTarget::from_features(&style, &[1.0, 0.5, 3.0]).unwrap();
-        let feats: Vec<Image> = shapes
-            .iter()
-            .enumerate()
-            .map(|(i, &(c, h, w))| image(c, h, w, 200 + i as u64))
-            .collect();
+        let feats: Vec<Image> =
+            shapes.iter().enumerate().map(|(i, &(c, h, w))| image(c, h, w, 200 + i as u64)).collect();
         let (_, grads) = style_loss(&feats, &target).unwrap();
         // Perturb one layer at a time, the others held fixed.
         for l in 0..shapes.len() {
@@ -491,13 +426,7 @@ mod tests {
     #[test]
     fn bad_inputs_are_errors() {
         let style = vec![image(4, 3, 3, 1), image(2, 5, 2, 2)];
-        assert_eq!(
-            StyleTarget::from_features(&style, &[1.0]),
-            Err(LossError::WeightCount {
-                weights: 1,
-                layers: 2
-            })
-        );
+        assert_eq!(StyleTarget::from_features(&style, &[1.0]), Err(LossError::WeightCount { weights: 1, layers: 2 }));
         assert!(matches!(
             StyleTarget::from_features(&style, &[1.0, f32::NAN]),
             Err(LossError::NonFiniteWeight { layer: 1, .. })
@@ -507,28 +436,11 @@ mod tests {
             Err(LossError::EmptyLayer { layer: 0, .. })
         ));
         let target = StyleTarget::from_features(&style, &[]).unwrap();
-        assert_eq!(
-            style_loss(&style[..1], &target).unwrap_err(),
-            LossError::LayerCount {
-                got: 1,
-                expected: 2
-            }
-        );
+        assert_eq!(style_loss(&style[..1], &target).unwrap_err(), LossError::LayerCount { got: 1, expected: 2 });
         let wrong = vec![style[0].clone(), image(3, 5, 2, 2)];
-        assert_eq!(
-            style_loss(&wrong, &target).unwrap_err(),
-            LossError::ChannelCount {
-                layer: 1,
-                got: 3,
-                expected: 2
-            }
-        );
+        assert_eq!(style_loss(&wrong, &target).unwrap_err(), LossError::ChannelCount { layer: 1, got: 3, expected: 2 });
         // Error messages are one line and name the problem.
-        let msg = LossError::WeightCount {
-            weights: 1,
-            layers: 2,
-        }
-        .to_string();
+        let msg = LossError::WeightCount { weights: 1, layers: 2 }.to_string();
         assert!(!msg.contains('\n') && msg.contains("weights"));
     }
 }

@@ -15,13 +15,9 @@ struct Reader {
 impl Reader {
     fn open() -> Self {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/loss_gram.bin");
-        let bytes = std::fs::read(path).unwrap_or_else(|e| {
-            panic!("missing fixture {path} ({e}); run tools/fixtures/loss_gram.py")
-        });
-        let data = bytes
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
-            .collect();
+        let bytes = std::fs::read(path)
+            .unwrap_or_else(|e| panic!("missing fixture {path} ({e}); run tools/fixtures/loss_gram.py"));
+        let data = bytes.chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
         Self { data, pos: 0 }
     }
     fn take(&mut self, n: usize) -> Vec<f32> {
@@ -30,20 +26,14 @@ impl Reader {
         v
     }
     fn images(&mut self) -> Vec<Image> {
-        SHAPES
-            .iter()
-            .map(|&(c, h, w)| Image::from_vec(c, h, w, self.take(c * h * w)))
-            .collect()
+        SHAPES.iter().map(|&(c, h, w)| Image::from_vec(c, h, w, self.take(c * h * w))).collect()
     }
 }
 
 fn assert_close(got: &[f32], want: &[f32], tol: f32, what: &str) {
     assert_eq!(got.len(), want.len(), "{what}: length");
     for (i, (a, b)) in got.iter().zip(want).enumerate() {
-        assert!(
-            (a - b).abs() <= tol * (1.0 + b.abs()),
-            "{what}[{i}]: {a} vs torch {b}"
-        );
+        assert!((a - b).abs() <= tol * (1.0 + b.abs()), "{what}[{i}]: {a} vs torch {b}");
     }
 }
 
@@ -58,11 +48,7 @@ fn matches_pytorch() {
     let loss = r.take(1)[0];
     let dmse0 = r.take(SHAPES[0].0 * SHAPES[0].0);
     let grads = r.images();
-    assert_eq!(
-        r.pos,
-        r.data.len(),
-        "fixture has trailing data: layout changed?"
-    );
+    assert_eq!(r.pos, r.data.len(), "fixture has trailing data: layout changed?");
 
     let target = StyleTarget::from_features(&style, &weights).unwrap();
     for l in 0..2 {
@@ -70,21 +56,11 @@ fn matches_pytorch() {
         assert_close(&g, &grams[l], 1e-6, "gram");
         assert_close(&[mse(&g, target.gram(l))], &mses[l..l + 1], 1e-6, "mse");
     }
-    assert_close(
-        &mse_backward(&gram(&feats[0]), target.gram(0)),
-        &dmse0,
-        1e-6,
-        "mse_backward",
-    );
+    assert_close(&mse_backward(&gram(&feats[0]), target.gram(0)), &dmse0, 1e-6, "mse_backward");
 
     let (got_loss, got_grads) = style_loss(&feats, &target).unwrap();
     assert_close(&[got_loss], &[loss], 1e-6, "style loss");
     for l in 0..2 {
-        assert_close(
-            &got_grads[l].data,
-            &grads[l].data,
-            1e-6,
-            "style loss gradient",
-        );
+        assert_close(&got_grads[l].data, &grads[l].data, 1e-6, "style loss gradient");
     }
 }

@@ -7,9 +7,7 @@ use std::time::Instant;
 fn main() {
     let n = 128 * 128 * 128 * 3;
     let mut params = vec![0.0f32; n];
-    let grads: Vec<f32> = (0..n)
-        .map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-3)
-        .collect();
+    let grads: Vec<f32> = (0..n).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-3).collect();
     let mut adam = Adam::new(n, 0.01);
     adam.step(&mut params, &grads);
     let mut t: Vec<f64> = (0..11)

@@ -87,23 +87,13 @@ impl Adam {
     /// AdamW (`torch.optim.AdamW`) over `n` parameters with decoupled weight
     /// decay `weight_decay`, other settings as in [`Adam::new`].
     pub fn adamw(n: usize, lr: f32, weight_decay: f32) -> Self {
-        Self {
-            weight_decay,
-            decoupled: true,
-            ..Self::new(n, lr)
-        }
+        Self { weight_decay, decoupled: true, ..Self::new(n, lr) }
     }
 
     /// Checks the settings against the ranges PyTorch's constructor accepts;
     /// call it after filling the public fields from user input.
     pub fn validate(&self) -> Result<(), OptimError> {
-        let bad = |name, value, expected| {
-            Err(OptimError::BadSetting {
-                name,
-                value,
-                expected,
-            })
-        };
+        let bad = |name, value, expected| Err(OptimError::BadSetting { name, value, expected });
         if !(self.lr >= 0.0 && self.lr.is_finite()) {
             return bad("lr", self.lr, "finite, >= 0");
         }
@@ -146,12 +136,8 @@ impl Adam {
         // Scalars are formed in f64 and rounded to f32 where they meet the
         // tensors, as Python floats do in torch's update.
         let t = self.step as i32;
-        let (lr, b1, b2, wd) = (
-            as_typed(self.lr),
-            as_typed(self.beta1),
-            as_typed(self.beta2),
-            as_typed(self.weight_decay),
-        );
+        let (lr, b1, b2, wd) =
+            (as_typed(self.lr), as_typed(self.beta1), as_typed(self.beta2), as_typed(self.weight_decay));
         let k = Coeffs {
             weight: (1.0 - b1) as f32,
             beta2: self.beta2,
@@ -159,16 +145,8 @@ impl Adam {
             neg_step_size: (-(lr / (1.0 - b1.powi(t)))) as f32,
             bias_c2_sqrt: (1.0 - b2.powi(t)).sqrt() as f32,
             eps: self.eps,
-            l2: if self.decoupled {
-                0.0
-            } else {
-                self.weight_decay
-            },
-            shrink: if self.decoupled && wd != 0.0 {
-                Some((1.0 - lr * wd) as f32)
-            } else {
-                None
-            },
+            l2: if self.decoupled { 0.0 } else { self.weight_decay },
+            shrink: if self.decoupled && wd != 0.0 { Some((1.0 - lr * wd) as f32) } else { None },
         };
         params
             .par_chunks_mut(CHUNK)
@@ -205,18 +183,10 @@ impl Adam {
         let expected = self.len();
         for (what, got) in [("m", m.len()), ("v", v.len())] {
             if got != expected {
-                return Err(OptimError::StateLength {
-                    what,
-                    got,
-                    expected,
-                });
+                return Err(OptimError::StateLength { what, got, expected });
             }
         }
-        if let Some((index, &value)) = v
-            .iter()
-            .enumerate()
-            .find(|(_, x)| !(x.is_finite() && **x >= 0.0))
-        {
+        if let Some((index, &value)) = v.iter().enumerate().find(|(_, x)| !(x.is_finite() && **x >= 0.0)) {
             return Err(OptimError::BadSecondMoment { index, value });
         }
         self.m.copy_from_slice(m);
@@ -258,11 +228,7 @@ impl Coeffs {
             }
             let g = if self.l2 != 0.0 { g + self.l2 * *p } else { g };
             // torch's lerp switches formula at weight 0.5 for accuracy.
-            *m = if self.weight < 0.5 {
-                *m + self.weight * (g - *m)
-            } else {
-                g - (g - *m) * (1.0 - self.weight)
-            };
+            *m = if self.weight < 0.5 { *m + self.weight * (g - *m) } else { g - (g - *m) * (1.0 - self.weight) };
             *v = *v * self.beta2 + self.one_minus_beta2 * g * g;
             let denom = v.sqrt() / self.bias_c2_sqrt + self.eps;
             *p += self.neg_step_size * *m / denom;
@@ -306,20 +272,11 @@ mod tests {
         let mut p: Vec<f32> = (0..n).map(|i| (i % 13) as f32 * 0.1).collect();
         let mut p_ref = p.clone();
         let mut opt = Adam::adamw(n, 0.01, 0.1);
-        let mut pieces: Vec<Adam> = p
-            .chunks(piece)
-            .map(|c| Adam::adamw(c.len(), 0.01, 0.1))
-            .collect();
+        let mut pieces: Vec<Adam> = p.chunks(piece).map(|c| Adam::adamw(c.len(), 0.01, 0.1)).collect();
         for s in 0..3 {
-            let g: Vec<f32> = (0..n)
-                .map(|i| ((i * 37 + s * 11) % 101) as f32 * 0.01 - 0.5)
-                .collect();
+            let g: Vec<f32> = (0..n).map(|i| ((i * 37 + s * 11) % 101) as f32 * 0.01 - 0.5).collect();
             opt.step(&mut p, &g);
-            for ((pp, gg), o) in p_ref
-                .chunks_mut(piece)
-                .zip(g.chunks(piece))
-                .zip(&mut pieces)
-            {
+            for ((pp, gg), o) in p_ref.chunks_mut(piece).zip(g.chunks(piece)).zip(&mut pieces) {
                 o.step(pp, gg);
             }
         }
@@ -350,25 +307,15 @@ mod tests {
         let mut a = Adam::new(3, 0.05);
         assert_eq!(
             a.set_state(&[0.0; 2], &[0.0; 3], 1),
-            Err(OptimError::StateLength {
-                what: "m",
-                got: 2,
-                expected: 3
-            })
+            Err(OptimError::StateLength { what: "m", got: 2, expected: 3 })
         );
         assert_eq!(
             a.set_state(&[0.0; 3], &[0.0, -1.0, 0.0], 1),
-            Err(OptimError::BadSecondMoment {
-                index: 1,
-                value: -1.0
-            })
+            Err(OptimError::BadSecondMoment { index: 1, value: -1.0 })
         );
         assert!(a.validate().is_ok());
         a.beta2 = 1.0;
-        assert!(matches!(
-            a.validate(),
-            Err(OptimError::BadSetting { name: "beta2", .. })
-        ));
+        assert!(matches!(a.validate(), Err(OptimError::BadSetting { name: "beta2", .. })));
         a.beta2 = 0.999;
         a.lr = f32::NAN;
         let e = a.validate().unwrap_err().to_string();

@@ -3,7 +3,9 @@
 //! time and CPU time summed over threads (busy-waiting rayon workers inflate the latter).
 
 use nst3d_core::{gradcheck::pseudo_random, Grid3, Image};
-use nst3d_render::{march, march_backward, render, render_backward, upsample2x, upsample2x_backward, Camera, Projection};
+use nst3d_render::{
+    march, march_backward, render, render_backward, upsample2x, upsample2x_backward, Camera, Projection,
+};
 use nst3d_transport::{advect_linear, advect_linear_backward};
 use std::time::Instant;
 

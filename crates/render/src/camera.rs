@@ -124,9 +124,8 @@ impl Frustum {
         let scale = if self.perspective { t } else { 1.0 };
         let u = self.u0 + 0.5 * self.du;
         let v = self.v0 - (r as f32 + 0.5) * self.dv;
-        let start = std::array::from_fn(|a| {
-            self.eye[a] + t * self.forward[a] + scale * (u * self.right[a] + v * self.up[a])
-        });
+        let start =
+            std::array::from_fn(|a| self.eye[a] + t * self.forward[a] + scale * (u * self.right[a] + v * self.up[a]));
         let step = std::array::from_fn(|a| scale * self.du * self.right[a]);
         (start, step)
     }
@@ -247,8 +246,7 @@ impl View {
                     return Err(RenderError::OutOfView);
                 }
                 // At the nearest bounding plane a tangent span `s` is `s · t_near` voxels.
-                let lattice =
-                    [cells((u_hi - u_lo) * t_near), cells((v_hi - v_lo) * t_near), cells(t_far - t_near)];
+                let lattice = [cells((u_hi - u_lo) * t_near), cells((v_hi - v_lo) * t_near), cells(t_far - t_near)];
                 ((u_lo, u_hi, v_lo, v_hi), lattice, true)
             }
         };

@@ -14,8 +14,8 @@ mod upsample;
 
 pub use camera::{Camera, Projection, View};
 pub use cameras::{
-    fov_y_from_lens, min_angular_distance_deg, omniview, poisson_disk_sphere, ring, sphere_uniform, world_to_index, Aim,
-    CameraFileError, CameraKey, CameraRig,
+    fov_y_from_lens, min_angular_distance_deg, omniview, poisson_disk_sphere, ring, sphere_uniform, world_to_index,
+    Aim, CameraFileError, CameraKey, CameraRig,
 };
 pub use equalize::{equalize, equalize_backward, EqCache, EqualizeParams};
 pub use march::{march, march_backward};

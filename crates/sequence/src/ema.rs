@@ -209,9 +209,8 @@ pub fn stylize_sequence_with(
         };
         let here = dims[level];
         let factor = (1usize << level) as f32;
-        let level_views = |t: usize| -> Vec<ViewSpec> {
-            views(t).iter().map(|v| nst3d_stylize::frame::view_at(v, factor)).collect()
-        };
+        let level_views =
+            |t: usize| -> Vec<ViewSpec> { views(t).iter().map(|v| nst3d_stylize::frame::view_at(v, factor)).collect() };
         let vmax_here = fp.limits.vmax / factor;
         if first_sweep.is_none() {
             // Carry fields up from the coarser octave; fresh Adam moments.
@@ -233,13 +232,14 @@ pub fn stylize_sequence_with(
             for &t in &order {
                 let d = density_at(sim, t, level)?;
                 let u = velocity_at(sim, t, here)?;
-                let mut st = store.load(t)?.ok_or_else(|| SequenceError::Frame {
-                    frame: t,
-                    message: "lost its optimisation state".into(),
-                })?;
+                let mut st = store
+                    .load(t)?
+                    .ok_or_else(|| SequenceError::Frame { frame: t, message: "lost its optimisation state".into() })?;
                 let per_voxel = if matches!(st.field, Field::Velocity(_)) { 3 } else { 1 };
                 if st.field.len() != per_voxel * here.iter().product::<usize>() {
-                    return Err(SequenceError::Checkpoint(format!("frame {t}: saved state does not match octave dims {here:?}")));
+                    return Err(SequenceError::Checkpoint(format!(
+                        "frame {t}: saved state does not match octave dims {here:?}"
+                    )));
                 }
                 if let Some(c) = &carried {
                     st.field.blend(c, params.alpha);
@@ -256,7 +256,8 @@ pub fn stylize_sequence_with(
                     }
                 }
                 let mut adam = Adam::new(st.field.len(), fp.learning_rate);
-                adam.set_state(&st.m, &st.v, st.step).map_err(|e| SequenceError::Frame { frame: t, message: e.to_string() })?;
+                adam.set_state(&st.m, &st.v, st.step)
+                    .map_err(|e| SequenceError::Frame { frame: t, message: e.to_string() })?;
                 adam.step(st.field.params_mut(), &grad);
                 st.field.constrain(&fp.limits, vmax_here);
                 let (m, v, step) = adam.state();

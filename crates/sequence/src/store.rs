@@ -80,7 +80,9 @@ impl DiskStore {
         let cp_path = dir.join(CHECKPOINT);
         let (committed_gen, mark) = match fs::read_to_string(&cp_path) {
             Ok(text) => {
-                let (g, m) = parse_checkpoint(&text).ok_or_else(|| io_err(&cp_path, "unreadable checkpoint (delete the work folder to start afresh)"))?;
+                let (g, m) = parse_checkpoint(&text).ok_or_else(|| {
+                    io_err(&cp_path, "unreadable checkpoint (delete the work folder to start afresh)")
+                })?;
                 (Some(g), Some(m))
             }
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => (None, None),
@@ -188,7 +190,9 @@ impl StateStore for DiskStore {
         let Some(g) = self.slot(t) else { return Ok(None) };
         let path = self.path(t, g);
         let bytes = fs::read(&path).map_err(|e| io_err(&path, e))?;
-        decode(&bytes).map(Some).ok_or_else(|| io_err(&path, "corrupt state file (delete the work folder to start afresh)"))
+        decode(&bytes)
+            .map(Some)
+            .ok_or_else(|| io_err(&path, "corrupt state file (delete the work folder to start afresh)"))
     }
 
     fn save(&mut self, t: usize, state: FrameState) -> Result<(), SequenceError> {

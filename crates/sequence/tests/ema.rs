@@ -119,7 +119,12 @@ fn disk_store_resumes_exactly() {
     };
     let params = SequenceParams { frame, alpha: 0.7 };
     // Two views per frame, the second a turntable step that moves with the frame (a camera path).
-    let views = |t: usize| vec![view.clone(), ViewSpec { camera: Some(Camera::orbit(sim.dims(), 30.0 + 10.0 * t as f32, 10.0)), ..view.clone() }];
+    let views = |t: usize| {
+        vec![
+            view.clone(),
+            ViewSpec { camera: Some(Camera::orbit(sim.dims(), 30.0 + 10.0 * t as f32, 10.0)), ..view.clone() },
+        ]
+    };
     let mut mem = MemoryStore::default();
     stylize_sequence_with(&sim, &loss, &views, &params, &mut mem, &mut |_| {}).unwrap();
 
@@ -134,7 +139,8 @@ fn disk_store_resumes_exactly() {
     let mark = disk.resume_point().expect("a checkpoint");
     assert_eq!((mark.octave, mark.sweeps_done), (1, 1), "{mark:?}");
     let mut sweeps = Vec::new();
-    stylize_sequence_with(&sim, &loss, &views, &params, &mut disk, &mut |p| sweeps.push((p.octave, p.iteration))).unwrap();
+    stylize_sequence_with(&sim, &loss, &views, &params, &mut disk, &mut |p| sweeps.push((p.octave, p.iteration)))
+        .unwrap();
     assert_eq!(sweeps.first(), Some(&(1, 2)), "resumed at octave 2 sweep 2");
     for t in 0..sim.len() {
         let a = mem.load(t).unwrap().unwrap();

@@ -7,11 +7,7 @@ use nst3d_splat::{render, render_backward, SplatCamera, StrandStyle, Strands};
 use std::time::Instant;
 
 /// Strands growing from a unit sphere along its normal, with some curl.
-fn fur_ball(
-    n_strands: usize,
-    segments: usize,
-    seed: u64,
-) -> (Vec<[f32; 3]>, Vec<usize>, Vec<[f32; 3]>) {
+fn fur_ball(n_strands: usize, segments: usize, seed: u64) -> (Vec<[f32; 3]>, Vec<usize>, Vec<[f32; 3]>) {
     let r = pseudo_random(n_strands * 4, seed);
     let mut points = Vec::new();
     let mut offsets = vec![0];
@@ -46,13 +42,10 @@ fn median(mut v: Vec<f64>) -> f64 {
 
 fn main() {
     let (points, offsets, normals) = fur_ball(2100, 32, 3);
-    let cam =
-        SplatCamera::look_at([0.0, 0.8, 3.4], [0.0; 3], [0.0, 1.0, 0.0], 45.0, 600, 600).unwrap();
+    let cam = SplatCamera::look_at([0.0, 0.8, 3.4], [0.0; 3], [0.0, 1.0, 0.0], 45.0, 600, 600).unwrap();
     let style = StrandStyle { width: 0.004, visibility_threshold: -0.2, ..StrandStyle::default() };
     let grad = Image::from_vec(3, 600, 600, pseudo_random(3 * 600 * 600, 9));
-    for (label, root_normals) in
-        [("all strands", None), ("culled (eps -0.2)", Some(normals.as_slice()))]
-    {
+    for (label, root_normals) in [("all strands", None), ("culled (eps -0.2)", Some(normals.as_slice()))] {
         let strands = Strands { points: &points, offsets: &offsets, colors: None, root_normals };
         let (mut fwd, mut bwd) = (Vec::new(), Vec::new());
         let mut splats = 0;

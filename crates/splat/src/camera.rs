@@ -111,8 +111,7 @@ impl SplatCamera {
 
     pub(crate) fn validate(&self) -> Result<(), SplatError> {
         let vals = self.eye.iter().chain(&self.right).chain(&self.down).chain(&self.forward);
-        if vals.chain([&self.fx, &self.fy, &self.cx, &self.cy, &self.near]).any(|v| !v.is_finite())
-        {
+        if vals.chain([&self.fx, &self.fy, &self.cx, &self.cy, &self.near]).any(|v| !v.is_finite()) {
             return Err(SplatError::NonFiniteCamera);
         }
         if self.width == 0 || self.height == 0 {

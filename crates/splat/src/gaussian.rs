@@ -156,10 +156,8 @@ pub(crate) fn project_segment_backward(
     let [tx, ty, tz] = p.t;
     let iz = 1.0 / tz;
     let iz2 = iz * iz;
-    let mut d_t =
-        [-d_j02 * fx * iz2 + d_mean[0] * fx * iz, -d_j12 * fy * iz2 + d_mean[1] * fy * iz, 0.0];
-    d_t[2] = -d_j00 * fx * iz2 + d_j02 * 2.0 * fx * tx * iz2 * iz - d_j11 * fy * iz2
-        + d_j12 * 2.0 * fy * ty * iz2 * iz
+    let mut d_t = [-d_j02 * fx * iz2 + d_mean[0] * fx * iz, -d_j12 * fy * iz2 + d_mean[1] * fy * iz, 0.0];
+    d_t[2] = -d_j00 * fx * iz2 + d_j02 * 2.0 * fx * tx * iz2 * iz - d_j11 * fy * iz2 + d_j12 * 2.0 * fy * ty * iz2 * iz
         - d_mean[0] * fx * tx * iz2
         - d_mean[1] * fy * ty * iz2;
     let d_m = rotate_back(cam, d_t);

@@ -144,11 +144,7 @@ impl Strands<'_> {
         }
         if let Some(c) = self.colors {
             if c.len() != n {
-                return Err(SplatError::LengthMismatch {
-                    what: "colors",
-                    got: c.len(),
-                    expected: n,
-                });
+                return Err(SplatError::LengthMismatch { what: "colors", got: c.len(), expected: n });
             }
         }
         if let Some(nrm) = self.root_normals {
@@ -156,10 +152,7 @@ impl Strands<'_> {
                 let (got, expected) = (nrm.len(), self.len());
                 return Err(SplatError::LengthMismatch { what: "root_normals", got, expected });
             }
-            if let Some(i) = nrm
-                .iter()
-                .position(|v| !v.iter().all(|c| c.is_finite()) || v.iter().all(|&c| c == 0.0))
-            {
+            if let Some(i) = nrm.iter().position(|v| !v.iter().all(|c| c.is_finite()) || v.iter().all(|&c| c == 0.0)) {
                 return Err(SplatError::BadRootNormal(i));
             }
         }
@@ -269,11 +262,7 @@ impl StrandStyle {
     }
 
     fn shape(&self) -> ShapeParams {
-        ShapeParams {
-            width: self.width as f64,
-            length_sigma: self.length_sigma as f64,
-            dilation: self.dilation as f64,
-        }
+        ShapeParams { width: self.width as f64, length_sigma: self.length_sigma as f64, dilation: self.dilation as f64 }
     }
 }
 
@@ -312,8 +301,7 @@ fn strand_visible(strands: &Strands, i: usize, eye: [f32; 3], eps: f32) -> bool 
     let root = strands.points[strands.offsets[i]];
     let n = normals[i];
     let v = [eye[0] - root[0], eye[1] - root[1], eye[2] - root[2]];
-    let (nn, vv) =
-        (n.iter().map(|c| c * c).sum::<f32>().sqrt(), v.iter().map(|c| c * c).sum::<f32>().sqrt());
+    let (nn, vv) = (n.iter().map(|c| c * c).sum::<f32>().sqrt(), v.iter().map(|c| c * c).sum::<f32>().sqrt());
     if vv == 0.0 {
         return true;
     }
@@ -330,11 +318,7 @@ fn lerp(a: f32, b: f32, u: f32) -> f32 {
 
 /// Renders the strands: returns the `C x H x W` image (`C` from
 /// `style.output`) and the cache the backward needs.
-pub fn render(
-    strands: &Strands,
-    cam: &SplatCamera,
-    style: &StrandStyle,
-) -> Result<(Image, SplatCache), SplatError> {
+pub fn render(strands: &Strands, cam: &SplatCamera, style: &StrandStyle) -> Result<(Image, SplatCache), SplatError> {
     strands.validate()?;
     cam.validate()?;
     style.validate()?;
@@ -404,15 +388,12 @@ pub fn render(
     }
     // Front to back; ties broken by index so the order is total and reproducible.
     let mut order: Vec<u32> = (0..splats.len() as u32).collect();
-    order
-        .sort_unstable_by(|&i, &j| depth[i as usize].total_cmp(&depth[j as usize]).then(i.cmp(&j)));
+    order.sort_unstable_by(|&i, &j| depth[i as usize].total_cmp(&depth[j as usize]).then(i.cmp(&j)));
     let bins = bin(&splats, &order, width, height);
     let bg = style.background;
     let (data, state) = match style.output {
         SplatOutput::Rgb => rasterize::<3>(&splats, &bins, width, height, bg),
-        SplatOutput::GreyAlpha => {
-            rasterize::<2>(&splats, &bins, width, height, [luminance(bg), 0.0])
-        }
+        SplatOutput::GreyAlpha => rasterize::<2>(&splats, &bins, width, height, [luminance(bg), 0.0]),
     };
     let image = Image::from_vec(style.output.channels(), height, width, data);
     let cache = SplatCache {
@@ -456,15 +437,9 @@ pub fn render_backward(
     }
     let bg = style.background;
     let splat_grads = match style.output {
-        SplatOutput::Rgb => rasterize_backward::<3>(
-            &cache.splats,
-            &cache.bins,
-            width,
-            height,
-            bg,
-            &cache.state,
-            &grad_image.data,
-        ),
+        SplatOutput::Rgb => {
+            rasterize_backward::<3>(&cache.splats, &cache.bins, width, height, bg, &cache.state, &grad_image.data)
+        }
         SplatOutput::GreyAlpha => rasterize_backward::<2>(
             &cache.splats,
             &cache.bins,

@@ -348,8 +348,7 @@ pub(crate) fn rasterize_backward<const C: usize>(
                     let q = y * width + x;
                     trans.push(state.transmittance[q]);
                     n_contrib.push(state.n_contrib[q]);
-                    grad_color
-                        .push(std::array::from_fn::<f32, C, _>(|ch| grad_image[ch * plane + q]));
+                    grad_color.push(std::array::from_fn::<f32, C, _>(|ch| grad_image[ch * plane + q]));
                 }
             }
             tile_backward::<C>(splats, list, bounds, background, &trans, &n_contrib, &grad_color)
@@ -387,8 +386,7 @@ mod tests {
                 let mut t = 1.0f32;
                 let mut c = [0.0f32; C];
                 for &i in order {
-                    let Some(a) = splats[i as usize].alpha_at(x as f32 + 0.5, y as f32 + 0.5)
-                    else {
+                    let Some(a) = splats[i as usize].alpha_at(x as f32 + 0.5, y as f32 + 0.5) else {
                         continue;
                     };
                     for ch in 0..C {
@@ -416,18 +414,12 @@ mod tests {
                 // Random elongated covariance: rotate diag(s1², s2²).
                 let (s1, s2, th) = (3.0 + 8.0 * v[2].abs(), 0.6 + 0.5 * v[3].abs(), v[4] * 3.0);
                 let (c, s) = (th.cos(), th.sin());
-                let cov = [
-                    c * c * s1 * s1 + s * s * s2 * s2,
-                    c * s * (s1 * s1 - s2 * s2),
-                    s * s * s1 * s1 + c * c * s2 * s2,
-                ];
+                let cov =
+                    [c * c * s1 * s1 + s * s * s2 * s2, c * s * (s1 * s1 - s2 * s2), s * s * s1 * s1 + c * c * s2 * s2];
                 let det = cov[0] * cov[2] - cov[1] * cov[1];
                 let (rx, ry) = (3.0 * cov[0].sqrt(), 3.0 * cov[2].sqrt());
                 let clip = |lo: f32, hi: f32, n: usize| {
-                    (
-                        (lo - 0.5).ceil().max(0.0) as u32,
-                        (hi - 0.5).floor().min(n as f32 - 1.0) as u32,
-                    )
+                    ((lo - 0.5).ceil().max(0.0) as u32, (hi - 0.5).floor().min(n as f32 - 1.0) as u32)
                 };
                 let (x0, x1) = clip(mean[0] - rx, mean[0] + rx, width);
                 let (y0, y1) = clip(mean[1] - ry, mean[1] + ry, height);

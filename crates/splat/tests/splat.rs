@@ -7,9 +7,7 @@
 
 use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
 use nst3d_core::Image;
-use nst3d_splat::{
-    render, render_backward, SplatCamera, SplatError, SplatOutput, StrandStyle, Strands,
-};
+use nst3d_splat::{render, render_backward, SplatCamera, SplatError, SplatOutput, StrandStyle, Strands};
 
 /// `n` wavy strands of `m` points in front of a camera on +z, each tilted
 /// towards the camera and at its own depth, so depth order is unambiguous and
@@ -26,11 +24,7 @@ fn scene(n: usize, m: usize, seed: u64) -> (Vec<[f32; 3]>, Vec<usize>, Vec<[f32;
         for k in 0..m {
             let u = k as f32 / (m - 1) as f32;
             let wave = 0.15 * (4.0 * u + 3.0 * v[4]).sin();
-            points.push([
-                root[0] + dir[0] * u + wave,
-                root[1] + dir[1] * u,
-                root[2] + dir[2] * u + 0.05 * v[5] * u,
-            ]);
+            points.push([root[0] + dir[0] * u + wave, root[1] + dir[1] * u, root[2] + dir[2] * u + 0.05 * v[5] * u]);
         }
         offsets.push(points.len());
     }
@@ -53,10 +47,7 @@ fn strands<'a>(p: &'a [[f32; 3]], o: &'a [usize], c: Option<&'a [[f32; 3]]>) -> 
 
 type M3 = [[f64; 3]; 3];
 
-fn matmul<const A: usize, const B: usize, const C: usize>(
-    x: &[[f64; B]; A],
-    y: &[[f64; C]; B],
-) -> [[f64; C]; A] {
+fn matmul<const A: usize, const B: usize, const C: usize>(x: &[[f64; B]; A], y: &[[f64; C]; B]) -> [[f64; C]; A] {
     std::array::from_fn(|i| std::array::from_fn(|j| (0..B).map(|k| x[i][k] * y[k][j]).sum()))
 }
 
@@ -95,8 +86,7 @@ fn brute_force(s: &Strands, cam: &SplatCamera, style: &StrandStyle) -> Vec<f64> 
             let d: [f64; 3] = std::array::from_fn(|j| b[j] - a[j]);
             let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
             let e = unit(d);
-            let e2 =
-                unit(cross(e, if e[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] }));
+            let e2 = unit(cross(e, if e[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] }));
             let e3 = cross(e, e2);
             let rot: M3 = transpose(&[e, e2, e3]);
             let (sx, sw) = (style.length_sigma as f64 * len, style.width as f64);
@@ -104,19 +94,13 @@ fn brute_force(s: &Strands, cam: &SplatCamera, style: &StrandStyle) -> Vec<f64> 
             let sigma3 = matmul(&matmul(&rot, &scale), &transpose(&rot));
             let m: [f64; 3] = std::array::from_fn(|j| 0.5 * (a[j] + b[j]) - eye[j]);
             let t: [f64; 3] = std::array::from_fn(|r| (0..3).map(|j| w_rot[r][j] * m[j]).sum());
-            let jac = [
-                [fx / t[2], 0.0, -fx * t[0] / (t[2] * t[2])],
-                [0.0, fy / t[2], -fy * t[1] / (t[2] * t[2])],
-            ];
+            let jac = [[fx / t[2], 0.0, -fx * t[0] / (t[2] * t[2])], [0.0, fy / t[2], -fy * t[1] / (t[2] * t[2])]];
             let jw = matmul(&jac, &w_rot);
             let mut sigma2 = matmul(&matmul(&jw, &sigma3), &transpose(&jw));
             sigma2[0][0] += style.dilation as f64;
             sigma2[1][1] += style.dilation as f64;
             let det = sigma2[0][0] * sigma2[1][1] - sigma2[0][1] * sigma2[1][0];
-            let inv = [
-                [sigma2[1][1] / det, -sigma2[0][1] / det],
-                [-sigma2[1][0] / det, sigma2[0][0] / det],
-            ];
+            let inv = [[sigma2[1][1] / det, -sigma2[0][1] / det], [-sigma2[1][0] / det, sigma2[0][0] / det]];
             let u = ((k - lo) as f64 + 0.5) / (hi - lo - 1) as f64;
             let lerp = |p: f32, q: f32| p as f64 + (q as f64 - p as f64) * u;
             let base: [f64; 3] = match s.colors {
@@ -143,8 +127,8 @@ fn brute_force(s: &Strands, cam: &SplatCamera, style: &StrandStyle) -> Vec<f64> 
             let (mut c, mut t) = ([0.0f64; 3], 1.0f64);
             for g in &gs {
                 let d = [x as f64 + 0.5 - g.mean[0], y as f64 + 0.5 - g.mean[1]];
-                let q = d[0] * (g.inv[0][0] * d[0] + g.inv[0][1] * d[1])
-                    + d[1] * (g.inv[1][0] * d[0] + g.inv[1][1] * d[1]);
+                let q =
+                    d[0] * (g.inv[0][0] * d[0] + g.inv[0][1] * d[1]) + d[1] * (g.inv[1][0] * d[0] + g.inv[1][1] * d[1]);
                 if q >= 9.0 {
                     continue;
                 }
@@ -166,8 +150,7 @@ fn brute_force(s: &Strands, cam: &SplatCamera, style: &StrandStyle) -> Vec<f64> 
     match style.output {
         SplatOutput::Rgb => img,
         SplatOutput::GreyAlpha => {
-            let lum =
-                |p: usize| 0.2126 * img[p] + 0.7152 * img[w * h + p] + 0.0722 * img[2 * w * h + p];
+            let lum = |p: usize| 0.2126 * img[p] + 0.7152 * img[w * h + p] + 0.0722 * img[2 * w * h + p];
             (0..w * h).map(lum).chain(alpha_img).collect()
         }
     }
@@ -191,8 +174,7 @@ fn matches_brute_force_eq7() {
         let (img, cache) = render(&s, &cam, &style).unwrap();
         assert_eq!(cache.splat_count(), 5 * 8);
         let reference = brute_force(&s, &cam, &style);
-        let err =
-            img.data.iter().zip(&reference).map(|(a, b)| (*a as f64 - b).abs()).fold(0.0, f64::max);
+        let err = img.data.iter().zip(&reference).map(|(a, b)| (*a as f64 - b).abs()).fold(0.0, f64::max);
         assert!(err < 1e-5, "{output:?}: max |tiled - brute force| = {err}");
         let plane = 70 * 50;
         let bg = reference[0];
@@ -205,9 +187,8 @@ fn matches_brute_force_eq7() {
 
 fn read_fixture() -> Vec<f32> {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/splat_reference.bin");
-    let bytes = std::fs::read(path).unwrap_or_else(|e| {
-        panic!("missing fixture {path} ({e}); regenerate with tools/fixtures/splat_reference.py")
-    });
+    let bytes = std::fs::read(path)
+        .unwrap_or_else(|e| panic!("missing fixture {path} ({e}); regenerate with tools/fixtures/splat_reference.py"));
     bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect()
 }
 
@@ -221,8 +202,7 @@ fn matches_pytorch_reference() {
         s
     };
     let head = take(5);
-    let (np, ns, w, h, fov) =
-        (head[0] as usize, head[1] as usize, head[2] as usize, head[3] as usize, head[4]);
+    let (np, ns, w, h, fov) = (head[0] as usize, head[1] as usize, head[2] as usize, head[3] as usize, head[4]);
     let v3 = |v: Vec<f32>| [v[0], v[1], v[2]];
     let (eye, target, up) = (v3(take(3)), v3(take(3)), v3(take(3)));
     let st = take(11);
@@ -249,12 +229,7 @@ fn matches_pytorch_reference() {
     assert_eq!(at, blob.len(), "fixture layout");
 
     let cam = SplatCamera::look_at(eye, target, up, fov, w, h).unwrap();
-    let s = Strands {
-        points: &points,
-        offsets: &offsets,
-        colors: Some(&colors),
-        root_normals: Some(&normals),
-    };
+    let s = Strands { points: &points, offsets: &offsets, colors: Some(&colors), root_normals: Some(&normals) };
     let (img, cache) = render(&s, &cam, &style).unwrap();
     assert_eq!(cache.visible_strands(), ns - 1, "the fixture culls one strand");
     let err = img.data.iter().zip(&want_img).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
@@ -302,11 +277,7 @@ impl Probe {
         let s = self.strands(&self.points);
         let (img, cache) = render(&s, &self.cam, &self.style).unwrap();
         let grad = Image::from_vec(img.channels, img.height, img.width, self.w.clone());
-        render_backward(&s, &self.cam, &self.style, &cache, &grad)
-            .unwrap()
-            .into_iter()
-            .flatten()
-            .collect()
+        render_backward(&s, &self.cam, &self.style, &cache, &grad).unwrap().into_iter().flatten().collect()
     }
 
     fn flat(&self) -> Vec<f32> {
@@ -429,10 +400,7 @@ fn bitwise_identical_across_thread_counts() {
     let (img1, g1) = run(1);
     for threads in [2, 3, 5] {
         let (img, g) = run(threads);
-        assert!(
-            img.iter().zip(&img1).all(|(a, b)| a.to_bits() == b.to_bits()),
-            "image differs with {threads} threads"
-        );
+        assert!(img.iter().zip(&img1).all(|(a, b)| a.to_bits() == b.to_bits()), "image differs with {threads} threads");
         assert!(
             g.iter().flatten().zip(g1.iter().flatten()).all(|(a, b)| a.to_bits() == b.to_bits()),
             "gradient differs with {threads} threads"
@@ -454,10 +422,7 @@ fn rejects_bad_input() {
     );
     let mut nan = p.clone();
     nan[5][1] = f32::NAN;
-    assert_eq!(
-        render(&strands(&nan, &o, None), &cam, &style).unwrap_err(),
-        SplatError::NonFinitePoint(5)
-    );
+    assert_eq!(render(&strands(&nan, &o, None), &cam, &style).unwrap_err(), SplatError::NonFinitePoint(5));
     let short = [[1.0f32; 3]; 3];
     assert!(matches!(
         render(&strands(&p, &o, Some(&short)), &cam, &style),
@@ -467,10 +432,7 @@ fn rejects_bad_input() {
     let s = Strands { root_normals: Some(&zero_normals), ..strands(&p, &o, None) };
     assert_eq!(render(&s, &cam, &style).unwrap_err(), SplatError::BadRootNormal(0));
     let bad_style = StrandStyle { width: 0.0, ..style };
-    assert!(matches!(
-        render(&strands(&p, &o, None), &cam, &bad_style),
-        Err(SplatError::BadStyle(_))
-    ));
+    assert!(matches!(render(&strands(&p, &o, None), &cam, &bad_style), Err(SplatError::BadStyle(_))));
 
     assert_eq!(
         SplatCamera::look_at([0.0; 3], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 8, 8).unwrap_err(),
@@ -488,14 +450,8 @@ fn rejects_bad_input() {
     let s = strands(&p, &o, None);
     let (_, cache) = render(&s, &cam, &style).unwrap();
     let wrong = Image::zeros(2, 32, 32);
-    assert!(matches!(
-        render_backward(&s, &cam, &style, &cache, &wrong),
-        Err(SplatError::GradShape { .. })
-    ));
+    assert!(matches!(render_backward(&s, &cam, &style, &cache, &wrong), Err(SplatError::GradShape { .. })));
     let other_cam = camera(32, 31);
     let grad = Image::zeros(3, 31, 32);
-    assert_eq!(
-        render_backward(&s, &other_cam, &style, &cache, &grad).unwrap_err(),
-        SplatError::CacheMismatch
-    );
+    assert_eq!(render_backward(&s, &other_cam, &style, &cache, &grad).unwrap_err(), SplatError::CacheMismatch);
 }

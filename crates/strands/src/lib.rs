@@ -17,6 +17,9 @@
 //! gradient on the points goes back through `DeformationField::backward`
 //! (the two projections are not differentiated, as in the paper).
 //!
+//! [`pipeline`] assembles all of it with the splat renderer, VGG-19 and the
+//! NNST loss into one stylization of a groom (`nst3d strands`).
+//!
 //! All stages work on [`FlatStrands`]: every control point in one array,
 //! guides first, then proxies.
 
@@ -29,6 +32,7 @@ mod field;
 mod generators;
 mod kdtree;
 mod math;
+pub mod pipeline;
 mod preset;
 mod strands;
 mod temporal;

@@ -17,7 +17,8 @@ fn main() {
     let d = synthetic_smoke(n, 0);
     let vgg = Vgg19::random(VggFlavor::Torchvision, 0);
     let layers = [VggLayer::Relu1_1, VggLayer::Relu2_1, VggLayer::Relu3_1, VggLayer::Relu4_1];
-    let style = Image::from_vec(3, 2 * n, 2 * n, pseudo_random(12 * n * n, 7).iter().map(|v| 0.5 * (v + 1.0)).collect());
+    let style =
+        Image::from_vec(3, 2 * n, 2 * n, pseudo_random(12 * n * n, 7).iter().map(|v| 0.5 * (v + 1.0)).collect());
     let target = StyleTarget::from_features(vgg.forward(&style, &layers, false).taps(), &[]).unwrap();
     for mode in [Mode::Velocity, Mode::Density] {
         let mut field = Field::identity(mode, d.len());

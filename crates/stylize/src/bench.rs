@@ -55,12 +55,8 @@ pub fn volume_iter(n: usize, mode: Mode, iters: usize) -> BenchReport {
     // The peer uses a randomly initialised torchvision VGG: the work does not
     // depend on the weight values.
     let vgg = Vgg19::random(VggFlavor::Torchvision, 0);
-    let style = Image::from_vec(
-        3,
-        2 * n,
-        2 * n,
-        pseudo_random(3 * 4 * n * n, 7).iter().map(|v| 0.5 * (v + 1.0)).collect(),
-    );
+    let style =
+        Image::from_vec(3, 2 * n, 2 * n, pseudo_random(3 * 4 * n * n, 7).iter().map(|v| 0.5 * (v + 1.0)).collect());
     let loss = ViewLoss::new(&vgg, &style, &StyleSpec::default()).expect("default style layers are valid");
     let view = ViewSpec { camera: None, gamma: 8.0 / n as f32, exposure: 1.0, equalize: false };
     let mut field = Field::identity(mode, d.len());

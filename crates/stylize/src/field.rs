@@ -127,7 +127,9 @@ impl Field {
                 Field::Velocity((0..v.len()).map(|i| [comps[0][i], comps[1][i], comps[2][i]]).collect())
             }
             // Carry the deviation from 1 so that scale read from outside is 1.
-            Field::Scale(s) => Field::Scale(carry(s.iter().map(|x| x - 1.0).collect()).iter().map(|x| x + 1.0).collect()),
+            Field::Scale(s) => {
+                Field::Scale(carry(s.iter().map(|x| x - 1.0).collect()).iter().map(|x| x + 1.0).collect())
+            }
         }
     }
 

@@ -6,7 +6,9 @@ use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
 use nst3d_core::{Grid3, Image};
 use nst3d_features::{Vgg19, VggFlavor, VggLayer};
 use nst3d_render::{Camera, Projection};
-use nst3d_stylize::{bench::synthetic_smoke, stylize_frame, Field, FrameParams, Limits, Mode, StyleSpec, ViewLoss, ViewSpec};
+use nst3d_stylize::{
+    bench::synthetic_smoke, stylize_frame, Field, FrameParams, Limits, Mode, StyleSpec, ViewLoss, ViewSpec,
+};
 
 fn style(n: usize) -> Image {
     // Stripes: a style with structure a smooth ball does not have.

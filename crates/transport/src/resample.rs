@@ -135,6 +135,8 @@ mod tests {
         assert!(up.data.iter().all(|v| (v - 2.5).abs() < 1e-6));
         let v = vec![[1.0, -2.0, 0.5]; 64];
         let vu = resize_velocity(&v, [4, 4, 4], [8, 8, 2]);
-        assert!(vu.iter().all(|u| (u[0] - 2.0).abs() < 1e-6 && (u[1] + 4.0).abs() < 1e-6 && (u[2] - 0.25).abs() < 1e-6));
+        assert!(vu
+            .iter()
+            .all(|u| (u[0] - 2.0).abs() < 1e-6 && (u[1] + 4.0).abs() < 1e-6 && (u[2] - 0.25).abs() < 1e-6));
     }
 }

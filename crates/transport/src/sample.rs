@@ -167,15 +167,7 @@ pub fn sample_trilinear_backward(
     grad_grid: Option<&mut [f32]>,
     grad_pos: Option<&mut [[f32; 3]]>,
 ) {
-    sample_trilinear_rows_backward(
-        grid,
-        pos.len(),
-        FLAT_ROW,
-        flat_rows(pos),
-        grad_out,
-        grad_grid,
-        grad_pos,
-    )
+    sample_trilinear_rows_backward(grid, pos.len(), FLAT_ROW, flat_rows(pos), grad_out, grad_grid, grad_pos)
 }
 
 /// Row filler of the flat-slice entry points.
@@ -305,10 +297,7 @@ pub fn sample_trilinear_rows_backward(
             let region = if lo[0] > hi[0] {
                 Region { origin: [0; 3], dims: [0; 3] }
             } else {
-                Region {
-                    origin: lo,
-                    dims: std::array::from_fn(|a| (hi[a] - lo[a] + 1) as usize),
-                }
+                Region { origin: lo, dims: std::array::from_fn(|a| (hi[a] - lo[a] + 1) as usize) }
             };
             let mut buf = vec![0f32; region.len()];
             for r in r0..r1 {
@@ -376,7 +365,11 @@ mod tests {
                     let span = dims[a] as f32 + 1.0;
                     let p = (r[3 * i + a] * 0.5 + 0.5) * span - 1.0;
                     let f = p - p.floor();
-                    if (f - 0.5).abs() > 0.45 { p.floor() + 0.5 } else { p }
+                    if (f - 0.5).abs() > 0.45 {
+                        p.floor() + 0.5
+                    } else {
+                        p
+                    }
                 })
             })
             .collect()

@@ -39,15 +39,7 @@ pub fn advect_linear(d: &Grid3, v: &[[f32; 3]]) -> Grid3 {
 pub fn advect_linear_backward(d: &Grid3, v: &[[f32; 3]], grad_out: &[f32], grad_v: &mut [[f32; 3]]) {
     assert_eq!(v.len(), d.len(), "velocity field must have one vector per voxel");
     let [nx, ny, _] = d.dims;
-    sample_trilinear_rows_backward(
-        d,
-        d.len(),
-        nx.max(1),
-        mapped_positions(v, nx, ny),
-        grad_out,
-        None,
-        Some(grad_v),
-    );
+    sample_trilinear_rows_backward(d, d.len(), nx.max(1), mapped_positions(v, nx, ny), grad_out, None, Some(grad_v));
 }
 
 /// Per-voxel magnitude limiter `‖v‖ ≤ vmax` (paper Sec. 3.3): vectors longer
@@ -106,7 +98,11 @@ mod tests {
                 std::array::from_fn(|a| {
                     let x = r[3 * i + a] * scale;
                     let f = x - x.floor();
-                    if (f - 0.5).abs() > 0.4 { x.floor() + 0.5 } else { x }
+                    if (f - 0.5).abs() > 0.4 {
+                        x.floor() + 0.5
+                    } else {
+                        x
+                    }
                 })
             })
             .collect()

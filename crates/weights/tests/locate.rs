@@ -17,10 +17,7 @@ fn env_override_and_missing_file_errors() {
     let err = locate_vgg19().unwrap_err();
     assert!(matches!(err, WeightsError::EnvPathMissing { .. }));
     let msg = err.to_string();
-    assert!(
-        msg.contains(VGG19_ENV) && msg.contains("nst3d-locate") && msg.contains(FETCH_COMMAND),
-        "{msg}"
-    );
+    assert!(msg.contains(VGG19_ENV) && msg.contains("nst3d-locate") && msg.contains(FETCH_COMMAND), "{msg}");
     std::fs::remove_file(&file).ok();
 
     // Unset (or empty): the user cache dir, on Linux `$XDG_CACHE_HOME` or ~/.cache.
@@ -31,10 +28,7 @@ fn env_override_and_missing_file_errors() {
     assert_eq!(default_vgg19_path(), Some(expected.clone()));
     let err = locate_vgg19().unwrap_err();
     assert!(matches!(err, WeightsError::NotInstalled { .. }));
-    assert!(
-        err.to_string().contains(&format!("run `{FETCH_COMMAND}`")),
-        "{err}"
-    );
+    assert!(err.to_string().contains(&format!("run `{FETCH_COMMAND}`")), "{err}");
     std::fs::create_dir_all(expected.parent().unwrap()).unwrap();
     std::fs::write(&expected, b"x").unwrap();
     assert_eq!(locate_vgg19().unwrap(), expected);

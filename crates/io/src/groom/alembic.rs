@@ -79,15 +79,11 @@ impl<'a> Ogawa<'a> {
         if word == 0 {
             return Ok(Vec::new());
         }
-        self.groups_left = self
-            .groups_left
-            .checked_sub(1)
-            .ok_or_else(|| corrupt("Ogawa group graph too large (cyclic?)"))?;
+        self.groups_left =
+            self.groups_left.checked_sub(1).ok_or_else(|| corrupt("Ogawa group graph too large (cyclic?)"))?;
         let pos = usize::try_from(word).map_err(|_| corrupt("Ogawa group offset out of range"))?;
         if pos > self.bytes.len() {
-            return Err(corrupt(format!(
-                "Ogawa group offset {pos} past end of file"
-            )));
+            return Err(corrupt(format!("Ogawa group offset {pos} past end of file")));
         }
         let mut r = Reader::new(self.bytes, pos);
         let n = r.u64("Ogawa group")?;
@@ -142,17 +138,10 @@ impl<'a> Ogawa<'a> {
         if d.is_empty() {
             return Ok(d);
         }
-        d.get(16..)
-            .ok_or_else(|| corrupt("Alembic array sample shorter than its digest"))
+        d.get(16..).ok_or_else(|| corrupt("Alembic array sample shorter than its digest"))
     }
 
-    fn object(
-        &mut self,
-        word: u64,
-        depth: usize,
-        under_xform: bool,
-        out: &mut Vec<Strand>,
-    ) -> Result<(), FormatError> {
+    fn object(&mut self, word: u64, depth: usize, under_xform: bool, out: &mut Vec<Strand>) -> Result<(), FormatError> {
         if depth > MAX_DEPTH {
             return Err(corrupt("Alembic object hierarchy too deep"));
         }
@@ -181,12 +170,7 @@ impl<'a> Ogawa<'a> {
         Ok(())
     }
 
-    fn curves(
-        &mut self,
-        geom: u64,
-        under_xform: bool,
-        out: &mut Vec<Strand>,
-    ) -> Result<(), FormatError> {
+    fn curves(&mut self, geom: u64, under_xform: bool, out: &mut Vec<Strand>) -> Result<(), FormatError> {
         let props = self.compound(geom)?;
         let find = |name: &str, pod: u32, extent: u32| {
             props
@@ -194,8 +178,7 @@ impl<'a> Ogawa<'a> {
                 .find(|(h, _)| h.name == name && h.kind == 2 && h.pod == pod && h.extent == extent)
                 .map(|(_, w)| *w)
         };
-        let (Some(p), Some(nv)) = (find("P", POD_FLOAT32, 3), find("nVertices", POD_INT32, 1))
-        else {
+        let (Some(p), Some(nv)) = (find("P", POD_FLOAT32, 3), find("nVertices", POD_INT32, 1)) else {
             return Ok(()); // Not a curves object (a mesh, points, ...).
         };
         if under_xform {
@@ -205,27 +188,16 @@ impl<'a> Ogawa<'a> {
         }
         let width = find("width", POD_FLOAT32, 1);
         let floats = |b: &[u8]| -> Vec<f32> {
-            b.chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect()
+            b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
         };
         let pb = self.first_array_sample(p)?;
         if pb.len() % 12 != 0 {
-            return Err(corrupt(format!(
-                "P sample of {} bytes is not a float3 array",
-                pb.len()
-            )));
+            return Err(corrupt(format!("P sample of {} bytes is not a float3 array", pb.len())));
         }
-        let points: Vec<[f32; 3]> = floats(pb)
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect();
+        let points: Vec<[f32; 3]> = floats(pb).chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
         let nb = self.first_array_sample(nv)?;
         if nb.len() % 4 != 0 {
-            return Err(corrupt(format!(
-                "nVertices sample of {} bytes is not an int32 array",
-                nb.len()
-            )));
+            return Err(corrupt(format!("nVertices sample of {} bytes is not an int32 array", nb.len())));
         }
         let mut counts = Vec::with_capacity(nb.len() / 4);
         let mut total = 0usize;
@@ -238,10 +210,7 @@ impl<'a> Ogawa<'a> {
             counts.push(n as usize);
         }
         if total != points.len() {
-            return Err(corrupt(format!(
-                "nVertices add up to {total} but P has {} points",
-                points.len()
-            )));
+            return Err(corrupt(format!("nVertices add up to {total} but P has {} points", points.len())));
         }
         let widths = match width {
             Some(w) => {
@@ -306,12 +275,7 @@ fn parse_property_headers(b: &[u8]) -> Result<Vec<PropHeader>, FormatError> {
             let meta_len = varint(&mut r)? as usize;
             r.take(meta_len, "Alembic property metadata")?;
         }
-        out.push(PropHeader {
-            name,
-            kind,
-            pod,
-            extent,
-        });
+        out.push(PropHeader { name, kind, pod, extent });
     }
     Ok(out)
 }
@@ -319,23 +283,15 @@ fn parse_property_headers(b: &[u8]) -> Result<Vec<PropHeader>, FormatError> {
 fn parse(bytes: &[u8]) -> Result<Groom, FormatError> {
     let mut r = Reader::new(bytes, 0);
     if r.array::<5>("Ogawa magic")? != *b"Ogawa" {
-        return Err(corrupt(
-            "not an Alembic Ogawa archive (magic is not 'Ogawa')",
-        ));
+        return Err(corrupt("not an Alembic Ogawa archive (magic is not 'Ogawa')"));
     }
     let _frozen = r.take(1, "Ogawa header")?;
     let _version = r.u16("Ogawa header")?;
     let root = r.u64("Ogawa header")?;
-    let mut o = Ogawa {
-        bytes,
-        groups_left: MAX_GROUPS,
-    };
+    let mut o = Ogawa { bytes, groups_left: MAX_GROUPS };
     let archive = o.group(root)?;
     if archive.len() < 6 {
-        return Err(corrupt(format!(
-            "Alembic archive root has {} children, expected at least 6",
-            archive.len()
-        )));
+        return Err(corrupt(format!("Alembic archive root has {} children, expected at least 6", archive.len())));
     }
     let mut strands = Vec::new();
     o.object(archive[2], 0, false, &mut strands)?;

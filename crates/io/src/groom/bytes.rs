@@ -51,11 +51,7 @@ impl<'a> Reader<'a> {
     /// Takes the next `n` bytes.
     pub(crate) fn take(&mut self, n: usize, what: &'static str) -> Result<&'a [u8], FormatError> {
         if n > self.remaining() {
-            return Err(FormatError::Truncated {
-                what,
-                offset: self.pos,
-                needed: n - self.remaining(),
-            });
+            return Err(FormatError::Truncated { what, offset: self.pos, needed: n - self.remaining() });
         }
         let s = &self.bytes[self.pos..self.pos + n];
         self.pos += n;
@@ -64,12 +60,7 @@ impl<'a> Reader<'a> {
 
     /// Fails unless `count` records of `record_size` bytes fit in what is
     /// left, so an absurd count is refused before allocating for it.
-    pub(crate) fn ensure(
-        &self,
-        count: u64,
-        record_size: u64,
-        what: &'static str,
-    ) -> Result<(), FormatError> {
+    pub(crate) fn ensure(&self, count: u64, record_size: u64, what: &'static str) -> Result<(), FormatError> {
         let need = count.saturating_mul(record_size);
         if need > self.remaining() as u64 {
             return Err(FormatError::Truncated {
@@ -82,10 +73,7 @@ impl<'a> Reader<'a> {
     }
 
     /// Reads an `N`-byte array.
-    pub(crate) fn array<const N: usize>(
-        &mut self,
-        what: &'static str,
-    ) -> Result<[u8; N], FormatError> {
+    pub(crate) fn array<const N: usize>(&mut self, what: &'static str) -> Result<[u8; N], FormatError> {
         let s = self.take(N, what)?;
         let mut a = [0u8; N];
         a.copy_from_slice(s);

@@ -56,9 +56,7 @@ fn parse(bytes: &[u8]) -> Result<Groom, FormatError> {
     }
     let segments: Vec<usize> = if flags & HAS_SEGMENTS != 0 {
         r.ensure(hair_count as u64, 2, "cyHair segment array")?;
-        (0..hair_count)
-            .map(|_| r.u16("cyHair segment array").map(usize::from))
-            .collect::<Result<_, _>>()?
+        (0..hair_count).map(|_| r.u16("cyHair segment array").map(usize::from)).collect::<Result<_, _>>()?
     } else {
         // Without an array every strand has the default count; check the
         // total before materialising `hair_count` entries.
@@ -72,21 +70,13 @@ fn parse(bytes: &[u8]) -> Result<Groom, FormatError> {
     };
     let needed: usize = segments.iter().map(|s| s + 1).sum();
     if needed != point_count {
-        return Err(corrupt(format!(
-            "segment counts need {needed} points, header says {point_count}"
-        )));
+        return Err(corrupt(format!("segment counts need {needed} points, header says {point_count}")));
     }
     r.ensure(point_count as u64, 12, "cyHair point array")?;
-    let points: Vec<[f32; 3]> = (0..point_count)
-        .map(|_| r.vec3("cyHair point array"))
-        .collect::<Result<_, _>>()?;
+    let points: Vec<[f32; 3]> = (0..point_count).map(|_| r.vec3("cyHair point array")).collect::<Result<_, _>>()?;
     let thickness = if flags & HAS_THICKNESS != 0 {
         r.ensure(point_count as u64, 4, "cyHair thickness array")?;
-        Some(
-            (0..point_count)
-                .map(|_| r.f32("cyHair thickness array"))
-                .collect::<Result<Vec<_>, _>>()?,
-        )
+        Some((0..point_count).map(|_| r.f32("cyHair thickness array")).collect::<Result<Vec<_>, _>>()?)
     } else {
         None
     };
@@ -96,11 +86,7 @@ fn parse(bytes: &[u8]) -> Result<Groom, FormatError> {
     }
     let colors = if flags & HAS_COLOR != 0 {
         r.ensure(point_count as u64, 12, "cyHair colour array")?;
-        Some(
-            (0..point_count)
-                .map(|_| r.vec3("cyHair colour array"))
-                .collect::<Result<Vec<_>, _>>()?,
-        )
+        Some((0..point_count).map(|_| r.vec3("cyHair colour array")).collect::<Result<Vec<_>, _>>()?)
     } else {
         None
     };

@@ -46,18 +46,13 @@ fn parse(bytes: &[u8]) -> Result<Groom, FormatError> {
             return Err(corrupt(format!("strand {i} has negative point count {n}")));
         }
         r.ensure(n as u64, 12, "HairSalon points")?;
-        let points: Vec<[f32; 3]> = (0..n)
-            .map(|_| r.vec3("HairSalon points"))
-            .collect::<Result<_, _>>()?;
+        let points: Vec<[f32; 3]> = (0..n).map(|_| r.vec3("HairSalon points")).collect::<Result<_, _>>()?;
         if points.len() >= 2 {
             strands.push(Strand::new(points));
         }
     }
     if r.remaining() != 0 {
-        return Err(corrupt(format!(
-            "{} unexpected bytes after the last strand",
-            r.remaining()
-        )));
+        return Err(corrupt(format!("{} unexpected bytes after the last strand", r.remaining())));
     }
     Ok(Groom { strands })
 }

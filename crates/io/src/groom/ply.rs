@@ -188,11 +188,7 @@ fn parse_header(bytes: &[u8]) -> Result<(Encoding, Vec<ElementDef>, usize), Form
     loop {
         let rest = &bytes[pos..];
         let Some(nl) = rest.iter().position(|&b| b == b'\n') else {
-            return Err(FormatError::Truncated {
-                what: "PLY header (no end_header line)",
-                offset: pos,
-                needed: 1,
-            });
+            return Err(FormatError::Truncated { what: "PLY header (no end_header line)", offset: pos, needed: 1 });
         };
         let line_bytes = &rest[..nl];
         let line_no = pos;
@@ -213,53 +209,31 @@ fn parse_header(bytes: &[u8]) -> Result<(Encoding, Vec<ElementDef>, usize), Form
                 });
             }
             Some("element") => {
-                let (Some(name), Some(count), None) = (words.next(), words.next(), words.next())
-                else {
+                let (Some(name), Some(count), None) = (words.next(), words.next(), words.next()) else {
                     return Err(corrupt(format!("bad PLY element line '{line}'")));
                 };
-                let count: usize = count
-                    .parse()
-                    .map_err(|_| corrupt(format!("bad PLY element count in '{line}'")))?;
-                elements.push(ElementDef {
-                    name: name.to_string(),
-                    count,
-                    props: Vec::new(),
-                });
+                let count: usize = count.parse().map_err(|_| corrupt(format!("bad PLY element count in '{line}'")))?;
+                elements.push(ElementDef { name: name.to_string(), count, props: Vec::new() });
             }
             Some("property") => {
                 let Some(el) = elements.last_mut() else {
-                    return Err(corrupt(format!(
-                        "PLY property before any element: '{line}'"
-                    )));
+                    return Err(corrupt(format!("PLY property before any element: '{line}'")));
                 };
                 let w: Vec<&str> = words.collect();
-                let ty = |s: &str| {
-                    Scalar::parse(s)
-                        .ok_or_else(|| corrupt(format!("unknown PLY type '{s}' in '{line}'")))
-                };
+                let ty =
+                    |s: &str| Scalar::parse(s).ok_or_else(|| corrupt(format!("unknown PLY type '{s}' in '{line}'")));
                 let (kind, name) = match w.as_slice() {
                     ["list", c, i, name] => {
                         let count = ty(c)?;
                         if !count.is_integer() {
-                            return Err(corrupt(format!(
-                                "PLY list count must be an integer type: '{line}'"
-                            )));
+                            return Err(corrupt(format!("PLY list count must be an integer type: '{line}'")));
                         }
-                        (
-                            PropKind::List {
-                                count,
-                                item: ty(i)?,
-                            },
-                            name,
-                        )
+                        (PropKind::List { count, item: ty(i)? }, name)
                     }
                     [t, name] => (PropKind::Scalar(ty(t)?), name),
                     _ => return Err(corrupt(format!("bad PLY property line '{line}'"))),
                 };
-                el.props.push(PropDef {
-                    name: name.to_string(),
-                    kind,
-                });
+                el.props.push(PropDef { name: name.to_string(), kind });
             }
             Some(other) => return Err(corrupt(format!("unknown PLY header keyword '{other}'"))),
         }
@@ -270,10 +244,7 @@ fn parse_header(bytes: &[u8]) -> Result<(Encoding, Vec<ElementDef>, usize), Form
 
 /// Parses a PLY file, decoding only the properties for which
 /// `wanted(element, property)` is true; the rest are skipped by type size.
-pub(crate) fn parse_ply(
-    bytes: &[u8],
-    wanted: &dyn Fn(&str, &str) -> bool,
-) -> Result<PlyData, FormatError> {
+pub(crate) fn parse_ply(bytes: &[u8], wanted: &dyn Fn(&str, &str) -> bool) -> Result<PlyData, FormatError> {
     let (encoding, defs, body) = parse_header(bytes)?;
     let mut elements = Vec::with_capacity(defs.len());
     match encoding {
@@ -340,8 +311,7 @@ fn read_binary_element(
         return Err(FormatError::Truncated {
             what: "PLY element data",
             offset: *pos,
-            needed: (def.count as u128 * min_record as u128 - remaining as u128)
-                .min(usize::MAX as u128) as usize,
+            needed: (def.count as u128 * min_record as u128 - remaining as u128).min(usize::MAX as u128) as usize,
         });
     }
     let count = if min_record == 0 { 0 } else { def.count };
@@ -361,19 +331,14 @@ fn read_binary_element(
     for _ in 0..count {
         for (p, col) in def.props.iter().zip(columns.iter_mut()) {
             match (&p.kind, col) {
-                (PropKind::Scalar(t), Column::Scalar(v)) => {
-                    v.push(t.decode(take(pos, t.size())?, big))
-                }
+                (PropKind::Scalar(t), Column::Scalar(v)) => v.push(t.decode(take(pos, t.size())?, big)),
                 (PropKind::Scalar(t), _) => {
                     take(pos, t.size())?;
                 }
                 (PropKind::List { count, item }, col) => {
                     let n = count.decode(take(pos, count.size())?, big);
                     if !(0.0..=u32::MAX as f64).contains(&n) {
-                        return Err(corrupt(format!(
-                            "PLY list length {n} in element '{}'",
-                            def.name
-                        )));
+                        return Err(corrupt(format!("PLY list length {n} in element '{}'", def.name)));
                     }
                     let raw = take(pos, n as usize * item.size())?;
                     if let Column::List { offsets, values } = col {
@@ -404,20 +369,12 @@ impl AsciiTokens<'_> {
             self.pos += 1;
         }
         if start == self.pos {
-            return Err(FormatError::Truncated {
-                what: "ASCII PLY element data",
-                offset: start,
-                needed: 1,
-            });
+            return Err(FormatError::Truncated { what: "ASCII PLY element data", offset: start, needed: 1 });
         }
         std::str::from_utf8(&b[start..self.pos])
             .ok()
             .and_then(|s| s.parse::<f64>().ok())
-            .ok_or_else(|| {
-                corrupt(format!(
-                    "bad number at byte {start} in PLY element '{element}'"
-                ))
-            })
+            .ok_or_else(|| corrupt(format!("bad number at byte {start} in PLY element '{element}'")))
     }
 }
 
@@ -428,9 +385,7 @@ fn read_ascii_element(
 ) -> Result<Element, FormatError> {
     // Every value takes at least two bytes (digit + separator).
     let remaining = t.bytes.len().saturating_sub(t.pos);
-    if !def.props.is_empty()
-        && (def.count as u128) * (def.props.len() as u128) > remaining as u128 / 2 + 1
-    {
+    if !def.props.is_empty() && (def.count as u128) * (def.props.len() as u128) > remaining as u128 / 2 + 1 {
         return Err(FormatError::Truncated {
             what: "ASCII PLY element data",
             offset: t.pos,
@@ -451,10 +406,7 @@ fn read_ascii_element(
                 (PropKind::List { .. }, col) => {
                     let n = t.next_number(&def.name)?;
                     if !(0.0..=(t.bytes.len() as f64)).contains(&n) || n.fract() != 0.0 {
-                        return Err(corrupt(format!(
-                            "PLY list length {n} in element '{}'",
-                            def.name
-                        )));
+                        return Err(corrupt(format!("PLY list length {n} in element '{}'", def.name)));
                     }
                     for _ in 0..n as usize {
                         let x = t.next_number(&def.name)?;
@@ -494,43 +446,23 @@ const STRAND_IDS: [&str; 4] = ["strand_id", "strand", "hair_id", "curve_id"];
 
 fn parse_strands(bytes: &[u8]) -> Result<Groom, FormatError> {
     let ply = parse_ply(bytes, &|el, prop| match el {
-        "vertex" => {
-            matches!(prop, "x" | "y" | "z" | "red" | "green" | "blue") || STRAND_IDS.contains(&prop)
-        }
+        "vertex" => matches!(prop, "x" | "y" | "z" | "red" | "green" | "blue") || STRAND_IDS.contains(&prop),
         "edge" => matches!(prop, "vertex1" | "vertex2"),
-        e if STRAND_ELEMENTS.contains(&e) => {
-            SEGMENT_COUNTS.contains(&prop) || POINT_COUNTS.contains(&prop)
-        }
+        e if STRAND_ELEMENTS.contains(&e) => SEGMENT_COUNTS.contains(&prop) || POINT_COUNTS.contains(&prop),
         _ => false,
     })?;
-    let vertex = ply
-        .element("vertex")
-        .ok_or_else(|| corrupt("PLY has no 'vertex' element"))?;
-    let (Some(x), Some(y), Some(z)) = (vertex.scalar("x"), vertex.scalar("y"), vertex.scalar("z"))
-    else {
+    let vertex = ply.element("vertex").ok_or_else(|| corrupt("PLY has no 'vertex' element"))?;
+    let (Some(x), Some(y), Some(z)) = (vertex.scalar("x"), vertex.scalar("y"), vertex.scalar("z")) else {
         return Err(corrupt("PLY vertex element lacks scalar x, y, z"));
     };
     let n = x.len();
-    let points: Vec<[f32; 3]> = (0..n)
-        .map(|i| [x[i] as f32, y[i] as f32, z[i] as f32])
-        .collect();
-    let colors = match (
-        vertex.scalar("red"),
-        vertex.scalar("green"),
-        vertex.scalar("blue"),
-    ) {
+    let points: Vec<[f32; 3]> = (0..n).map(|i| [x[i] as f32, y[i] as f32, z[i] as f32]).collect();
+    let colors = match (vertex.scalar("red"), vertex.scalar("green"), vertex.scalar("blue")) {
         (Some(r), Some(g), Some(b)) => {
-            let uchar = vertex
-                .def
-                .props
-                .iter()
-                .any(|p| p.name == "red" && matches!(p.kind, PropKind::Scalar(Scalar::U8)));
+            let uchar =
+                vertex.def.props.iter().any(|p| p.name == "red" && matches!(p.kind, PropKind::Scalar(Scalar::U8)));
             let s = if uchar { 1.0 / 255.0 } else { 1.0 };
-            Some(
-                (0..n)
-                    .map(|i| [(r[i] * s) as f32, (g[i] * s) as f32, (b[i] * s) as f32])
-                    .collect::<Vec<_>>(),
-            )
+            Some((0..n).map(|i| [(r[i] * s) as f32, (g[i] * s) as f32, (b[i] * s) as f32]).collect::<Vec<_>>())
         }
         _ => None,
     };
@@ -574,9 +506,7 @@ fn strand_lengths(ply: &PlyData, vertex: &Element, n: usize) -> Result<Vec<usize
             lengths.push(len);
         }
         if total != n {
-            return Err(corrupt(format!(
-                "strand counts add up to {total} points, vertex element has {n}"
-            )));
+            return Err(corrupt(format!("strand counts add up to {total} points, vertex element has {n}")));
         }
         return Ok(lengths);
     }
@@ -596,8 +526,7 @@ fn strand_lengths(ply: &PlyData, vertex: &Element, n: usize) -> Result<Vec<usize
         }
     }
     Err(FormatError::Unsupported(
-        "cannot tell how strands are delimited (no strand element, strand id or edge element)"
-            .into(),
+        "cannot tell how strands are delimited (no strand element, strand id or edge element)".into(),
     ))
 }
 
@@ -626,11 +555,7 @@ pub fn write_ply_strands(path: &Path, groom: &Groom) -> Result<(), GroomError> {
         source: std::io::Error::new(std::io::ErrorKind::InvalidInput, reason),
     };
     groom.validate_for(path)?;
-    if let Some(i) = groom
-        .strands
-        .iter()
-        .position(|s| s.points.len() - 1 > u16::MAX as usize)
-    {
+    if let Some(i) = groom.strands.iter().position(|s| s.points.len() - 1 > u16::MAX as usize) {
         return Err(werr(format!(
             "strand {i} has {} points; the PLY strand layout stores nsegs as ushort (max 65536 points)",
             groom.strands[i].points.len()
@@ -673,8 +598,6 @@ pub fn write_ply_strands(path: &Path, groom: &Groom) -> Result<(), GroomError> {
         }
         start += s.points.len() as i32;
     }
-    crate::atomic::write_atomic(path, |w| w.write_all(&body)).map_err(|source| GroomError::Write {
-        path: path.into(),
-        source,
-    })
+    crate::atomic::write_atomic(path, |w| w.write_all(&body))
+        .map_err(|source| GroomError::Write { path: path.into(), source })
 }

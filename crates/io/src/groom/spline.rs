@@ -61,10 +61,7 @@ impl StrandSpline {
         let mut s = 0.0;
         for (i, q) in p.iter().enumerate() {
             if i > 0 {
-                let d = (0..3)
-                    .map(|a| (q[a] - p[i - 1][a]).powi(2))
-                    .sum::<f64>()
-                    .sqrt();
+                let d = (0..3).map(|a| (q[a] - p[i - 1][a]).powi(2)).sum::<f64>().sqrt();
                 s += d;
             }
             knots.push(s);
@@ -79,17 +76,10 @@ impl StrandSpline {
     pub fn with_knots(points: &[[f32; 3]], knots: &[f64]) -> Result<Self, GroomError> {
         let err = |reason: String| GroomError::Spline { reason };
         if points.len() < 2 {
-            return Err(err(format!(
-                "{} control point(s), need at least 2",
-                points.len()
-            )));
+            return Err(err(format!("{} control point(s), need at least 2", points.len())));
         }
         if knots.len() != points.len() {
-            return Err(err(format!(
-                "{} knots for {} points",
-                knots.len(),
-                points.len()
-            )));
+            return Err(err(format!("{} knots for {} points", knots.len(), points.len())));
         }
         if let Some(i) = points.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
             return Err(err(format!("control point {i} is not finite")));
@@ -98,10 +88,7 @@ impl StrandSpline {
             return Err(err(format!("knot {i} is not finite")));
         }
         if let Some(i) = (1..knots.len()).find(|&i| knots[i] <= knots[i - 1]) {
-            return Err(err(format!(
-                "knot {i} does not increase (control points {} and {i} coincide?)",
-                i - 1
-            )));
+            return Err(err(format!("knot {i} does not increase (control points {} and {i} coincide?)", i - 1)));
         }
         let points: Vec<[f64; 3]> = points.iter().map(|q| q.map(f64::from)).collect();
         let n = points.len();
@@ -110,8 +97,7 @@ impl StrandSpline {
         for a in 0..3 {
             let mut rhs: Vec<f64> = (1..n - 1)
                 .map(|i| {
-                    6.0 * ((points[i + 1][a] - points[i][a]) / h[i]
-                        - (points[i][a] - points[i - 1][a]) / h[i - 1])
+                    6.0 * ((points[i + 1][a] - points[i][a]) / h[i] - (points[i][a] - points[i - 1][a]) / h[i - 1])
                 })
                 .collect();
             solve_tridiagonal(&h, &mut rhs);
@@ -119,11 +105,7 @@ impl StrandSpline {
                 second[i + 1][a] = m;
             }
         }
-        Ok(Self {
-            points,
-            knots: knots.to_vec(),
-            second,
-        })
+        Ok(Self { points, knots: knots.to_vec(), second })
     }
 
     /// Knot values (cumulative chord length for [`StrandSpline::new`]).
@@ -154,19 +136,9 @@ impl StrandSpline {
     fn local_weights(w: f64, h: f64, derivative: bool) -> [f64; 4] {
         let v = 1.0 - w;
         if derivative {
-            [
-                -1.0 / h,
-                1.0 / h,
-                -(3.0 * v * v - 1.0) * h / 6.0,
-                (3.0 * w * w - 1.0) * h / 6.0,
-            ]
+            [-1.0 / h, 1.0 / h, -(3.0 * v * v - 1.0) * h / 6.0, (3.0 * w * w - 1.0) * h / 6.0]
         } else {
-            [
-                v,
-                w,
-                (v * v * v - v) * h * h / 6.0,
-                (w * w * w - w) * h * h / 6.0,
-            ]
+            [v, w, (v * v * v - v) * h * h / 6.0, (w * w * w - w) * h * h / 6.0]
         }
     }
 
@@ -226,11 +198,7 @@ impl StrandSpline {
             weights[k] -= gr * 6.0 * (1.0 / hs[k - 1] + 1.0 / hs[k]);
             weights[k + 1] += gr * 6.0 / hs[k];
         }
-        weights
-            .into_iter()
-            .enumerate()
-            .map(|(j, w)| (j, w as f32))
-            .collect()
+        weights.into_iter().enumerate().map(|(j, w)| (j, w as f32)).collect()
     }
 
     /// Arc length from the root to every one of `samples + 1` evenly spaced
@@ -238,17 +206,12 @@ impl StrandSpline {
     /// strands, so resampling integrates the curve itself).
     fn arc_table(&self, samples: usize) -> (Vec<f64>, Vec<f64>) {
         let total = self.length_param();
-        let ts: Vec<f64> = (0..=samples)
-            .map(|k| total * k as f64 / samples as f64)
-            .collect();
+        let ts: Vec<f64> = (0..=samples).map(|k| total * k as f64 / samples as f64).collect();
         let mut acc = vec![0.0; ts.len()];
         let mut prev = self.eval(0.0);
         for k in 1..ts.len() {
             let q = self.eval(ts[k]);
-            let d = (0..3)
-                .map(|a| ((q[a] - prev[a]) as f64).powi(2))
-                .sum::<f64>()
-                .sqrt();
+            let d = (0..3).map(|a| ((q[a] - prev[a]) as f64).powi(2)).sum::<f64>().sqrt();
             acc[k] = acc[k - 1] + d;
             prev = q;
         }
@@ -277,11 +240,7 @@ impl StrandSpline {
                 let target = total * k as f64 / (n - 1) as f64;
                 let j = acc.partition_point(|&a| a < target).clamp(1, acc.len() - 1);
                 let span = acc[j] - acc[j - 1];
-                let f = if span > 0.0 {
-                    ((target - acc[j - 1]) / span).clamp(0.0, 1.0)
-                } else {
-                    0.0
-                };
+                let f = if span > 0.0 { ((target - acc[j - 1]) / span).clamp(0.0, 1.0) } else { 0.0 };
                 ts[j - 1] + f * (ts[j] - ts[j - 1])
             })
             .collect()
@@ -289,9 +248,6 @@ impl StrandSpline {
 
     /// `n` points evenly spaced along arc length, root and tip included.
     pub fn resample(&self, n: usize) -> Vec<[f32; 3]> {
-        self.resample_params(n)
-            .into_iter()
-            .map(|t| self.eval(t))
-            .collect()
+        self.resample_params(n).into_iter().map(|t| self.eval(t)).collect()
     }
 }

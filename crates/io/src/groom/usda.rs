@@ -92,8 +92,7 @@ fn tokenize(text: &str) -> Result<Vec<(Tok, usize)>, FormatError> {
                         j += 2;
                         continue;
                     }
-                    if b[j] == c && (!triple || (j + 2 < b.len() && b[j + 1] == c && b[j + 2] == c))
-                    {
+                    if b[j] == c && (!triple || (j + 2 < b.len() && b[j + 1] == c && b[j + 2] == c)) {
                         j += q;
                         break;
                     }
@@ -106,10 +105,7 @@ fn tokenize(text: &str) -> Result<Vec<(Tok, usize)>, FormatError> {
                     s.push(b[j]);
                     j += 1;
                 }
-                toks.push((
-                    Tok::Str(String::from_utf8_lossy(&s).into_owned()),
-                    start_line,
-                ));
+                toks.push((Tok::Str(String::from_utf8_lossy(&s).into_owned()), start_line));
                 i = j;
             }
             b'<' => {
@@ -121,15 +117,9 @@ fn tokenize(text: &str) -> Result<Vec<(Tok, usize)>, FormatError> {
                 i += end + 1;
             }
             b'@' => {
-                let (open, close) = if b[i..].starts_with(b"@@@") {
-                    (3, "@@@")
-                } else {
-                    (1, "@")
-                };
+                let (open, close) = if b[i..].starts_with(b"@@@") { (3, "@@@") } else { (1, "@") };
                 let rest = &text[i + open..];
-                let end = rest
-                    .find(close)
-                    .ok_or_else(|| corrupt(format!("line {line}: unterminated asset path")))?;
+                let end = rest.find(close).ok_or_else(|| corrupt(format!("line {line}: unterminated asset path")))?;
                 toks.push((Tok::Asset(rest[..end].to_string()), line));
                 i += open + end + close.len();
             }
@@ -139,28 +129,20 @@ fn tokenize(text: &str) -> Result<Vec<(Tok, usize)>, FormatError> {
             }
             c if c.is_ascii_digit()
                 || ((c == b'-' || c == b'+' || c == b'.')
-                    && b.get(i + 1).is_some_and(|d| {
-                        d.is_ascii_digit() || *d == b'.' || *d == b'i' || *d == b'n'
-                    })) =>
+                    && b.get(i + 1).is_some_and(|d| d.is_ascii_digit() || *d == b'.' || *d == b'i' || *d == b'n')) =>
             {
                 let mut j = i + 1;
-                while j < b.len()
-                    && (b[j].is_ascii_alphanumeric() || matches!(b[j], b'.' | b'+' | b'-'))
-                {
+                while j < b.len() && (b[j].is_ascii_alphanumeric() || matches!(b[j], b'.' | b'+' | b'-')) {
                     j += 1;
                 }
                 let s = &text[i..j];
-                let v: f64 = s
-                    .parse()
-                    .map_err(|_| corrupt(format!("line {line}: bad number '{s}'")))?;
+                let v: f64 = s.parse().map_err(|_| corrupt(format!("line {line}: bad number '{s}'")))?;
                 toks.push((Tok::Num(v), line));
                 i = j;
             }
             c if c.is_ascii_alphabetic() || c == b'_' || c == b'!' => {
                 let mut j = i + 1;
-                while j < b.len()
-                    && (b[j].is_ascii_alphanumeric() || matches!(b[j], b'_' | b':' | b'.' | b'!'))
-                {
+                while j < b.len() && (b[j].is_ascii_alphanumeric() || matches!(b[j], b'_' | b':' | b'.' | b'!')) {
                     j += 1;
                 }
                 let s = &text[i..j];
@@ -257,24 +239,11 @@ struct Prim {
 impl Prim {
     /// Authored default value of `name`, else its earliest time sample.
     fn value(&self, name: &str) -> Option<&Val> {
-        if let Some(v) = self
-            .attrs
-            .iter()
-            .rev()
-            .find(|a| a.name == name)
-            .and_then(|a| a.value.as_ref())
-        {
+        if let Some(v) = self.attrs.iter().rev().find(|a| a.name == name).and_then(|a| a.value.as_ref()) {
             return Some(v);
         }
         let ts = format!("{name}.timeSamples");
-        match self
-            .attrs
-            .iter()
-            .rev()
-            .find(|a| a.name == ts)?
-            .value
-            .as_ref()?
-        {
+        match self.attrs.iter().rev().find(|a| a.name == ts)?.value.as_ref()? {
             Val::Samples(s) => s.iter().min_by(|a, b| a.0.total_cmp(&b.0)).map(|(_, v)| v),
             _ => None,
         }
@@ -291,10 +260,7 @@ impl Prim {
 
 impl Parser {
     fn line(&self) -> usize {
-        self.toks
-            .get(self.i)
-            .or(self.toks.last())
-            .map_or(0, |t| t.1)
+        self.toks.get(self.i).or(self.toks.last()).map_or(0, |t| t.1)
     }
 
     fn peek(&self) -> Option<&Tok> {
@@ -306,15 +272,11 @@ impl Parser {
     }
 
     fn next(&mut self) -> Result<Tok, FormatError> {
-        let t = self
-            .toks
-            .get(self.i)
-            .map(|t| t.0.clone())
-            .ok_or(FormatError::Truncated {
-                what: "USD layer (ends inside a block)",
-                offset: self.toks.last().map_or(0, |t| t.1),
-                needed: 1,
-            })?;
+        let t = self.toks.get(self.i).map(|t| t.0.clone()).ok_or(FormatError::Truncated {
+            what: "USD layer (ends inside a block)",
+            offset: self.toks.last().map_or(0, |t| t.1),
+            needed: 1,
+        })?;
         self.i += 1;
         Ok(t)
     }
@@ -427,10 +389,8 @@ impl Parser {
                     out.push((k, v));
                 }
                 (Some(Tok::Ident(q)), Some(Tok::Ident(k)))
-                    if matches!(
-                        q.as_str(),
-                        "prepend" | "append" | "add" | "delete" | "reorder"
-                    ) && self.peek_at(2) == Some(&Tok::Punct('=')) =>
+                    if matches!(q.as_str(), "prepend" | "append" | "add" | "delete" | "reorder")
+                        && self.peek_at(2) == Some(&Tok::Punct('=')) =>
                 {
                     self.i += 3;
                     let v = self.value(depth + 1)?;
@@ -479,14 +439,7 @@ impl Parser {
             }
         }
         self.expect('{')?;
-        let mut prim = Prim {
-            specifier,
-            type_name,
-            name,
-            active,
-            attrs: Vec::new(),
-            children: Vec::new(),
-        };
+        let mut prim = Prim { specifier, type_name, name, active, attrs: Vec::new(), children: Vec::new() };
         self.body(&mut prim, depth)?;
         Ok(prim)
     }
@@ -529,15 +482,7 @@ impl Parser {
         while let Some(Tok::Ident(q)) = self.peek() {
             if matches!(
                 q.as_str(),
-                "uniform"
-                    | "custom"
-                    | "varying"
-                    | "config"
-                    | "prepend"
-                    | "append"
-                    | "delete"
-                    | "add"
-                    | "reorder"
+                "uniform" | "custom" | "varying" | "config" | "prepend" | "append" | "delete" | "add" | "reorder"
             ) && matches!(self.peek_at(1), Some(Tok::Ident(_)))
             {
                 self.i += 1;
@@ -558,18 +503,10 @@ impl Parser {
             }
             match self.next()? {
                 Tok::Ident(s) => s,
-                other => {
-                    return Err(self.err(format!(
-                        "expected an attribute name after '{first}', found {other:?}"
-                    )))
-                }
+                other => return Err(self.err(format!("expected an attribute name after '{first}', found {other:?}"))),
             }
         };
-        let mut attr = Attr {
-            name,
-            value: None,
-            interpolation: None,
-        };
+        let mut attr = Attr { name, value: None, interpolation: None };
         if self.is_punct('=') {
             self.i += 1;
             attr.value = Some(self.value(depth + 1)?);
@@ -590,12 +527,7 @@ impl Parser {
 /// Column-vector affine transform (`p' = M p`).
 type Mat4 = [[f64; 4]; 4];
 
-const IDENTITY: Mat4 = [
-    [1.0, 0.0, 0.0, 0.0],
-    [0.0, 1.0, 0.0, 0.0],
-    [0.0, 0.0, 1.0, 0.0],
-    [0.0, 0.0, 0.0, 1.0],
-];
+const IDENTITY: Mat4 = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
 
 fn mul(a: &Mat4, b: &Mat4) -> Mat4 {
     let mut c = [[0.0; 4]; 4];
@@ -650,18 +582,12 @@ fn local_xform(prim: &Prim) -> Result<(Mat4, bool), FormatError> {
     let Some(order) = prim.value("xformOpOrder") else {
         return Ok((IDENTITY, false));
     };
-    let ops = order
-        .as_list()
-        .ok_or_else(|| corrupt(format!("prim '{}': xformOpOrder is not a list", prim.name)))?;
+    let ops = order.as_list().ok_or_else(|| corrupt(format!("prim '{}': xformOpOrder is not a list", prim.name)))?;
     let mut m = IDENTITY;
     let mut reset = false;
     for op in ops {
-        let op = op.as_str().ok_or_else(|| {
-            corrupt(format!(
-                "prim '{}': xformOpOrder entry is not a token",
-                prim.name
-            ))
-        })?;
+        let op =
+            op.as_str().ok_or_else(|| corrupt(format!("prim '{}': xformOpOrder entry is not a token", prim.name)))?;
         if op == "!resetXformStack!" {
             reset = true;
             m = IDENTITY;
@@ -672,15 +598,8 @@ fn local_xform(prim: &Prim) -> Result<(Mat4, bool), FormatError> {
             None => (false, op),
         };
         let bad = |why: &str| corrupt(format!("prim '{}': {op}: {why}", prim.name));
-        let kind = attr
-            .strip_prefix("xformOp:")
-            .ok_or_else(|| bad("not an xformOp"))?
-            .split(':')
-            .next()
-            .unwrap_or("");
-        let v = prim
-            .value(attr)
-            .ok_or_else(|| bad("op listed but has no value"))?;
+        let kind = attr.strip_prefix("xformOp:").ok_or_else(|| bad("not an xformOp"))?.split(':').next().unwrap_or("");
+        let v = prim.value(attr).ok_or_else(|| bad("op listed but has no value"))?;
         let vec3 = || v.as_vec3().ok_or_else(|| bad("expected 3 numbers"));
         let num = || v.as_f64().ok_or_else(|| bad("expected a number"));
         if inverse && kind != "translate" {
@@ -721,52 +640,26 @@ fn local_xform(prim: &Prim) -> Result<(Mat4, bool), FormatError> {
                 let n = q.iter().map(|c| c * c).sum::<f64>().sqrt();
                 let [w, x, y, z] = q.map(|c| c / n);
                 [
-                    [
-                        1.0 - 2.0 * (y * y + z * z),
-                        2.0 * (x * y - w * z),
-                        2.0 * (x * z + w * y),
-                        0.0,
-                    ],
-                    [
-                        2.0 * (x * y + w * z),
-                        1.0 - 2.0 * (x * x + z * z),
-                        2.0 * (y * z - w * x),
-                        0.0,
-                    ],
-                    [
-                        2.0 * (x * z - w * y),
-                        2.0 * (y * z + w * x),
-                        1.0 - 2.0 * (x * x + y * y),
-                        0.0,
-                    ],
+                    [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y), 0.0],
+                    [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x), 0.0],
+                    [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y), 0.0],
                     [0.0, 0.0, 0.0, 1.0],
                 ]
             }
             "transform" => {
                 // USD matrices are row-vector (`p' = p M`, translation in the
                 // last row): transpose into our column-vector convention.
-                let rows = v
-                    .as_list()
-                    .filter(|r| r.len() == 4)
-                    .ok_or_else(|| bad("expected a 4x4 matrix"))?;
+                let rows = v.as_list().filter(|r| r.len() == 4).ok_or_else(|| bad("expected a 4x4 matrix"))?;
                 let mut m4 = IDENTITY;
                 for (i, row) in rows.iter().enumerate() {
-                    let row = row
-                        .as_list()
-                        .filter(|r| r.len() == 4)
-                        .ok_or_else(|| bad("expected a 4x4 matrix"))?;
+                    let row = row.as_list().filter(|r| r.len() == 4).ok_or_else(|| bad("expected a 4x4 matrix"))?;
                     for (j, x) in row.iter().enumerate() {
                         m4[j][i] = x.as_f64().ok_or_else(|| bad("expected numbers"))?;
                     }
                 }
                 m4
             }
-            other => {
-                return Err(FormatError::Unsupported(format!(
-                    "prim '{}': xformOp kind '{other}'",
-                    prim.name
-                )))
-            }
+            other => return Err(FormatError::Unsupported(format!("prim '{}': xformOp kind '{other}'", prim.name))),
         };
         m = mul(&m, &op_m);
     }
@@ -891,71 +784,33 @@ fn curves_of(prim: &Prim, world: &Mat4, out: &mut Vec<Strand>) -> Result<(), For
         .collect::<Result<_, _>>()?;
     let total: usize = counts.iter().sum();
     if total != points.len() {
-        return Err(bad(format!(
-            "curveVertexCounts add up to {total} but there are {} points",
-            points.len()
-        )));
+        return Err(bad(format!("curveVertexCounts add up to {total} but there are {} points", points.len())));
     }
     let cubic = prim.value("type").and_then(Val::as_str) == Some("cubic");
-    let basis = prim
-        .value("basis")
-        .and_then(Val::as_str)
-        .unwrap_or("bezier");
+    let basis = prim.value("basis").and_then(Val::as_str).unwrap_or("bezier");
     let periodic = prim.value("wrap").and_then(Val::as_str) == Some("periodic");
 
-    let width_name = if prim.value("primvars:widths").is_some() {
-        "primvars:widths"
-    } else {
-        "widths"
-    };
-    let widths = match prim.value(width_name).and_then(Val::as_list) {
-        Some(list) => {
-            let w: Vec<f32> = list
-                .iter()
-                .map(|v| {
-                    v.as_f64()
-                        .map(|x| x as f32)
-                        .ok_or_else(|| bad(format!("bad width {v:?}")))
-                })
-                .collect::<Result<_, _>>()?;
-            Some(
-                expand(
-                    &w,
-                    prim.interpolation(width_name),
-                    &counts,
-                    cubic,
-                    basis,
-                    periodic,
-                )
-                .ok_or_else(|| {
-                    bad(format!(
-                        "{} widths fit no interpolation of {} curves",
-                        w.len(),
-                        counts.len()
-                    ))
-                })?,
-            )
-        }
-        None => None,
-    };
+    let width_name = if prim.value("primvars:widths").is_some() { "primvars:widths" } else { "widths" };
+    let widths =
+        match prim.value(width_name).and_then(Val::as_list) {
+            Some(list) => {
+                let w: Vec<f32> = list
+                    .iter()
+                    .map(|v| v.as_f64().map(|x| x as f32).ok_or_else(|| bad(format!("bad width {v:?}"))))
+                    .collect::<Result<_, _>>()?;
+                Some(expand(&w, prim.interpolation(width_name), &counts, cubic, basis, periodic).ok_or_else(|| {
+                    bad(format!("{} widths fit no interpolation of {} curves", w.len(), counts.len()))
+                })?)
+            }
+            None => None,
+        };
     let colors = match prim.value("primvars:displayColor").and_then(Val::as_list) {
         Some(list) => {
             let c: Vec<[f32; 3]> = list
                 .iter()
-                .map(|v| {
-                    v.as_vec3()
-                        .map(|c| c.map(|x| x as f32))
-                        .ok_or_else(|| bad(format!("bad colour {v:?}")))
-                })
+                .map(|v| v.as_vec3().map(|c| c.map(|x| x as f32)).ok_or_else(|| bad(format!("bad colour {v:?}"))))
                 .collect::<Result<_, _>>()?;
-            expand(
-                &c,
-                prim.interpolation("primvars:displayColor"),
-                &counts,
-                cubic,
-                basis,
-                periodic,
-            )
+            expand(&c, prim.interpolation("primvars:displayColor"), &counts, cubic, basis, periodic)
         }
         None => None,
     };
@@ -990,12 +845,8 @@ fn parse(bytes: &[u8]) -> Result<Groom, FormatError> {
     if !bytes.starts_with(b"#usda ") {
         return Err(corrupt("not a text USD layer (no '#usda' header)"));
     }
-    let text =
-        std::str::from_utf8(bytes).map_err(|e| corrupt(format!("USD layer is not UTF-8 ({e})")))?;
-    let mut p = Parser {
-        toks: tokenize(text)?,
-        i: 0,
-    };
+    let text = std::str::from_utf8(bytes).map_err(|e| corrupt(format!("USD layer is not UTF-8 ({e})")))?;
+    let mut p = Parser { toks: tokenize(text)?, i: 0 };
     if p.is_punct('(') {
         p.metadata(0)?;
     }
@@ -1042,7 +893,9 @@ pub fn write_usda_curves(path: &Path, groom: &Groom) -> Result<(), GroomError> {
         let _ = write!(s, "({}, {}, {})", p[0], p[1], p[2]);
     };
     s.push_str("#usda 1.0\n(\n    defaultPrim = \"Groom\"\n    doc = \"Written by nst3d\"\n    upAxis = \"Y\"\n)\n\n");
-    s.push_str("def BasisCurves \"Groom\"\n{\n    uniform token type = \"linear\"\n    uniform token wrap = \"nonperiodic\"\n");
+    s.push_str(
+        "def BasisCurves \"Groom\"\n{\n    uniform token type = \"linear\"\n    uniform token wrap = \"nonperiodic\"\n",
+    );
     s.push_str("    int[] curveVertexCounts = [");
     for (i, st) in groom.strands.iter().enumerate() {
         let _ = write!(s, "{}{}", if i > 0 { ", " } else { "" }, st.points.len());
@@ -1050,11 +903,7 @@ pub fn write_usda_curves(path: &Path, groom: &Groom) -> Result<(), GroomError> {
     s.push_str("]\n");
     let all_widths = groom.strands.iter().all(|st| st.widths.is_some());
     let max_width = if all_widths {
-        groom
-            .strands
-            .iter()
-            .flat_map(|st| st.widths.iter().flatten())
-            .fold(0f32, |a, &w| a.max(w))
+        groom.strands.iter().flat_map(|st| st.widths.iter().flatten()).fold(0f32, |a, &w| a.max(w))
     } else {
         0.0
     };
@@ -1067,12 +916,7 @@ pub fn write_usda_curves(path: &Path, groom: &Groom) -> Result<(), GroomError> {
         s.push_str("]\n");
     }
     s.push_str("    point3f[] points = [");
-    for (i, p) in groom
-        .strands
-        .iter()
-        .flat_map(|st| st.points.iter())
-        .enumerate()
-    {
+    for (i, p) in groom.strands.iter().flat_map(|st| st.points.iter()).enumerate() {
         if i > 0 {
             s.push_str(", ");
         }
@@ -1081,24 +925,14 @@ pub fn write_usda_curves(path: &Path, groom: &Groom) -> Result<(), GroomError> {
     s.push_str("]\n");
     if all_widths {
         s.push_str("    float[] widths = [");
-        for (i, w) in groom
-            .strands
-            .iter()
-            .flat_map(|st| st.widths.iter().flatten())
-            .enumerate()
-        {
+        for (i, w) in groom.strands.iter().flat_map(|st| st.widths.iter().flatten()).enumerate() {
             let _ = write!(s, "{}{}", if i > 0 { ", " } else { "" }, w);
         }
         s.push_str("] (\n        interpolation = \"vertex\"\n    )\n");
     }
     if groom.strands.iter().all(|st| st.colors.is_some()) {
         s.push_str("    color3f[] primvars:displayColor = [");
-        for (i, c) in groom
-            .strands
-            .iter()
-            .flat_map(|st| st.colors.iter().flatten())
-            .enumerate()
-        {
+        for (i, c) in groom.strands.iter().flat_map(|st| st.colors.iter().flatten()).enumerate() {
             if i > 0 {
                 s.push_str(", ");
             }
@@ -1107,10 +941,6 @@ pub fn write_usda_curves(path: &Path, groom: &Groom) -> Result<(), GroomError> {
         s.push_str("] (\n        interpolation = \"vertex\"\n    )\n");
     }
     s.push_str("}\n");
-    crate::atomic::write_atomic(path, |w| w.write_all(s.as_bytes())).map_err(|source| {
-        GroomError::Write {
-            path: path.into(),
-            source,
-        }
-    })
+    crate::atomic::write_atomic(path, |w| w.write_all(s.as_bytes()))
+        .map_err(|source| GroomError::Write { path: path.into(), source })
 }

@@ -25,10 +25,7 @@ const MIN_BUFFERSIZE: usize = 128;
 /// bytes. Errors are short reasons; the caller adds file and position.
 pub fn decompress(src: &[u8], expected: usize) -> Result<Vec<u8>, String> {
     if src.len() < HEADER {
-        return Err(format!(
-            "blosc frame of {} bytes is shorter than its header",
-            src.len()
-        ));
+        return Err(format!("blosc frame of {} bytes is shorter than its header", src.len()));
     }
     let version = src[0];
     let flags = src[2];
@@ -42,15 +39,10 @@ pub fn decompress(src: &[u8], expected: usize) -> Result<Vec<u8>, String> {
         return Err("blosc frame uses unknown flags".into());
     }
     if nbytes != expected {
-        return Err(format!(
-            "blosc frame holds {nbytes} bytes, expected {expected}"
-        ));
+        return Err(format!("blosc frame holds {nbytes} bytes, expected {expected}"));
     }
     if cbytes > src.len() || cbytes < HEADER {
-        return Err(format!(
-            "blosc frame claims {cbytes} bytes but {} are stored",
-            src.len()
-        ));
+        return Err(format!("blosc frame claims {cbytes} bytes but {} are stored", src.len()));
     }
     let src = &src[..cbytes];
     let mut out = vec![0u8; nbytes];
@@ -80,32 +72,20 @@ pub fn decompress(src: &[u8], expected: usize) -> Result<Vec<u8>, String> {
         let mut off = rd(HEADER + 4 * j);
         let shuffle = flags & DOSHUFFLE != 0 && typesize > 1;
         let bitshuffle = flags & DOBITSHUFFLE != 0 && bsize >= typesize;
-        let nsplits = if flags & DONT_SPLIT == 0
-            && typesize <= MAX_SPLITS
-            && bsize / typesize >= MIN_BUFFERSIZE
-            && !leftover
-        {
-            typesize
-        } else {
-            1
-        };
+        let nsplits =
+            if flags & DONT_SPLIT == 0 && typesize <= MAX_SPLITS && bsize / typesize >= MIN_BUFFERSIZE && !leftover {
+                typesize
+            } else {
+                1
+            };
         let neblock = bsize / nsplits;
-        let dest: &mut [u8] = if shuffle || bitshuffle {
-            &mut tmp[..bsize]
-        } else {
-            &mut out[start..start + bsize]
-        };
+        let dest: &mut [u8] = if shuffle || bitshuffle { &mut tmp[..bsize] } else { &mut out[start..start + bsize] };
         for s in 0..nsplits {
             let part = &mut dest[s * neblock..(s + 1) * neblock];
-            let len_end = off
-                .checked_add(4)
-                .filter(|&e| e <= cbytes)
-                .ok_or("blosc split header out of bounds")?;
+            let len_end = off.checked_add(4).filter(|&e| e <= cbytes).ok_or("blosc split header out of bounds")?;
             let clen = i32::from_le_bytes(src[off..len_end].try_into().unwrap());
             let clen = usize::try_from(clen).map_err(|_| "negative blosc split length")?;
-            let data = src
-                .get(len_end..len_end + clen)
-                .ok_or("blosc split runs past the frame")?;
+            let data = src.get(len_end..len_end + clen).ok_or("blosc split runs past the frame")?;
             if clen == neblock {
                 part.copy_from_slice(data);
             } else {
@@ -146,9 +126,7 @@ impl Codec {
     /// Fills `out` exactly from one compressed split.
     fn decompress(self, src: &[u8], out: &mut [u8]) -> Result<(), String> {
         let n = match self {
-            Codec::Lz4 => {
-                lz4_flex::block::decompress_into(src, out).map_err(|e| format!("lz4: {e}"))?
-            }
+            Codec::Lz4 => lz4_flex::block::decompress_into(src, out).map_err(|e| format!("lz4: {e}"))?,
             Codec::Zlib => {
                 let mut d = flate2::read::ZlibDecoder::new(src);
                 let mut filled = 0;
@@ -164,10 +142,7 @@ impl Codec {
             Codec::BloscLz => blosclz_decompress(src, out)?,
         };
         if n != out.len() {
-            return Err(format!(
-                "blosc split decoded to {n} bytes, expected {}",
-                out.len()
-            ));
+            return Err(format!("blosc split decoded to {n} bytes, expected {}", out.len()));
         }
         Ok(())
     }
@@ -327,10 +302,7 @@ mod tests {
             assert!(got == *want, "{name}: decoded bytes differ");
             // Every strict prefix is an error, never a panic.
             for cut in [0, 5, 16, frame.len() / 2, frame.len() - 1] {
-                assert!(
-                    decompress(&frame[..cut], want.len()).is_err(),
-                    "{name} cut at {cut}"
-                );
+                assert!(decompress(&frame[..cut], want.len()).is_err(), "{name} cut at {cut}");
             }
             seen += 1;
         }

@@ -8,8 +8,8 @@
 use std::path::Path;
 
 use super::{
-    blosc, GridValues, Leaf, MetaValue, Metadata, SparseGrid, Transform, VdbError, VdbFile,
-    VdbGrid, LEAF_VOXELS, MAX_DENSE_VOXELS,
+    blosc, GridValues, Leaf, MetaValue, Metadata, SparseGrid, Transform, VdbError, VdbFile, VdbGrid, LEAF_VOXELS,
+    MAX_DENSE_VOXELS,
 };
 
 /// `OPENVDB_MAGIC` as stored (little-endian i64 0x56444220).
@@ -48,12 +48,7 @@ impl<'a> Cursor<'a> {
                 self.pos = end;
                 Ok(s)
             }
-            None => Err(VdbError::Truncated {
-                path: self.path.to_path_buf(),
-                what,
-                offset: self.pos,
-                needed: n,
-            }),
+            None => Err(VdbError::Truncated { path: self.path.to_path_buf(), what, offset: self.pos, needed: n }),
         }
     }
 
@@ -98,18 +93,11 @@ impl<'a> Cursor<'a> {
     /// A node mask of `words` 64-bit words.
     fn mask(&mut self, words: usize, what: &'static str) -> Result<Vec<u64>, VdbError> {
         let raw = self.take(words * 8, what)?;
-        Ok(raw
-            .chunks_exact(8)
-            .map(|c| u64::from_le_bytes(c.try_into().unwrap()))
-            .collect())
+        Ok(raw.chunks_exact(8).map(|c| u64::from_le_bytes(c.try_into().unwrap())).collect())
     }
 
     fn corrupt(&self, reason: impl Into<String>) -> VdbError {
-        VdbError::Corrupt {
-            path: self.path.to_path_buf(),
-            offset: self.pos,
-            reason: reason.into(),
-        }
+        VdbError::Corrupt { path: self.path.to_path_buf(), offset: self.pos, reason: reason.into() }
     }
 }
 
@@ -141,10 +129,7 @@ fn f16(b: &[u8]) -> f32 {
     let bits = match exp {
         0 if man == 0 => sign,
         // Subnormal half: man * 2^-24, exactly representable as a float.
-        0 => {
-            return f32::from_bits(sign)
-                + (man as f32) * (1.0 / 16_777_216.0) * if sign != 0 { -1.0 } else { 1.0 }
-        }
+        0 => return f32::from_bits(sign) + (man as f32) * (1.0 / 16_777_216.0) * if sign != 0 { -1.0 } else { 1.0 },
         31 => sign | 0x7f80_0000 | (man << 13),
         _ => sign | ((exp + 112) << 23) | (man << 13),
     };
@@ -175,11 +160,7 @@ impl Voxel for [f32; 3] {
     const SIZE: usize = 12;
     const HALF_SIZE: usize = 6;
     fn from_le(b: &[u8]) -> Self {
-        [
-            f32::from_le(&b[0..4]),
-            f32::from_le(&b[4..8]),
-            f32::from_le(&b[8..12]),
-        ]
+        [f32::from_le(&b[0..4]), f32::from_le(&b[4..8]), f32::from_le(&b[8..12])]
     }
     fn from_half_le(b: &[u8]) -> Self {
         [f16(&b[0..2]), f16(&b[2..4]), f16(&b[4..6])]
@@ -199,17 +180,12 @@ impl Voxel for [f32; 3] {
 pub(super) fn parse(path: &Path, data: &[u8]) -> Result<VdbFile, VdbError> {
     let mut c = Cursor { data, pos: 0, path };
     if data.len() < 8 || data[..8] != MAGIC {
-        return Err(VdbError::NotVdb {
-            path: path.to_path_buf(),
-        });
+        return Err(VdbError::NotVdb { path: path.to_path_buf() });
     }
     c.pos = 8;
     let version = c.u32("header")?;
     if version < VERSION_NODE_MASK_COMPRESSION {
-        return Err(VdbError::UnsupportedVersion {
-            path: path.to_path_buf(),
-            version,
-        });
+        return Err(VdbError::UnsupportedVersion { path: path.to_path_buf(), version });
     }
     let library_version = (c.u32("header")?, c.u32("header")?);
     let has_offsets = c.u8("header")? != 0;
@@ -257,10 +233,7 @@ fn read_metadata(c: &mut Cursor) -> Result<Metadata, VdbError> {
             // Types starting with "__" (delayed-load offsets) describe this
             // particular file layout and are dropped, as OpenVDB does.
             (t, _) if t.starts_with("__") => continue,
-            _ => MetaValue::Other {
-                type_name,
-                bytes: b.to_vec(),
-            },
+            _ => MetaValue::Other { type_name, bytes: b.to_vec() },
         };
         meta.insert(&name, value);
     }
@@ -274,11 +247,7 @@ fn read_transform(c: &mut Cursor, grid: &str) -> Result<Transform, VdbError> {
     m[3][3] = 1.0;
     match map.as_str() {
         "UniformScaleMap" | "ScaleMap" | "UniformScaleTranslateMap" | "ScaleTranslateMap" => {
-            let translate = if map.ends_with("TranslateMap") {
-                c.vec3d("transform")?
-            } else {
-                [0.0; 3]
-            };
+            let translate = if map.ends_with("TranslateMap") { c.vec3d("transform")? } else { [0.0; 3] };
             let scale = c.vec3d("transform")?;
             // voxel size, inverse scale, inverse scale², inverse twice scale:
             // all derived from `scale`.
@@ -304,24 +273,14 @@ fn read_transform(c: &mut Cursor, grid: &str) -> Result<Transform, VdbError> {
                 }
             }
         }
-        _ => {
-            return Err(VdbError::UnsupportedTransform {
-                path: c.path.to_path_buf(),
-                grid: grid.to_string(),
-                map,
-            })
-        }
+        _ => return Err(VdbError::UnsupportedTransform { path: c.path.to_path_buf(), grid: grid.to_string(), map }),
     }
     Ok(Transform::from_matrix(&map, m))
 }
 
 /// Grid descriptor plus grid body. Returns the unique name (for instance
 /// lookups) and the grid.
-fn read_grid(
-    c: &mut Cursor,
-    has_offsets: bool,
-    done: &[(String, VdbGrid)],
-) -> Result<(String, VdbGrid), VdbError> {
+fn read_grid(c: &mut Cursor, has_offsets: bool, done: &[(String, VdbGrid)]) -> Result<(String, VdbGrid), VdbError> {
     let unique = c.string("grid name")?;
     let name = unique.split(NAME_SEP).next().unwrap_or("").to_string();
     let mut tree_type = c.string("grid type")?;
@@ -342,42 +301,27 @@ fn read_grid(
     // Without the descriptor's end offset there is no way past a tree we
     // cannot decode.
     if !supported && end_pos.is_none() {
-        return Err(VdbError::UnsupportedValueType {
-            path: c.path.to_path_buf(),
-            grid: name,
-            tree_type,
-        });
+        return Err(VdbError::UnsupportedValueType { path: c.path.to_path_buf(), grid: name, tree_type });
     }
     let compression = c.u32("grid compression")?;
     let metadata = read_metadata(c)?;
     let transform = read_transform(c, &name)?;
     let values = if !supported {
-        let end = end_pos
-            .and_then(|e| usize::try_from(e).ok())
-            .filter(|&e| e >= c.pos && e <= c.data.len());
+        let end = end_pos.and_then(|e| usize::try_from(e).ok()).filter(|&e| e >= c.pos && e <= c.data.len());
         match end {
             Some(e) => c.pos = e,
             None => return Err(c.corrupt(format!("grid '{name}' has a bad end offset"))),
         }
-        GridValues::Unsupported {
-            tree_type: tree_type.clone(),
-        }
+        GridValues::Unsupported { tree_type: tree_type.clone() }
     } else if !parent.is_empty() {
         // An instance shares the tree of a grid written before it.
         match done.iter().find(|(u, _)| *u == parent) {
             Some((_, p)) => p.values.clone(),
-            None => {
-                return Err(c.corrupt(format!("grid '{name}' instances missing grid '{parent}'")))
-            }
+            None => return Err(c.corrupt(format!("grid '{name}' instances missing grid '{parent}'"))),
         }
     } else {
-        let mut dec = TreeDecoder {
-            c: &mut *c,
-            compression,
-            half: saved_as_half,
-            grid: &name,
-            budget: MAX_DENSE_VOXELS,
-        };
+        let mut dec =
+            TreeDecoder { c: &mut *c, compression, half: saved_as_half, grid: &name, budget: MAX_DENSE_VOXELS };
         if is_float {
             GridValues::Float(dec.tree::<f32>()?)
         } else {
@@ -394,15 +338,8 @@ fn read_grid(
         }
     }
     let class = metadata.get_str("class").unwrap_or("unknown").to_string();
-    let grid = VdbGrid {
-        name,
-        class,
-        transform,
-        values,
-        metadata,
-        saved_as_half,
-        source_path: Some(c.path.to_path_buf()),
-    };
+    let grid =
+        VdbGrid { name, class, transform, values, metadata, saved_as_half, source_path: Some(c.path.to_path_buf()) };
     Ok((unique, grid))
 }
 
@@ -437,9 +374,7 @@ impl TreeDecoder<'_, '_> {
     fn tree<T: Voxel>(&mut self) -> Result<SparseGrid<T>, VdbError> {
         let buffers = self.c.i32("tree buffer count")?;
         if buffers != 1 {
-            return Err(self
-                .c
-                .corrupt(format!("tree has {buffers} buffers, expected 1")));
+            return Err(self.c.corrupt(format!("tree has {buffers} buffers, expected 1")));
         }
         let background = T::from_le(self.c.take(T::SIZE, "background")?);
         let mut grid = SparseGrid::new(background);
@@ -474,36 +409,16 @@ impl TreeDecoder<'_, '_> {
                     self.values(&mut values[..], mask, background)?;
                     let mut active = [0u64; 8];
                     active.copy_from_slice(mask);
-                    grid.insert_leaf(Leaf {
-                        origin: *origin,
-                        active,
-                        values,
-                    });
+                    grid.insert_leaf(Leaf { origin: *origin, active, values });
                 }
             }
         }
         // Active tiles become full leaves; check the budget before filling.
         for (_, n5) in &nodes {
             for n4 in &n5.children {
-                self.expand_tiles(
-                    &mut grid,
-                    n4.origin,
-                    &n4.child_mask,
-                    &n4.value_mask,
-                    &n4.values,
-                    4,
-                    3,
-                )?;
+                self.expand_tiles(&mut grid, n4.origin, &n4.child_mask, &n4.value_mask, &n4.values, 4, 3)?;
             }
-            self.expand_tiles(
-                &mut grid,
-                n5.origin,
-                &n5.child_mask,
-                &n5.value_mask,
-                &n5.values,
-                5,
-                7,
-            )?;
+            self.expand_tiles(&mut grid, n5.origin, &n5.child_mask, &n5.value_mask, &n5.values, 5, 7)?;
         }
         for (o, v) in root_tiles {
             self.fill(&mut grid, o.map(|x| x & !4095), 4096, v)?;
@@ -537,13 +452,7 @@ impl TreeDecoder<'_, '_> {
     }
 
     /// Sets every voxel of the cube at `o` with edge `edge` active to `v`.
-    fn fill<T: Voxel>(
-        &mut self,
-        grid: &mut SparseGrid<T>,
-        o: [i32; 3],
-        edge: i32,
-        v: T,
-    ) -> Result<(), VdbError> {
+    fn fill<T: Voxel>(&mut self, grid: &mut SparseGrid<T>, o: [i32; 3], edge: i32, v: T) -> Result<(), VdbError> {
         let voxels = (edge as u64).pow(3);
         if voxels > self.budget {
             return Err(VdbError::TooLarge {
@@ -558,11 +467,7 @@ impl TreeDecoder<'_, '_> {
             for y in (0..edge).step_by(8) {
                 for z in (0..edge).step_by(8) {
                     let origin = [o[0] + x, o[1] + y, o[2] + z];
-                    grid.insert_leaf(Leaf {
-                        origin,
-                        active: [u64::MAX; 8],
-                        values: Box::new([v; LEAF_VOXELS]),
-                    });
+                    grid.insert_leaf(Leaf { origin, active: [u64::MAX; 8], values: Box::new([v; LEAF_VOXELS]) });
                 }
             }
         }
@@ -580,13 +485,7 @@ impl TreeDecoder<'_, '_> {
                 children.push(self.node4(local_origin(origin, n, 5, 7), bg)?);
             }
         }
-        Ok(Node5 {
-            origin,
-            child_mask,
-            value_mask,
-            values,
-            children,
-        })
+        Ok(Node5 { origin, child_mask, value_mask, values, children })
     }
 
     fn node4<T: Voxel>(&mut self, origin: [i32; 3], bg: T) -> Result<Node4<T>, VdbError> {
@@ -600,67 +499,36 @@ impl TreeDecoder<'_, '_> {
                 leaf_masks.push((local_origin(origin, n, 4, 3), self.c.mask(8, "leaf mask")?));
             }
         }
-        Ok(Node4 {
-            origin,
-            child_mask,
-            value_mask,
-            values,
-            leaf_masks,
-        })
+        Ok(Node4 { origin, child_mask, value_mask, values, leaf_masks })
     }
 
     /// `io::readCompressedValues`: fills `dest` (a node's full value table)
     /// from the per-node metadata byte, inactive values, selection mask and
     /// the (possibly mask-compressed, half, zlib or Blosc) value buffer.
-    fn values<T: Voxel>(
-        &mut self,
-        dest: &mut [T],
-        value_mask: &[u64],
-        bg: T,
-    ) -> Result<(), VdbError> {
+    fn values<T: Voxel>(&mut self, dest: &mut [T], value_mask: &[u64], bg: T) -> Result<(), VdbError> {
         let meta = self.c.u8("node compression metadata")?;
         if meta > NO_MASK_AND_ALL_VALS {
-            return Err(self
-                .c
-                .corrupt(format!("unknown node compression metadata {meta}")));
+            return Err(self.c.corrupt(format!("unknown node compression metadata {meta}")));
         }
-        let mut inactive0 = if meta == NO_MASK_OR_INACTIVE_VALS {
-            bg
-        } else {
-            bg.neg()
-        };
+        let mut inactive0 = if meta == NO_MASK_OR_INACTIVE_VALS { bg } else { bg.neg() };
         let mut inactive1 = bg;
-        if matches!(
-            meta,
-            NO_MASK_AND_ONE_INACTIVE_VAL | MASK_AND_ONE_INACTIVE_VAL | MASK_AND_TWO_INACTIVE_VALS
-        ) {
+        if matches!(meta, NO_MASK_AND_ONE_INACTIVE_VAL | MASK_AND_ONE_INACTIVE_VAL | MASK_AND_TWO_INACTIVE_VALS) {
             inactive0 = T::from_le(self.c.take(T::SIZE, "inactive value")?);
             if meta == MASK_AND_TWO_INACTIVE_VALS {
                 inactive1 = T::from_le(self.c.take(T::SIZE, "inactive value")?);
             }
         }
-        let selection = if matches!(
-            meta,
-            MASK_AND_NO_INACTIVE_VALS | MASK_AND_ONE_INACTIVE_VAL | MASK_AND_TWO_INACTIVE_VALS
-        ) {
-            Some(self.c.mask(dest.len() / 64, "selection mask")?)
-        } else {
-            None
-        };
-        let mask_compressed =
-            self.compression & COMPRESS_ACTIVE_MASK != 0 && meta != NO_MASK_AND_ALL_VALS;
-        let count = if mask_compressed {
-            value_mask.iter().map(|w| w.count_ones() as usize).sum()
-        } else {
-            dest.len()
-        };
+        let selection =
+            if matches!(meta, MASK_AND_NO_INACTIVE_VALS | MASK_AND_ONE_INACTIVE_VAL | MASK_AND_TWO_INACTIVE_VALS) {
+                Some(self.c.mask(dest.len() / 64, "selection mask")?)
+            } else {
+                None
+            };
+        let mask_compressed = self.compression & COMPRESS_ACTIVE_MASK != 0 && meta != NO_MASK_AND_ALL_VALS;
+        let count = if mask_compressed { value_mask.iter().map(|w| w.count_ones() as usize).sum() } else { dest.len() };
         let elem = if self.half { T::HALF_SIZE } else { T::SIZE };
         // Half buffers with no values are skipped entirely by OpenVDB.
-        let raw = if self.half && count == 0 {
-            Vec::new()
-        } else {
-            self.data(count * elem)?
-        };
+        let raw = if self.half && count == 0 { Vec::new() } else { self.data(count * elem)? };
         let mut decoded = raw.chunks_exact(elem);
         let mut next = || {
             let b = decoded.next().expect("buffer length checked by data()");
@@ -702,10 +570,7 @@ impl TreeDecoder<'_, '_> {
         let n = self.c.i64("compressed size")?;
         if n <= 0 {
             if n.unsigned_abs() != bytes as u64 {
-                return Err(self.c.corrupt(format!(
-                    "stored chunk of {} bytes, expected {bytes}",
-                    n.unsigned_abs()
-                )));
+                return Err(self.c.corrupt(format!("stored chunk of {} bytes, expected {bytes}", n.unsigned_abs())));
             }
             return Ok(self.c.take(bytes, "node values")?.to_vec());
         }
@@ -713,16 +578,9 @@ impl TreeDecoder<'_, '_> {
             return Err(self.c.corrupt("compressed size overflows"));
         };
         let frame = self.c.take(n, "compressed node values")?;
-        let out = if self.compression & COMPRESS_BLOSC != 0 {
-            blosc::decompress(frame, bytes)
-        } else {
-            unzip(frame, bytes)
-        };
-        out.map_err(|reason| VdbError::Corrupt {
-            path: self.c.path.to_path_buf(),
-            offset: start,
-            reason,
-        })
+        let out =
+            if self.compression & COMPRESS_BLOSC != 0 { blosc::decompress(frame, bytes) } else { unzip(frame, bytes) };
+        out.map_err(|reason| VdbError::Corrupt { path: self.c.path.to_path_buf(), offset: start, reason })
     }
 }
 
@@ -735,10 +593,7 @@ fn unzip(frame: &[u8], bytes: usize) -> Result<Vec<u8>, String> {
         .read_to_end(&mut out)
         .map_err(|e| format!("zlib: {e}"))?;
     if out.len() != bytes {
-        return Err(format!(
-            "zlib chunk inflated to {} bytes, expected {bytes}",
-            out.len()
-        ));
+        return Err(format!("zlib chunk inflated to {} bytes, expected {bytes}", out.len()));
     }
     Ok(out)
 }

@@ -42,11 +42,7 @@ pub struct Leaf<T> {
 impl<T: Copy> Leaf<T> {
     /// An all-inactive leaf filled with `fill`.
     pub fn new(origin: [i32; 3], fill: T) -> Self {
-        Self {
-            origin,
-            active: [0; 8],
-            values: Box::new([fill; LEAF_VOXELS]),
-        }
+        Self { origin, active: [0; 8], values: Box::new([fill; LEAF_VOXELS]) }
     }
 
     /// Whether voxel number `n` ([`leaf_offset`] order) is active.
@@ -64,18 +60,12 @@ impl<T: Copy> Leaf<T> {
     #[inline]
     pub fn coord(&self, n: usize) -> [i32; 3] {
         let n = n as i32;
-        [
-            self.origin[0] + (n >> 6),
-            self.origin[1] + ((n >> 3) & 7),
-            self.origin[2] + (n & 7),
-        ]
+        [self.origin[0] + (n >> 6), self.origin[1] + ((n >> 3) & 7), self.origin[2] + (n & 7)]
     }
 
     /// Active voxels as `(ijk, value)`.
     pub fn iter_active(&self) -> impl Iterator<Item = ([i32; 3], T)> + '_ {
-        (0..LEAF_VOXELS)
-            .filter(|&n| self.is_active(n))
-            .map(|n| (self.coord(n), self.values[n]))
+        (0..LEAF_VOXELS).filter(|&n| self.is_active(n)).map(|n| (self.coord(n), self.values[n]))
     }
 }
 
@@ -91,10 +81,7 @@ pub struct SparseGrid<T> {
 impl<T: Copy> SparseGrid<T> {
     /// An empty grid.
     pub fn new(background: T) -> Self {
-        Self {
-            background,
-            leaves: BTreeMap::new(),
-        }
+        Self { background, leaves: BTreeMap::new() }
     }
 
     /// Leaves in ascending origin order (x, then y, then z).
@@ -123,9 +110,7 @@ impl<T: Copy> SparseGrid<T> {
     pub fn leaf_mut(&mut self, origin: [i32; 3]) -> &mut Leaf<T> {
         let origin = leaf_origin(origin);
         let bg = self.background;
-        self.leaves
-            .entry(origin)
-            .or_insert_with(|| Leaf::new(origin, bg))
+        self.leaves.entry(origin).or_insert_with(|| Leaf::new(origin, bg))
     }
 
     /// Value at `ijk` (active or not); background outside the leaves.
@@ -138,9 +123,7 @@ impl<T: Copy> SparseGrid<T> {
 
     /// Whether voxel `ijk` is active.
     pub fn is_active(&self, ijk: [i32; 3]) -> bool {
-        self.leaves
-            .get(&leaf_origin(ijk))
-            .is_some_and(|l| l.is_active(leaf_offset(ijk)))
+        self.leaves.get(&leaf_origin(ijk)).is_some_and(|l| l.is_active(leaf_offset(ijk)))
     }
 
     /// Sets voxel `ijk` to `value` and marks it active.
@@ -153,10 +136,7 @@ impl<T: Copy> SparseGrid<T> {
 
     /// Number of active voxels.
     pub fn active_voxel_count(&self) -> u64 {
-        self.leaves
-            .values()
-            .map(|l| u64::from(l.active_count()))
-            .sum()
+        self.leaves.values().map(|l| u64::from(l.active_count())).sum()
     }
 
     /// Active voxels as `(ijk, value)`, leaf by leaf.

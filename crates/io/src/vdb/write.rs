@@ -53,7 +53,7 @@ pub(super) fn encode(grids: &[VdbGrid]) -> Vec<u8> {
     put_u32(&mut out, 10);
     put_u32(&mut out, 0);
     out.push(1); // grid offsets present: readers may seek per grid
-    // Placeholder, replaced below by a hash of everything after it.
+                 // Placeholder, replaced below by a hash of everything after it.
     let uuid_at = out.len();
     out.extend_from_slice(&[b'0'; 36]);
     put_metadata(&mut out, &file_meta);
@@ -74,9 +74,7 @@ pub(super) fn encode(grids: &[VdbGrid]) -> Vec<u8> {
 /// files); OpenVDB only compares the UUID for equality.
 fn content_uuid(content: &[u8]) -> String {
     // Two FNV-1a 64-bit hashes with different offsets make 128 bits.
-    let fnv = |seed: u64| {
-        content.iter().fold(seed, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01B3))
-    };
+    let fnv = |seed: u64| content.iter().fold(seed, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01B3));
     let hex = format!("{:016X}{:016X}", fnv(0xCBF2_9CE4_8422_2325), fnv(0x6C62_272E_07BB_0142));
     format!("{}-{}-{}-{}-{}", &hex[0..8], &hex[8..12], &hex[12..16], &hex[16..20], &hex[20..32])
 }
@@ -137,12 +135,8 @@ fn put_metadata(out: &mut Vec<u8>, meta: &Metadata) {
 /// Picks the simplest OpenVDB map that represents the matrix exactly.
 fn put_transform(out: &mut Vec<u8>, t: &Transform) {
     let m = &t.index_to_world;
-    let diagonal =
-        (0..3).all(|r| (0..3).all(|c| r == c || m[r][c] == 0.0)) && m[3] == [0.0, 0.0, 0.0, 1.0];
-    let put_v = |out: &mut Vec<u8>, v: [f64; 3]| {
-        v.iter()
-            .for_each(|c| out.extend_from_slice(&c.to_le_bytes()))
-    };
+    let diagonal = (0..3).all(|r| (0..3).all(|c| r == c || m[r][c] == 0.0)) && m[3] == [0.0, 0.0, 0.0, 1.0];
+    let put_v = |out: &mut Vec<u8>, v: [f64; 3]| v.iter().for_each(|c| out.extend_from_slice(&c.to_le_bytes()));
     if diagonal {
         let scale = [m[0][0], m[1][1], m[2][2]];
         let trans = [m[0][3], m[1][3], m[2][3]];
@@ -202,10 +196,7 @@ fn put_grid(out: &mut Vec<u8>, grid: &VdbGrid, unique: &str) {
         meta.insert("file_bbox_min", MetaValue::Vec3i(lo));
         meta.insert("file_bbox_max", MetaValue::Vec3i(hi));
     }
-    meta.insert(
-        "file_voxel_count",
-        MetaValue::Int64(grid.active_voxel_count() as i64),
-    );
+    meta.insert("file_voxel_count", MetaValue::Int64(grid.active_voxel_count() as i64));
     meta.entries.sort_by(|a, b| a.0.cmp(&b.0));
     put_metadata(out, &meta);
     put_transform(out, &grid.transform);
@@ -231,16 +222,9 @@ fn put_tree<T: Voxel>(out: &mut Vec<u8>, g: &SparseGrid<T>, half: bool) -> usize
     for leaf in g.leaves() {
         let o = leaf.origin;
         let n5 = o.map(|v| v & !4095);
-        let i4 = (((o[0] & 4095) >> 7) << 10 | ((o[1] & 4095) >> 7) << 5 | ((o[2] & 4095) >> 7))
-            as usize;
-        let i3 =
-            (((o[0] & 127) >> 3) << 8 | ((o[1] & 127) >> 3) << 4 | ((o[2] & 127) >> 3)) as usize;
-        layout
-            .entry(n5)
-            .or_default()
-            .entry(i4)
-            .or_default()
-            .insert(i3, leaf);
+        let i4 = (((o[0] & 4095) >> 7) << 10 | ((o[1] & 4095) >> 7) << 5 | ((o[2] & 4095) >> 7)) as usize;
+        let i3 = (((o[0] & 127) >> 3) << 8 | ((o[1] & 127) >> 3) << 4 | ((o[2] & 127) >> 3)) as usize;
+        layout.entry(n5).or_default().entry(i4).or_default().insert(i3, leaf);
     }
     out.extend_from_slice(&1i32.to_le_bytes()); // one buffer per tree
     g.background.put_le(out);
@@ -251,8 +235,7 @@ fn put_tree<T: Voxel>(out: &mut Vec<u8>, g: &SparseGrid<T>, half: bool) -> usize
     let tiles5 = vec![bg; 32768];
     let tiles4 = vec![bg; 4096];
     for (n5, node4s) in &layout {
-        n5.iter()
-            .for_each(|c| out.extend_from_slice(&c.to_le_bytes()));
+        n5.iter().for_each(|c| out.extend_from_slice(&c.to_le_bytes()));
         let mut child5 = vec![0u64; 512];
         node4s.keys().for_each(|&i| child5[i >> 6] |= 1 << (i & 63));
         put_mask(out, &child5);
@@ -284,17 +267,9 @@ fn put_tree<T: Voxel>(out: &mut Vec<u8>, g: &SparseGrid<T>, half: bool) -> usize
 /// `io::writeCompressedValues` restricted to the two cases we produce:
 /// every inactive non-child value is the background (store active values
 /// only), or not (store all values).
-fn put_values<T: Voxel>(
-    out: &mut Vec<u8>,
-    values: &[T],
-    value_mask: &[u64],
-    child_mask: &[u64],
-    bg: T,
-    half: bool,
-) {
+fn put_values<T: Voxel>(out: &mut Vec<u8>, values: &[T], value_mask: &[u64], child_mask: &[u64], bg: T, half: bool) {
     let on = |m: &[u64], n: usize| m[n >> 6] >> (n & 63) & 1 == 1;
-    let plain_inactive =
-        (0..values.len()).all(|n| on(value_mask, n) || on(child_mask, n) || values[n] == bg);
+    let plain_inactive = (0..values.len()).all(|n| on(value_mask, n) || on(child_mask, n) || values[n] == bg);
     let mut raw = Vec::new();
     let mut count = 0;
     if plain_inactive {
@@ -315,10 +290,7 @@ fn put_values<T: Voxel>(
         return;
     }
     let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
-    let zipped = z
-        .write_all(&raw)
-        .and_then(|_| z.finish())
-        .unwrap_or_default();
+    let zipped = z.write_all(&raw).and_then(|_| z.finish()).unwrap_or_default();
     if !raw.is_empty() && !zipped.is_empty() && zipped.len() < raw.len() {
         out.extend_from_slice(&(zipped.len() as i64).to_le_bytes());
         out.extend_from_slice(&zipped);

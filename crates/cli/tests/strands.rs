@@ -1,0 +1,126 @@
+//! `nst3d strands` end to end on the shared Bangs groom and head, at a small
+//! render size and few iterations (the full-size run is a report, not CI):
+//! the written groom reads back with the right shape, keeps its lengths,
+//! stays out of the head and lowers the NNST loss; bad grooms fail with one
+//! line.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use nst3d_io::groom::{read_groom, read_usda_curves};
+use nst3d_strands::pipeline::polyline_length;
+use nst3d_strands::MeshBvh;
+
+fn shared(rel: &str) -> PathBuf {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
+    assert!(p.exists(), "shared test data missing: {} (the repo expects ../shared beside it)", p.display());
+    p
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Runs `nst3d strands` on `groom` with fast settings.
+fn strands(groom: &Path, out: &Path, extra: &[&str]) -> Output {
+    let (mesh, style) = (shared("grooms/Bangs_head.ply"), shared("styles/starry_night.jpg"));
+    let mut args = vec!["strands", "--groom", s(groom), "--mesh", s(&mesh), "--style", s(&style), "--out", s(out)];
+    args.extend_from_slice(&[
+        "--preset",
+        "short-hair",
+        "--iters",
+        "9",
+        "--render-size",
+        "96",
+        "--proxies",
+        "40",
+        "--views-per-scale",
+        "1",
+        "--lr-scale",
+        "0.1",
+    ]);
+    args.extend_from_slice(extra);
+    Command::new(env!("CARGO_BIN_EXE_nst3d")).args(&args).output().expect("run nst3d")
+}
+
+/// The two numbers of "NNST loss A -> B" in the summary line.
+fn losses(stdout: &str) -> (f64, f64) {
+    let rest = stdout.split("NNST loss ").nth(1).unwrap_or_else(|| panic!("no loss in summary: {stdout}"));
+    let mut it = rest.split_whitespace();
+    let a = it.next().unwrap().parse().unwrap();
+    assert_eq!(it.next(), Some("->"));
+    let b = it.next().unwrap().parse().unwrap();
+    (a, b)
+}
+
+#[test]
+fn stylizes_bangs_and_keeps_constraints() {
+    let dir = tempfile::tempdir().unwrap();
+    let (groom_path, out, preview) =
+        (shared("grooms/Bangs_100.hair"), dir.path().join("out.usda"), dir.path().join("p.png"));
+    let o = strands(&groom_path, &out, &["--preview", s(&preview)]);
+    let (stdout, stderr) = (String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "nst3d strands failed: {stderr}");
+
+    let input = read_groom(&groom_path).unwrap();
+    let result = read_usda_curves(&out).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(result.strand_count(), 100);
+    // Guides are re-sampled to the preset's 100 points per strand.
+    assert!(result.strands.iter().all(|st| st.points.len() == 100), "per-strand point counts");
+    for (i, (a, b)) in input.strands.iter().zip(&result.strands).enumerate() {
+        let (la, lb) = (polyline_length(&a.points), polyline_length(&b.points));
+        assert!((lb / la - 1.0).abs() < 0.01, "strand {i}: length {lb} vs input {la}");
+    }
+    let head = nst3d_io::mesh::read_mesh(&shared("grooms/Bangs_head.ply")).unwrap();
+    let bvh = MeshBvh::new(&head).unwrap();
+    let inside = result.strands.iter().flat_map(|st| &st.points).filter(|&&p| bvh.is_inside(p)).count();
+    assert_eq!(inside, 0, "{inside} control points inside the head");
+
+    let (before, after) = losses(&stdout);
+    assert!(after < before, "NNST loss did not drop: {before} -> {after}\n{stdout}");
+    let png = image::open(&preview).unwrap();
+    assert_eq!(png.height(), 384, "preview height");
+    assert!(png.width() > 3 * 384 - 10, "preview holds before | after | painting");
+}
+
+/// Asserts exit 1 with one error line containing `needle` and no output.
+fn assert_fails(o: &Output, out: &Path, needle: &str) {
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "expected exit 1, stderr: {err}");
+    let lines: Vec<&str> = err.lines().collect();
+    assert_eq!(lines.len(), 1, "expected one line, got: {err}");
+    assert!(lines[0].starts_with("nst3d: error") && lines[0].contains(needle), "want '{needle}': {err}");
+    assert!(!out.exists(), "a failed run left {}", out.display());
+}
+
+#[test]
+fn bad_grooms_give_one_line_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.usda");
+    let hair = std::fs::read(shared("grooms/Bangs_100.hair")).unwrap();
+
+    assert_fails(&strands(&dir.path().join("missing.hair"), &out, &[]), &out, "missing.hair");
+
+    let truncated = dir.path().join("truncated.hair");
+    std::fs::write(&truncated, &hair[..hair.len() / 2]).unwrap();
+    assert_fails(&strands(&truncated, &out, &[]), &out, "truncated");
+
+    // cyHair header announcing zero strands and zero points.
+    let mut empty = hair[..128].to_vec();
+    empty[4..12].fill(0);
+    let empty_path = dir.path().join("empty.hair");
+    std::fs::write(&empty_path, &empty).unwrap();
+    assert_fails(&strands(&empty_path, &out, &[]), &out, "no strands");
+
+    // A NaN coordinate in the first point (after the header and the
+    // per-strand segment counts).
+    let mut nan = hair.clone();
+    let at = 128 + 2 * 100;
+    nan[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    let nan_path = dir.path().join("nan.hair");
+    std::fs::write(&nan_path, &nan).unwrap();
+    assert_fails(&strands(&nan_path, &out, &[]), &out, "not finite");
+
+    let bad_out = dir.path().join("out.abc");
+    assert_fails(&strands(&shared("grooms/Bangs_100.hair"), &bad_out, &[]), &bad_out, ".usda or .ply");
+}
