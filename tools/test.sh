@@ -6,11 +6,11 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-if ! /usr/bin/python3 -c "import pyopenvdb" >/dev/null 2>&1; then
+if ! /usr/bin/python3 -c "import pyopenvdb, numpy" >/dev/null 2>&1; then
   echo "== installing python3-openvdb (reference OpenVDB library for the round-trip tests)"
   SUDO=""; [ "$(id -u)" = 0 ] || SUDO="sudo"
   $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq python3-openvdb >/dev/null
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq python3-openvdb python3-numpy >/dev/null
 fi
 
 echo "== fetching VGG-19 weights"
