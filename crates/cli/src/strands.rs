@@ -63,6 +63,12 @@ pub struct StrandsArgs {
     /// Evaluation views with --views-per-scale 0 (otherwise the finest scale's views).
     #[arg(long, default_value_t = 4)]
     eval_views: usize,
+    /// Iterations of the three scales, e.g. 0,0,30 (overrides --iters).
+    #[arg(long, value_delimiter = ',')]
+    scale_iters: Option<Vec<u32>>,
+    /// Strand cross-section sigma in pixels at the groom centre's depth (default: the pipeline's).
+    #[arg(long)]
+    strand_width: Option<f32>,
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).
     #[arg(long)]
     weights: Option<PathBuf>,
@@ -135,6 +141,18 @@ pub fn run(args: StrandsArgs) -> Result<()> {
     params.lr_scale = args.lr_scale;
     params.views_per_scale = args.views_per_scale;
     params.eval_views = args.eval_views;
+    if let Some(n) = &args.scale_iters {
+        if n.len() != 3 {
+            bail!("--scale-iters needs three comma-separated counts, got {}", n.len());
+        }
+        params.iterations = [n[0], n[1], n[2]];
+    }
+    if let Some(w) = args.strand_width {
+        if !(w.is_finite() && w > 0.0) {
+            bail!("--strand-width must be a positive number of pixels, got {w}");
+        }
+        params.strand_width_px = w;
+    }
 
     let scene = StrandScene::new(&groom, &head, &params)
         .with_context(|| format!("{} on {}", args.groom.display(), args.mesh.display()))?;
