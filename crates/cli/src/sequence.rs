@@ -335,7 +335,11 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     let views: Vec<Vec<ViewSpec>> = run_frames.iter().map(|&f| views_of(&cams_at(f), gamma, args.equalize)).collect();
     let style_spec = StyleSpec { layers: args.layers.clone(), layer_weights: vec![1.0; args.layers.len()] };
     let loss = ViewLoss::new(&vgg, &style, &style_spec)?;
-    let params = SequenceParams { frame: frame_params(&args, vmax, &views[0][0]), alpha: args.ema };
+    let params = SequenceParams {
+        frame: frame_params(&args, vmax, &views[0][0]),
+        alpha: args.ema,
+        settle_first_sweep: args.ema_settle,
+    };
 
     let work = match &args.work_dir {
         Some(w) => w.clone(),

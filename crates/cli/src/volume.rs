@@ -41,6 +41,11 @@ pub struct VolumeArgs {
     /// EMA weight α of the temporal coherence (eq. 4), sequences only.
     #[arg(long, default_value_t = 0.7)]
     pub(crate) ema: f32,
+    /// Let each octave's first sweep run without EMA blending (a departure
+    /// from Algorithm 1 as printed that makes farm chunks meet at their seams;
+    /// see docs/FARM.md).
+    #[arg(long)]
+    pub(crate) ema_settle: bool,
     /// Simulation velocity grid for the EMA (default: the first of velocity, vel, v).
     #[arg(long)]
     pub(crate) velocity_grid: Option<String>,

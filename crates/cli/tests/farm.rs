@@ -80,14 +80,16 @@ fn max_abs(a: &Grid3, b: &Grid3) -> f32 {
 fn chunks_with_warmup_blend_at_the_seams() {
     let dir = tempfile::tempdir().unwrap();
     let full = dir.path().join("full/s_####.vdb");
-    ok(&sequence_cmd("20-31", &full, &[]).output().unwrap());
+    ok(&sequence_cmd("20-31", &full, &["--ema-settle"]).output().unwrap());
     let seams = [23, 24, 27, 28];
     let mut worst = Vec::new();
     for k in [0, 4] {
         let out = dir.path().join(format!("k{k}/s_####.vdb"));
         for chunk in ["20-23", "24-27", "28-31"] {
             let stdout =
-                ok(&sequence_cmd("20-31", &out, &["--chunk", chunk, "--warmup", &k.to_string()]).output().unwrap());
+                ok(&sequence_cmd("20-31", &out, &["--ema-settle", "--chunk", chunk, "--warmup", &k.to_string()])
+                    .output()
+                    .unwrap());
             assert!(stdout.contains("4 frames stylized"), "{stdout}");
         }
         let mut rel = Vec::new();
@@ -110,8 +112,11 @@ fn chunks_with_warmup_blend_at_the_seams() {
     assert_eq!(worst[1][2], 0.0);
     // The seams a warm-up only partly covers are still closer than cold chunks.
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-    assert!(mean(&worst[1]) < 0.6 * mean(&worst[0]), "warm-up did not bring the seams closer: {worst:?}");
-    assert!(worst[1][0] < 0.5 && worst[1][3] < 1.0, "seams too far from the single run: {worst:?}");
+    assert!(mean(&worst[1]) < 0.3 * mean(&worst[0]), "warm-up did not bring the seams closer: {worst:?}");
+    // Both the end (23) and the start (28) of a chunk: measured 0.15 and 0.07.
+    // A start seam that stays near 0.5+ means the first sweep's EMA is back
+    // (docs/FARM.md, "Why the first sweep does not blend").
+    assert!(worst[1][0] < 0.25 && worst[1][3] < 0.15, "seams too far from the single run: {worst:?}");
 }
 
 /// Kill a run during sweep 2, rerun the same command: it says where it

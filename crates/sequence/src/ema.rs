@@ -4,7 +4,8 @@
 //! Every iteration sweeps all frames; before frame `t` takes its optimiser
 //! step its field is blended with the previous frame's field carried along
 //! the simulation velocity, `v̂_t ← (1−α)v̂_t + α·T(v̂_{t−1}, u_{t−1})` (eq. 4),
-//! then clipped. The sweep direction flips after every iteration so each
+//! then clipped (with `settle_first_sweep`, from each octave's second sweep on:
+//! see the comment at the blend). The sweep direction flips after every iteration so each
 //! frame is pulled by both neighbours. Octaves wrap the whole loop, coarse to
 //! fine, as in the single-frame case.
 
@@ -119,6 +120,11 @@ pub struct SequenceParams {
     pub frame: FrameParams,
     /// EMA weight α of eq. 4 (0 = frames independent).
     pub alpha: f32,
+    /// Skip the blend on each frame's first Adam step of an octave. Off,
+    /// this is Algorithm 1 as printed; on, the run stops being chaotic in its
+    /// first sweep, which farm chunks need to meet a single run at their seams
+    /// (docs/FARM.md, "Why the first sweep does not blend").
+    pub settle_first_sweep: bool,
 }
 
 /// Progress of the sweeps.
@@ -241,7 +247,13 @@ pub fn stylize_sequence_with(
                         "frame {t}: saved state does not match octave dims {here:?}"
                     )));
                 }
-                if let Some(c) = &carried {
+                // Optionally no blend on a frame's first Adam step of the octave: that step is
+                // lr·sign(g) per voxel, so any tiny difference in the blended
+                // field flips signs and grows frame after frame along the first
+                // sweep, making the whole run chaotic (a 1e-5 change of α moved
+                // frames by 40% of their stylization) and a farm chunk's cold
+                // start diverge from the single run however long its warm-up.
+                if let (Some(c), true) = (&carried, st.step > 0 || !params.settle_first_sweep) {
                     st.field.blend(c, params.alpha);
                     st.field.constrain(&fp.limits, vmax_here);
                 }

@@ -58,7 +58,7 @@ fn ema_cuts_flicker() {
             view: view.clone(),
         };
         let mut store = MemoryStore::default();
-        let params = SequenceParams { frame, alpha };
+        let params = SequenceParams { frame, alpha, settle_first_sweep: false };
         stylize_sequence(&sim, &loss, &[view.clone()], &params, &mut store, &mut |_| {}).unwrap();
         let frames: Vec<Grid3> = (0..sim.len()).map(|t| stylized_density(&sim, &mut store, t).unwrap()).collect();
         let vels: Vec<_> = (0..sim.len()).map(|t| sim.velocity(t).unwrap()).collect();
@@ -117,7 +117,7 @@ fn disk_store_resumes_exactly() {
         limits: Limits { vmax: 2.0, smin: 0.0, smax: 2.0 },
         view: view.clone(),
     };
-    let params = SequenceParams { frame, alpha: 0.7 };
+    let params = SequenceParams { frame, alpha: 0.7, settle_first_sweep: true };
     // Two views per frame, the second a turntable step that moves with the frame (a camera path).
     let views = |t: usize| {
         vec![
