@@ -9,6 +9,11 @@
 //! its last completed sweep. Farm chunks optimise their frames plus a
 //! warm-up overlap but derive the box, velocity scale and absorption from
 //! the whole --frames range, so every chunk solves the same problem.
+//!
+//! Frames whose grid is empty (a simulation's first frames often are) are
+//! copied to the output unchanged and cut the EMA chain; frames without a
+//! velocity grid are carried to their neighbour unmoved (identity advection),
+//! so the EMA still couples them, only without following the flow.
 
 use std::path::PathBuf;
 
@@ -36,6 +41,9 @@ struct VdbSimulation {
     velocity_scale: f32,
     origin: [i32; 3],
     dims: [usize; 3],
+    /// `linked[t]`: frame `t` directly follows frame `t − 1` (no empty frame
+    /// was taken out between them), so the EMA carries fields across.
+    linked: Vec<bool>,
 }
 
 impl VdbSimulation {
@@ -114,6 +122,9 @@ impl Simulation for VdbSimulation {
         }
         Ok(Some(u))
     }
+    fn linked(&self, t: usize) -> bool {
+        self.linked.get(t).copied().unwrap_or(true)
+    }
 }
 
 /// A farm chunk: `START-END` (frame numbers, inclusive).
@@ -141,13 +152,14 @@ fn fnv1a(bytes: &[u8], mut h: u64) -> u64 {
 /// contents, and each input frame's size and modification time.
 fn job_hash(args: &VolumeArgs, run_paths: &[PathBuf]) -> Result<u64> {
     let settings = format!(
-        "{:?}|{:?}|{:?}|{}|{:?}|{}|{:?}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{}|{:?}|{}|{:?}",
+        "{:?}|{:?}|{:?}|{}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{}|{:?}|{}|{:?}",
         args.input,
         args.frames,
         args.chunk,
         args.warmup,
         args.out,
         args.ema,
+        args.ema_settle,
         args.velocity_grid,
         args.velocity_scale,
         args.grid,
@@ -229,7 +241,11 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     let mut transform: Option<Transform> = None;
     let mut lo = [i32::MAX; 3];
     let mut hi = [i32::MIN; 3];
-    let mut velocity_grid = args.velocity_grid.clone();
+    // Frames whose grid has no active voxel (a simulation's first frames
+    // often do): nothing to stylize, so they are written unchanged and the
+    // EMA chain is cut there rather than carried through emptiness.
+    let mut empty = Vec::with_capacity(paths.len());
+    let mut grid_names: Vec<Vec<String>> = Vec::with_capacity(paths.len());
     for p in &paths {
         let file = read_vdb(p)?;
         let grid = file.grid(&args.grid).with_context(|| format!("{}: no grid named '{}'", p.display(), args.grid))?;
@@ -239,6 +255,13 @@ pub fn run(args: VolumeArgs) -> Result<()> {
         if grid.has_non_finite() {
             bail!("{}: grid '{}' has non-finite values", p.display(), args.grid);
         }
+        grid_names.push(file.grids.iter().map(|g| g.name.clone()).collect());
+        let Some((a, b)) = grid.active_bbox() else {
+            empty.push(true);
+            continue;
+        };
+        empty.push(false);
+        // The transform of an empty frame does not matter: it is copied as it is.
         match &transform {
             None => transform = Some(grid.transform.clone()),
             Some(t) if t.voxel_size != grid.transform.voxel_size => {
@@ -251,20 +274,47 @@ pub fn run(args: VolumeArgs) -> Result<()> {
             }
             _ => {}
         }
-        if let Some((a, b)) = grid.active_bbox() {
-            for k in 0..3 {
-                lo[k] = lo[k].min(a[k]);
-                hi[k] = hi[k].max(b[k]);
+        for k in 0..3 {
+            lo[k] = lo[k].min(a[k]);
+            hi[k] = hi[k].max(b[k]);
+        }
+    }
+    let Some(transform) = transform else {
+        bail!("every frame's grid '{}' is empty: nothing to stylize", args.grid);
+    };
+    let has = |i: usize, name: &str| grid_names[i].iter().any(|g| g == name);
+    let live_all: Vec<usize> = (0..paths.len()).filter(|&i| !empty[i]).collect();
+    let velocity_grid = match &args.velocity_grid {
+        Some(v) if !live_all.iter().any(|&i| has(i, v)) => {
+            bail!("no frame with smoke has a velocity grid '{v}' (grids: {})", grid_names[live_all[0]].join(", "))
+        }
+        Some(v) => Some(v.clone()),
+        None => VELOCITY_NAMES.iter().find(|n| live_all.iter().any(|&i| has(i, n))).map(|n| n.to_string()),
+    };
+    match &velocity_grid {
+        None => eprintln!(
+            "nst3d: note: no velocity grid (looked for {}): the EMA carries each frame's field to the next \
+             unmoved (no advection)",
+            VELOCITY_NAMES.join(", ")
+        ),
+        Some(v) => {
+            let missing: Vec<i64> = live_all.iter().filter(|&&i| !has(i, v)).map(|&i| all[i]).collect();
+            if !missing.is_empty() {
+                eprintln!(
+                    "nst3d: note: frames {missing:?} have no grid '{v}': the EMA carries their fields to the next \
+                     frame unmoved"
+                );
             }
         }
-        if velocity_grid.is_none() {
-            velocity_grid = VELOCITY_NAMES.iter().find(|n| file.grid(n).is_some()).map(|n| n.to_string());
-        }
     }
-    if lo[0] > hi[0] {
-        bail!("every frame's grid '{}' is empty: nothing to stylize", args.grid);
+    let is_empty = |f: i64| all.iter().position(|&a| a == f).is_some_and(|i| empty[i]);
+    let passed: Vec<i64> = todo.iter().map(|&i| run_frames[i]).filter(|&f| is_empty(f)).collect();
+    if !passed.is_empty() {
+        eprintln!(
+            "nst3d: note: frames {passed:?} have an empty grid '{}'; they are written unchanged (not stylized)",
+            args.grid
+        );
     }
-    let transform = transform.expect("at least one frame");
     let extent = (0..3).map(|k| (hi[k] - lo[k] + 1) as usize).max().unwrap_or(1);
     let vmax = args.vmax.unwrap_or((0.04 * extent as f32).max(1.0));
     let margin = match args.mode {
@@ -283,6 +333,7 @@ pub fn run(args: VolumeArgs) -> Result<()> {
         velocity_scale: 1.0,
         origin,
         dims,
+        linked: Vec::new(),
     };
     if full.velocity_grid.is_some() {
         full.velocity_scale = match args.velocity_scale {
@@ -291,17 +342,24 @@ pub fn run(args: VolumeArgs) -> Result<()> {
             None => calibrate(&full)?,
         };
     }
+    // The frames optimised: the run's frames with smoke. `run_index[k]` is
+    // frame k's place in `run_frames`; two are linked when adjacent there.
+    let run_index: Vec<usize> = (0..run_frames.len()).filter(|&i| !is_empty(run_frames[i])).collect();
+    let live: Vec<i64> = run_index.iter().map(|&i| run_frames[i]).collect();
+    let sim_of = |i: usize| run_index.iter().position(|&r| r == i);
     let sim = VdbSimulation {
-        paths: run_frames.iter().map(|&f| path_of(f)).collect::<Result<_, _>>()?,
+        paths: live.iter().map(|&f| path_of(f)).collect::<Result<_, _>>()?,
         grid: full.grid.clone(),
         velocity_grid: full.velocity_grid.clone(),
+        linked: (0..run_index.len()).map(|k| k == 0 || run_index[k] == run_index[k - 1] + 1).collect(),
         ..full
     };
     eprintln!(
-        "{} frames ({} to write, {} warm-up), common box {}x{}x{} at {:?}, velocity grid {} (x{:.4} voxels/frame)",
-        sim.len(),
+        "{} frames ({} to write, {} warm-up, {} empty), common box {}x{}x{} at {:?}, velocity grid {} (x{:.4} voxels/frame)",
+        run_frames.len(),
         todo.len(),
         run_frames.iter().filter(|&&f| !is_written(f)).count(),
+        run_frames.len() - sim.len(),
         dims[0],
         dims[1],
         dims[2],
@@ -319,9 +377,9 @@ pub fn run(args: VolumeArgs) -> Result<()> {
         Some(_) => absorption_for(&args, std::iter::empty())?,
         None => {
             let mut best = f32::INFINITY;
-            for (t, &f) in all.iter().enumerate() {
+            for &t in &live_all {
                 let d = full.density(t)?;
-                let cams = cams_at(f);
+                let cams = cams_at(all[t]);
                 if let Ok(g) = absorption_for(&args, cams.iter().map(|c| (&d, c))) {
                     best = best.min(g);
                 }
@@ -332,11 +390,16 @@ pub fn run(args: VolumeArgs) -> Result<()> {
             best
         }
     };
-    let views: Vec<Vec<ViewSpec>> = run_frames.iter().map(|&f| views_of(&cams_at(f), gamma, args.equalize)).collect();
+    let views: Vec<Vec<ViewSpec>> = live.iter().map(|&f| views_of(&cams_at(f), gamma, args.equalize)).collect();
     let style_spec = StyleSpec { layers: args.layers.clone(), layer_weights: vec![1.0; args.layers.len()] };
     let loss = ViewLoss::new(&vgg, &style, &style_spec)?;
+    // Unused by the sweeps (each frame has its views); any view of the run will do.
+    let first_view = match views.first() {
+        Some(v) => v[0].clone(),
+        None => views_of(&cams_at(all[live_all[0]]), gamma, args.equalize).remove(0),
+    };
     let params = SequenceParams {
-        frame: frame_params(&args, vmax, &views[0][0]),
+        frame: frame_params(&args, vmax, &first_view),
         alpha: args.ema,
         settle_first_sweep: args.ema_settle,
     };
@@ -351,40 +414,59 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     if args.force && work.exists() {
         std::fs::remove_dir_all(&work).with_context(|| format!("cannot clear the work folder {}", work.display()))?;
     }
-    let mut store = DiskStore::open(&work)?;
-    let n = sim.len();
-    let per_octave = args.iters * n;
-    let mut done_steps = 0;
-    if let Some(r) = store.resume_point() {
-        done_steps = (r.octave * args.iters + r.sweeps_done) * n;
-        if r.octave + 1 == r.octaves && r.sweeps_done == args.iters {
-            eprintln!("optimisation already complete in {}; writing the missing frames", work.display());
-        } else {
-            eprintln!("resuming at octave {} sweep {} from {}", r.octave + 1, r.sweeps_done + 1, work.display());
+    // A chunk of empty frames only has nothing to optimise.
+    let mut store = if sim.is_empty() { None } else { Some(DiskStore::open(&work)?) };
+    if let Some(store) = &mut store {
+        let n = sim.len();
+        let per_octave = args.iters * n;
+        let mut done_steps = 0;
+        if let Some(r) = store.resume_point() {
+            done_steps = (r.octave * args.iters + r.sweeps_done) * n;
+            if r.octave + 1 == r.octaves && r.sweeps_done == args.iters {
+                eprintln!("optimisation already complete in {}; writing the missing frames", work.display());
+            } else {
+                eprintln!("resuming at octave {} sweep {} from {}", r.octave + 1, r.sweeps_done + 1, work.display());
+            }
         }
+        // A resumed run counts only the steps left.
+        let mut progress = Progress::new((args.octaves * per_octave).saturating_sub(done_steps) as u64);
+        stylize_sequence_with(&sim, &loss, &|t| views[t].clone(), &params, store, &mut |p| {
+            progress.step(format!(
+                "octave {} sweep {}/{} frame {} loss {:.4e}",
+                p.octave + 1,
+                p.iteration,
+                args.iters,
+                live[p.frame],
+                p.loss
+            ))
+        })?;
+        progress.finish();
     }
-    // A resumed run counts only the steps left.
-    let mut progress = Progress::new((args.octaves * per_octave).saturating_sub(done_steps) as u64);
-    stylize_sequence_with(&sim, &loss, &|t| views[t].clone(), &params, &mut store, &mut |p| {
-        progress.step(format!(
-            "octave {} sweep {}/{} frame {} loss {:.4e}",
-            p.octave + 1,
-            p.iteration,
-            args.iters,
-            run_frames[p.frame],
-            p.loss
-        ))
-    })?;
-    progress.finish();
 
     // Write every frame we can; one that fails is reported and the others still land.
     let mut failures = Vec::new();
     let mut losses = 0.0;
+    let (mut stylized, mut unchanged) = (0usize, 0usize);
     let (mut flicker_sum, mut pairs) = (0.0f64, 0usize);
     let mut prev: Option<(usize, Grid3)> = None;
-    for &t in &todo {
+    for &i in &todo {
+        let Some(t) = sim_of(i) else {
+            // An empty frame: the input file byte for byte, so every grid is as it was.
+            let src = &paths[all.iter().position(|&a| a == run_frames[i]).expect("run frames are --frames")];
+            let copied =
+                std::fs::read(src).and_then(|bytes| nst3d_io::atomic::write_atomic(&outs[i], |w| w.write_all(&bytes)));
+            match copied {
+                Ok(()) => unchanged += 1,
+                Err(e) => {
+                    eprintln!("nst3d: frame {} failed: {}: {e}", run_frames[i], outs[i].display());
+                    failures.push(run_frames[i]);
+                }
+            }
+            continue;
+        };
         let result = (|| -> Result<Grid3> {
             let d = sim.density(t)?;
+            let store = store.as_mut().expect("frames with smoke were optimised");
             let st = store.load(t)?.context("the frame has no optimised field")?;
             let d = st.field.transport(&d);
             if d.data.iter().any(|v| !v.is_finite()) {
@@ -401,16 +483,17 @@ pub fn run(args: VolumeArgs) -> Result<()> {
                 .filter(|g| !matches!(g.values, GridValues::Unsupported { .. }))
                 .map(|g| if g.name == src.name { out.clone() } else { g.clone() })
                 .collect();
-            write_vdb(&outs[t], &grids)?;
+            write_vdb(&outs[i], &grids)?;
             Ok(d)
         })();
         match result {
             Ok(d) => {
+                stylized += 1;
                 losses += mean_loss(&loss, &d, &views[t])?;
                 // Flicker of consecutive written frames, computed pairwise so
                 // memory holds two frames.
                 if let Some((tp, dp)) = &prev {
-                    if *tp + 1 == t {
+                    if *tp + 1 == t && sim.linked(t) {
                         let vel = sim.velocity(*tp)?;
                         let render =
                             |g: &Grid3| loss.image(g, &views[t][0]).expect("the view rendered during optimisation");
@@ -422,8 +505,8 @@ pub fn run(args: VolumeArgs) -> Result<()> {
                 prev = Some((t, d));
             }
             Err(e) => {
-                eprintln!("nst3d: frame {} failed: {e:#}", run_frames[t]);
-                failures.push(run_frames[t]);
+                eprintln!("nst3d: frame {} failed: {e:#}", run_frames[i]);
+                failures.push(run_frames[i]);
             }
         }
     }
@@ -437,16 +520,16 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     }
     // Every frame landed: the states are no longer needed (they are large).
     let _ = std::fs::remove_dir_all(&work);
-    let ok = todo.len();
     println!(
-        "{} frames stylized ({:?} mode, EMA {}, {} camera{}); mean style loss {:.4e}; flicker {:.5}; wrote {}",
-        ok,
+        "{} frames stylized ({:?} mode, EMA {}, {} camera{}); mean style loss {:.4e}; flicker {:.5}; {}wrote {}",
+        stylized,
         args.mode,
         args.ema,
-        views[0].len(),
-        if views[0].len() == 1 { "" } else { "s" },
-        losses / ok as f32,
+        views.first().map_or(0, |v| v.len()),
+        if views.first().is_some_and(|v| v.len() == 1) { "" } else { "s" },
+        losses / stylized.max(1) as f32,
         if pairs > 0 { flicker_sum / pairs as f64 } else { 0.0 },
+        if unchanged > 0 { format!("{unchanged} empty frames copied unchanged; ") } else { String::new() },
         output
     );
     Ok(())
@@ -460,15 +543,14 @@ fn calibrate(sim: &VdbSimulation) -> Result<f32> {
         if d0.max() <= 0.0 || d1.max() <= 0.0 {
             continue;
         }
-        let saved = sim.velocity_scale;
         let unit = VdbSimulation {
             velocity_scale: 1.0,
             paths: sim.paths.clone(),
             grid: sim.grid.clone(),
             velocity_grid: sim.velocity_grid.clone(),
+            linked: sim.linked.clone(),
             ..*sim
         };
-        let _ = saved;
         if let Some(u) = unit.velocity(t)? {
             if let Some(s) = nst3d_sequence::calibrate::velocity_scale(&d0, &d1, &u) {
                 return Ok(s);

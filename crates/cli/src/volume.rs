@@ -41,10 +41,12 @@ pub struct VolumeArgs {
     /// EMA weight α of the temporal coherence (eq. 4), sequences only.
     #[arg(long, default_value_t = 0.7)]
     pub(crate) ema: f32,
-    /// Let each octave's first sweep run without EMA blending (a departure
-    /// from Algorithm 1 as printed that makes farm chunks meet at their seams;
-    /// see docs/FARM.md).
-    #[arg(long)]
+    /// Let each octave's first sweep run without EMA blending (on by
+    /// default: it makes farm chunks meet at their seams and cuts flicker
+    /// further at the same style loss; docs/FARM.md, docs/SEQUENCES.md).
+    /// `--ema-settle false` runs Algorithm 1 exactly as printed.
+    #[arg(long, value_name = "BOOL", num_args = 0..=1, default_value_t = true, default_missing_value = "true",
+          action = clap::ArgAction::Set)]
     pub(crate) ema_settle: bool,
     /// Simulation velocity grid for the EMA (default: the first of velocity, vel, v).
     #[arg(long)]

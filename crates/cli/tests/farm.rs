@@ -71,7 +71,8 @@ fn max_abs(a: &Grid3, b: &Grid3) -> f32 {
     a.data.iter().zip(&b.data).map(|(p, q)| (p - q).abs()).fold(0.0, f32::max)
 }
 
-/// 12 frames as one run and as 3 chunks of 4. Without warm-up the seam
+/// 12 frames as one run and as 3 chunks of 4, with the default settings
+/// (so with `--ema-settle`, which is the default). Without warm-up the seam
 /// frames are stylized differently (the EMA of a chunk starts cold); with 4
 /// frames of warm-up they move towards the single run's, and the frames a
 /// chunk's warm-up covers entirely are identical (docs/FARM.md has the
@@ -80,16 +81,14 @@ fn max_abs(a: &Grid3, b: &Grid3) -> f32 {
 fn chunks_with_warmup_blend_at_the_seams() {
     let dir = tempfile::tempdir().unwrap();
     let full = dir.path().join("full/s_####.vdb");
-    ok(&sequence_cmd("20-31", &full, &["--ema-settle"]).output().unwrap());
+    ok(&sequence_cmd("20-31", &full, &[]).output().unwrap());
     let seams = [23, 24, 27, 28];
     let mut worst = Vec::new();
     for k in [0, 4] {
         let out = dir.path().join(format!("k{k}/s_####.vdb"));
         for chunk in ["20-23", "24-27", "28-31"] {
             let stdout =
-                ok(&sequence_cmd("20-31", &out, &["--ema-settle", "--chunk", chunk, "--warmup", &k.to_string()])
-                    .output()
-                    .unwrap());
+                ok(&sequence_cmd("20-31", &out, &["--chunk", chunk, "--warmup", &k.to_string()]).output().unwrap());
             assert!(stdout.contains("4 frames stylized"), "{stdout}");
         }
         let mut rel = Vec::new();
@@ -114,8 +113,9 @@ fn chunks_with_warmup_blend_at_the_seams() {
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     assert!(mean(&worst[1]) < 0.3 * mean(&worst[0]), "warm-up did not bring the seams closer: {worst:?}");
     // Both the end (23) and the start (28) of a chunk: measured 0.15 and 0.07.
-    // A start seam that stays near 0.5+ means the first sweep's EMA is back
-    // (docs/FARM.md, "Why the first sweep does not blend").
+    // A start seam that stays near 0.5+ means the first sweep's EMA is back,
+    // e.g. --ema-settle is no longer the default (docs/FARM.md, "Why the
+    // first sweep does not blend").
     assert!(worst[1][0] < 0.25 && worst[1][3] < 0.15, "seams too far from the single run: {worst:?}");
 }
 
@@ -239,4 +239,45 @@ fn camera_sets_and_files() {
     let out = dir.path().join("c_####.vdb");
     let stdout = ok(&sequence_cmd("20-22", &out, &["--camera-file", s(&cam)]).output().unwrap());
     assert!(stdout.contains("3 frames stylized"), "{stdout}");
+}
+
+/// The three OpenUSD smoke frames as a sequence: frame 1's grid is empty
+/// and no frame has a velocity grid. The empty frame is copied unchanged
+/// (byte for byte) with a note, the other two are stylized with the EMA
+/// carrying fields unmoved (no advection), which still couples them: they
+/// end differently than with `--ema 0`.
+#[test]
+fn openusd_frames_with_an_empty_frame_and_no_velocity_run_as_a_sequence() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = shared("volumes/smoke_000003.vdb").with_file_name("smoke_######.vdb");
+    let run = |ema: &str, out: &Path| {
+        let o = Command::new(env!("CARGO_BIN_EXE_nst3d"))
+            .args(["--threads", "2", "volume", "--input", s(&input), "--frames", "1-3"])
+            .args(["--style", s(&shared("styles/starry_night.jpg")), "--out", s(out)])
+            .args(["--iters", "2", "--octaves", "1", "--ema", ema])
+            .output()
+            .unwrap();
+        (ok(&o), String::from_utf8_lossy(&o.stderr).to_string())
+    };
+    let out = dir.path().join("ema/s_######.vdb");
+    let (stdout, stderr) = run("0.7", &out);
+    assert!(stdout.contains("2 frames stylized") && stdout.contains("1 empty frames copied unchanged"), "{stdout}");
+    assert!(stderr.contains("frames [1] have an empty grid 'density'"), "{stderr}");
+    assert!(stderr.contains("no velocity grid"), "{stderr}");
+    let frame = |d: &str, f: u32| dir.path().join(d).join(format!("s_{f:06}.vdb"));
+    assert!(
+        std::fs::read(frame("ema", 1)).unwrap() == std::fs::read(shared("volumes/smoke_000001.vdb")).unwrap(),
+        "the empty frame was not copied unchanged"
+    );
+    let styled = |d: &str, f: u32| {
+        let file = nst3d_io::vdb::read_vdb(&frame(d, f)).unwrap();
+        file.grid("density").unwrap().to_dense().unwrap().1
+    };
+    let input = nst3d_io::vdb::read_vdb(&shared("volumes/smoke_000003.vdb")).unwrap();
+    let (_, d3) = input.grid("density").unwrap().to_dense().unwrap();
+    assert!(styled("ema", 3).data != d3.data, "frame 3 was not stylized");
+
+    let (stdout, _) = run("0", &dir.path().join("plain/s_######.vdb"));
+    assert!(stdout.contains("2 frames stylized"), "{stdout}");
+    assert!(styled("ema", 2).data != styled("plain", 2).data, "the EMA did nothing without a velocity grid");
 }

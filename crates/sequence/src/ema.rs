@@ -48,6 +48,13 @@ pub trait Simulation {
     /// Simulation velocity `u_t`, in voxels per frame at voxel centres of the
     /// common domain; `None` when the frame has none (no carrying then).
     fn velocity(&self, t: usize) -> Result<Option<Vec<[f32; 3]>>, SequenceError>;
+    /// Whether frame `t` continues frame `t − 1`, so the EMA carries fields
+    /// between them. False where the sequence has a break (e.g. an empty
+    /// frame that is passed through unstylized was between them): nothing
+    /// there moved one frame's smoke into the other's.
+    fn linked(&self, _t: usize) -> bool {
+        true
+    }
 }
 
 /// Per-frame optimisation state: the field and its Adam moments.
@@ -281,7 +288,7 @@ pub fn stylize_sequence_with(
                 // carry v̂_t back to t-1 along −u_{t−1}.
                 carried = if params.alpha > 0.0 {
                     let next = if forward { t + 1 } else { t.wrapping_sub(1) };
-                    if next < n {
+                    if next < n && sim.linked(if forward { next } else { t }) {
                         let disp = if forward { u } else { velocity_at(sim, next, here)?.map(|w| negate(&w)) };
                         Some(match disp {
                             Some(w) => st.field.carried(here, &w),

@@ -150,3 +150,80 @@ fn disk_store_resumes_exactly() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// [`Drift`] with a break before frame `cut`: as if an empty frame that is
+/// passed through unstylized had been taken out there.
+struct Broken {
+    sim: Drift,
+    cut: usize,
+}
+
+impl Simulation for Broken {
+    fn len(&self) -> usize {
+        self.sim.len()
+    }
+    fn dims(&self) -> [usize; 3] {
+        self.sim.dims()
+    }
+    fn density(&self, t: usize) -> Result<Grid3, SequenceError> {
+        self.sim.density(t)
+    }
+    fn velocity(&self, t: usize) -> Result<Option<Vec<[f32; 3]>>, SequenceError> {
+        self.sim.velocity(t)
+    }
+    fn linked(&self, t: usize) -> bool {
+        t != self.cut
+    }
+}
+
+/// The frames of [`Drift`] from `from` on, as a sequence of their own.
+struct Tail {
+    sim: Drift,
+    from: usize,
+}
+
+impl Simulation for Tail {
+    fn len(&self) -> usize {
+        self.sim.len() - self.from
+    }
+    fn dims(&self) -> [usize; 3] {
+        self.sim.dims()
+    }
+    fn density(&self, t: usize) -> Result<Grid3, SequenceError> {
+        self.sim.density(t + self.from)
+    }
+    fn velocity(&self, t: usize) -> Result<Option<Vec<[f32; 3]>>, SequenceError> {
+        self.sim.velocity(t + self.from)
+    }
+}
+
+/// A break in the sequence stops the EMA in both sweep directions: the
+/// frames after it end exactly as if they had been stylized on their own.
+#[test]
+fn a_break_splits_the_ema_chain() {
+    let vgg = Vgg19::random(VggFlavor::Torchvision, 4);
+    let loss = ViewLoss::new(&vgg, &stripes(24), &StyleSpec::default()).unwrap();
+    let base = synthetic_smoke(12, 7);
+    let view = ViewSpec { camera: Some(Camera::front(base.dims)), gamma: 0.2, exposure: 0.2, equalize: false };
+    let frame = FrameParams {
+        mode: Mode::Velocity,
+        octaves: 1,
+        iterations: 3,
+        learning_rate: 0.3,
+        limits: Limits { vmax: 2.0, smin: 0.0, smax: 2.0 },
+        view: view.clone(),
+    };
+    let params = SequenceParams { frame, alpha: 0.7, settle_first_sweep: false };
+    let run = |sim: &dyn Simulation| {
+        let mut store = MemoryStore::default();
+        stylize_sequence(sim, &loss, std::slice::from_ref(&view), &params, &mut store, &mut |_| {}).unwrap();
+        (0..sim.len()).map(|t| stylized_density(sim, &mut store, t).unwrap()).collect::<Vec<_>>()
+    };
+    let linked = run(&Drift { base: base.clone(), frames: 4 });
+    let broken = run(&Broken { sim: Drift { base: base.clone(), frames: 4 }, cut: 2 });
+    let alone = run(&Tail { sim: Drift { base, frames: 4 }, from: 2 });
+    for (t, a) in [(2, &alone[0]), (3, &alone[1])] {
+        assert_eq!(broken[t].data, a.data, "frame {t} still felt the frames before the break");
+    }
+    assert_ne!(broken[1].data, linked[1].data, "the break changed nothing");
+}
