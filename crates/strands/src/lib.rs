@@ -17,6 +17,9 @@
 //! gradient on the points goes back through `DeformationField::backward`
 //! (the two projections are not differentiated, as in the paper).
 //!
+//! [`sequence`] runs it over the frames of an animated groom with the EMA
+//! and 1€ filter of Sec. 3.3, and measures the flicker.
+//!
 //! [`pipeline`] assembles all of it with the splat renderer, VGG-19 and the
 //! NNST loss into one stylization of a groom (`nst3d strands`).
 //!
@@ -34,16 +37,24 @@ mod kdtree;
 mod math;
 pub mod pipeline;
 mod preset;
+pub mod sequence;
 mod strands;
 mod temporal;
 
 pub use bvh::{closest_point_on_triangle, ClosestHit, Feature, MeshBvh};
-pub use constraints::{preserve_lengths, project_collisions, CollisionParams, CollisionStats, Constraints};
+pub use constraints::{
+    preserve_lengths, preserve_lengths_backward, project_collisions, project_collisions_recorded, CollisionParams,
+    CollisionRecord, CollisionStats, ConstraintTape, Constraints,
+};
 pub use densify::{densify, DensifyParams};
 pub use field::{velocity_sample_indices, DeformationField, Kernel, RbfWeights, SampleDensity};
 pub use generators::{fur_ball, grass_patch, uv_sphere, FurBallParams, GrassParams, Wind};
 pub use kdtree::KdTree;
 pub use preset::{Preset, PresetParams, TemporalParams};
+pub use sequence::{
+    check_topology, EmaClock, Flow, FrameFlicker, FrameResult, SequenceError, SequenceParams, SequenceReport,
+    SequenceStylizer,
+};
 pub use strands::FlatStrands;
 pub use temporal::{
     ema_blend, ema_blend_factor, smoothing_factor, transport_velocities, DerivativeSmoothing, OneEuroFilter,

@@ -39,8 +39,9 @@
 //! resized for the scale; the loss is `‖Φ(R_θ(x)) − T‖²` averaged over
 //! hyper-columns (relu1_1, relu2_1, relu3_1, relu4_1, NNST's grid of a
 //! quarter resolution). Gradients flow NNST → VGG backward → splat backward →
-//! `Wᵀ` of the field; the two constraint projections are passed through as
-//! identity, as in the paper.
+//! back through every constraint projection of the iterate (the recorded
+//! [`ConstraintTape`], as autograd would in the paper's PyTorch pipeline) →
+//! `Wᵀ` of the field.
 //!
 //! Matching cost: each view's targets need one match (`N_c × N_s × D`)
 //! per scale. Views are *cached*: each scale draws
@@ -56,13 +57,15 @@
 //! match approaches the cost of an iteration. The default stays at 8 cached
 //! views per scale.
 //!
-//! Step size: the preset's `η` read as `η·R` (see Units) moves every
-//! velocity by ~0.1–0.3 px per AdamW step at 128–256 px renders, but the
-//! loss of a thin-strand render is only locally linear over ~0.1 px of
-//! displacement (measured by a line search along the gradient on the
-//! Bangs groom at 128²: the loss falls 4–6 % up to 0.3 units rms, then rises
-//! above its start by 1 unit), so [`StylizeParams::lr_scale`] defaults to
-//! 0.1.
+//! Step size: the preset's `η` read as `η·R` (see Units) times
+//! [`StylizeParams::lr_scale`], 0.3 by default. Measured on the Bangs groom
+//! at a 160² render with the preset's 100 iterations (NNST loss from the
+//! optimized views, targets matched on the rest groom): lr-scale 0.1 →
+//! −10.0 %, 0.3 → −12.6 %, 1.0 → −7.5 % (re-matched −16 %: large steps
+//! find another stylization rather than the one matched on `x₀`). Before the
+//! constraints' backward existed (they were passed through as identity) the
+//! loss *rose* at any step size above ~0.1 px; a single view at the finest
+//! scale now falls 29 % in 30 steps at lr-scale 1, against 7 % before.
 //!
 //! Evaluation: the optimized views — the finest scale's cached cameras (or,
 //! with a new camera per iteration, [`StylizeParams::eval_views`] fixed
@@ -72,17 +75,23 @@
 //! groom; the loss re-matched on the final render is reported too.
 
 use std::collections::HashMap;
+use std::time::{Duration, Instant};
 
 use nst3d_core::Image;
 use nst3d_features::{Vgg19, VggLayer};
 use nst3d_io::groom::{Groom, GroomError, StrandSpline};
 use nst3d_io::mesh::TriMesh;
-use nst3d_loss::nnst::{nnst_loss, nnst_loss_matched, NnstError, NnstMatch, NnstParams, NnstTarget};
-use nst3d_optim::Adam;
-use nst3d_splat::{render, render_backward, SplatCamera, SplatError, SplatOutput, StrandStyle, Strands};
+use nst3d_loss::nnst::{nnst_loss, nnst_loss_matched, NnstError, NnstParams};
+use nst3d_splat::{render, render_backward, SplatError, SplatOutput, StrandStyle, Strands};
+
+// Re-exported so callers of [`iteration`] (the `strands-iter` benchmark)
+// can hold its inputs without depending on every stage crate.
+pub use nst3d_loss::nnst::{NnstMatch, NnstTarget};
+pub use nst3d_optim::Adam;
+pub use nst3d_splat::SplatCamera;
 
 use crate::bvh::MeshBvh;
-use crate::constraints::{preserve_lengths, project_collisions, CollisionParams, CollisionStats, Constraints};
+use crate::constraints::{CollisionParams, CollisionStats, ConstraintTape, Constraints};
 use crate::densify::{densify, DensifyParams};
 use crate::field::DeformationField;
 use crate::math::{add, cross, dot, norm, normalize, scale, sub, Rng, V3};
@@ -158,7 +167,7 @@ impl StylizeParams {
             iterations: preset.iterations,
             proxies: (ratio * guides as f64).round() as usize,
             seed: 0,
-            lr_scale: 0.1,
+            lr_scale: 0.3,
             weight_decay: 0.01,
             views_per_scale: 8,
             eval_views: 4,
@@ -259,6 +268,9 @@ pub struct StrandScene {
     pub fov_deg: f32,
     /// Square render size.
     pub render_size: usize,
+    /// How far outside the mesh strands with a root inside are lifted
+    /// (`10⁻⁴` of the mesh diagonal; see [`resolve_rest`]).
+    pub lift_margin: f32,
 }
 
 impl StrandScene {
@@ -332,6 +344,7 @@ impl StrandScene {
             distance,
             fov_deg,
             render_size: params.render_size,
+            lift_margin: lift_margin(diag),
         };
         scene.undeformed = scene.deform(&vec![[0.0; 3]; scene.field.sample_count()])?.0;
         Ok(scene)
@@ -355,14 +368,38 @@ impl StrandScene {
     /// Transport by `v` (eq. 5) with the roots pinned, then length
     /// preservation and collision projection (Sec. 3.4, see [`enforce`]).
     pub fn deform(&self, v: &[[f32; 3]]) -> Result<(FlatStrands, CollisionStats), PipelineError> {
+        let mut s = self.transport(v)?;
+        let stats = self.constrain(&mut s)?;
+        Ok((s, stats))
+    }
+
+    /// The transport half of [`StrandScene::deform`]: eq. 5 with the roots
+    /// pinned to the rest roots.
+    pub fn transport(&self, v: &[[f32; 3]]) -> Result<FlatStrands, PipelineError> {
         let mut s = self.rest.with_points(self.field.forward(v)?)?;
         // Roots stay attached to the scalp (their gradient is dropped in
         // `view_loss_grad` to match).
         for &o in &self.rest.offsets[..self.rest.strand_count()] {
             s.points[o] = self.rest.points[o];
         }
-        let stats = enforce(&mut s, &self.constraints, CONSTRAINT_PASSES)?;
-        Ok((s, stats))
+        Ok(s)
+    }
+
+    /// The constraint half of [`StrandScene::deform`] (see [`enforce`]), in
+    /// place; returns the first pass's collision statistics.
+    pub fn constrain(&self, s: &mut FlatStrands) -> Result<CollisionStats, PipelineError> {
+        self.constrain_recorded(s, &mut ConstraintTape::default())
+    }
+
+    /// [`StrandScene::constrain`], recording every projection on `tape` so
+    /// [`ConstraintTape::backward`] can carry the style gradient back to the
+    /// transported points (see [`crate::constraints`] for why it must).
+    pub fn constrain_recorded(
+        &self,
+        s: &mut FlatStrands,
+        tape: &mut ConstraintTape,
+    ) -> Result<CollisionStats, PipelineError> {
+        enforce(s, &self.constraints, CONSTRAINT_PASSES, tape)
     }
 
     fn strands<'a>(&'a self, s: &'a FlatStrands) -> Strands<'a> {
@@ -379,7 +416,15 @@ impl StrandScene {
 }
 
 /// Constraint passes per iteration (see [`enforce`]).
-const CONSTRAINT_PASSES: usize = 8;
+pub const CONSTRAINT_PASSES: usize = 8;
+
+/// [`enforce`] stops its extra passes once every segment is within this
+/// relative error of its rest length.
+pub const SEGMENT_TOLERANCE: f32 = 1e-3;
+
+/// Tightened collision threshold of [`enforce`]'s extra hard passes, as a
+/// fraction of the preset's `τ`.
+pub const HARD_TAU_FRACTION: f32 = 0.02;
 
 /// Sec. 3.4's constraints, then alternating hard passes until both hold.
 ///
@@ -394,16 +439,22 @@ const CONSTRAINT_PASSES: usize = 8;
 /// is left inside the mesh; the `τ` repulsion is not repeated, since repeated
 /// it would fight length preservation forever on strands lying on the skin.
 /// Returns the first pass's statistics (what the deformation caused).
-fn enforce(s: &mut FlatStrands, c: &Constraints, passes: usize) -> Result<CollisionStats, PipelineError> {
-    let first = c.apply(s)?;
+fn enforce(
+    s: &mut FlatStrands,
+    c: &Constraints,
+    passes: usize,
+    tape: &mut ConstraintTape,
+) -> Result<CollisionStats, PipelineError> {
+    let first = c.apply_recorded(s, tape)?;
     let Some(bvh) = &c.collider else { return Ok(first) };
-    let hard = CollisionParams { tau: c.collision.tau * 0.02, kappa: 1.0, skip_roots: c.collision.skip_roots };
+    let hard =
+        CollisionParams { tau: c.collision.tau * HARD_TAU_FRACTION, kappa: 1.0, skip_roots: c.collision.skip_roots };
     for _ in 1..passes {
-        if max_segment_error(s, &c.rest) < 1e-3 {
+        if max_segment_error(s, &c.rest) < SEGMENT_TOLERANCE {
             break;
         }
-        preserve_lengths(s, &c.rest)?;
-        project_collisions(s, bvh, hard)?;
+        tape.preserve_lengths(s, &c.rest)?;
+        tape.project_collisions(s, bvh, hard)?;
     }
     Ok(first)
 }
@@ -415,6 +466,76 @@ fn max_segment_error(s: &FlatStrands, rest: &FlatStrands) -> f32 {
         .zip(rest.segment_lengths())
         .map(|(a, b)| ((a - b) / b.max(1e-30)).abs())
         .fold(0.0, f32::max)
+}
+
+impl StrandScene {
+    /// The stylization of the guides `deformed` (layout of the rest guides,
+    /// the leading strands of [`StrandScene::rest`]) carried back to the
+    /// groom's own control points `input`, so the written groom has the
+    /// input's topology (strand count and points per strand) and can replace
+    /// it in the artist's scene.
+    ///
+    /// The optimization runs on splines re-sampled to the preset's point
+    /// count; every input control point lies on its strand's spline, so it
+    /// takes the displacement of the closest point of its rest guide polyline
+    /// (interpolated along the segment), and the result goes through the
+    /// same constraints as an iterate, with the input's own segment lengths.
+    pub fn to_input_topology(&self, input: &FlatStrands, deformed: &FlatStrands) -> Result<FlatStrands, PipelineError> {
+        let g = self.guide_count;
+        if input.strand_count() != g || deformed.strand_count() != g || deformed.offsets[..] != self.rest.offsets[..=g]
+        {
+            return Err(PipelineError::Parameter(format!(
+                "output topology: {} input strands and {} stylized guides for a scene of {g} guides",
+                input.strand_count(),
+                deformed.strand_count()
+            )));
+        }
+        let mut out = input.clone();
+        // Roots under the scalp come out as in the rest groom.
+        if let Some(bvh) = &self.constraints.collider {
+            lift_roots(&mut out, bvh, self.lift_margin);
+        }
+        let lifted = out.clone();
+        for k in 0..g {
+            let (rest, def) = (self.rest.strand(k), deformed.strand(k));
+            for p in &mut out.points[input.range(k)] {
+                let (seg, t) = closest_on_polyline(rest, *p);
+                let j = (seg + 1).min(rest.len() - 1);
+                let d0 = sub(def[seg], rest[seg]);
+                let d1 = sub(def[j], rest[j]);
+                *p = add(*p, add(scale(d0, 1.0 - t), scale(d1, t)));
+            }
+            // The root stays where the input has it (on the scalp).
+            out.points[input.offsets[k]] = lifted.points[input.offsets[k]];
+        }
+        let c = Constraints {
+            rest: lifted,
+            collider: self.constraints.collider.clone(),
+            collision: self.constraints.collision,
+        };
+        enforce(&mut out, &c, 200, &mut ConstraintTape::default())?;
+        Ok(out)
+    }
+}
+
+/// Segment index and parameter `t ∈ [0, 1]` of the point of polyline `pts`
+/// closest to `p`.
+fn closest_on_polyline(pts: &[V3], p: V3) -> (usize, f32) {
+    if pts.len() < 2 {
+        return (0, 0.0);
+    }
+    let mut best = (f32::INFINITY, 0, 0.0);
+    for (i, w) in pts.windows(2).enumerate() {
+        let e = sub(w[1], w[0]);
+        let ee = dot(e, e);
+        let t = if ee > 0.0 { (dot(sub(p, w[0]), e) / ee).clamp(0.0, 1.0) } else { 0.0 };
+        let q = add(w[0], scale(e, t));
+        let d = norm(sub(p, q));
+        if d < best.0 {
+            best = (d, i, t);
+        }
+    }
+    (best.1, best.2)
 }
 
 /// The undeformed groom `x₀` the stylization starts from: real grooms do not
@@ -432,19 +553,30 @@ fn resolve_rest(
     diag: f32,
 ) -> Result<FlatStrands, PipelineError> {
     let mut s = raw.clone();
+    lift_roots(&mut s, bvh, lift_margin(diag));
+    let c = Constraints { rest: raw.clone(), collider: Some(bvh.clone()), collision };
+    enforce(&mut s, &c, 200, &mut ConstraintTape::default())?;
+    Ok(s)
+}
+
+/// Margin of [`lift_roots`] for a mesh of bounding-box diagonal `diag`.
+fn lift_margin(diag: f32) -> f32 {
+    1e-4 * diag
+}
+
+/// Moves every strand whose root is inside the mesh rigidly out along the
+/// root's normal, to `margin` outside (see [`resolve_rest`]).
+fn lift_roots(s: &mut FlatStrands, bvh: &MeshBvh, margin: f32) {
     for k in 0..s.strand_count() {
         let r = s.range(k);
         let hit = bvh.closest_point(s.points[r.start]);
         if hit.signed_distance < 0.0 {
-            let push = scale(hit.normal, -hit.signed_distance + 1e-4 * diag);
+            let push = scale(hit.normal, -hit.signed_distance + margin);
             for p in &mut s.points[r] {
                 *p = add(*p, push);
             }
         }
     }
-    let c = Constraints { rest: raw.clone(), collider: Some(bvh.clone()), collision };
-    enforce(&mut s, &c, 200)?;
-    Ok(s)
 }
 
 /// Centre, radius and front/up axes (see the module notes).
@@ -565,52 +697,146 @@ impl StylizeResult {
     }
 }
 
-/// Style targets of one scale: the painting at the scale's size, as NNST
-/// hyper-columns.
-struct ScaleStyle {
-    target: NnstTarget,
+/// Style targets of one scale: `style` (RGB in `[0, 1]`) as grey, resized
+/// to `height` rows, as NNST hyper-columns of its VGG taps.
+pub fn style_target(vgg: &Vgg19, style: &Image, height: usize) -> Result<NnstTarget, PipelineError> {
+    let img = nst3d_io::image::resize_to_height(&luminance3(style), height);
+    let feats = vgg.forward(&img, &NNST_LAYERS, false);
+    Ok(NnstTarget::from_style_features(feats.taps(), &NnstParams::default())?)
 }
 
-impl ScaleStyle {
-    fn new(vgg: &Vgg19, style: &Image, height: usize) -> Result<Self, PipelineError> {
-        let img = nst3d_io::image::resize_to_height(style, height);
-        let feats = vgg.forward(&img, &NNST_LAYERS, false);
-        Ok(ScaleStyle { target: NnstTarget::from_style_features(feats.taps(), &NnstParams::default())? })
-    }
-}
-
-/// Targets of one view: VGG taps of the undeformed render matched to the style.
-fn match_view(
+/// Targets of one view (eq. 2): VGG taps of the undeformed render matched
+/// to the style; also returns the undeformed groom's loss against them.
+pub fn match_view(
     scene: &StrandScene,
     vgg: &Vgg19,
-    style: &ScaleStyle,
+    style: &NnstTarget,
     cam: &SplatCamera,
 ) -> Result<(NnstMatch, f32), PipelineError> {
     let img = scene.render(&scene.undeformed, cam)?;
     let feats = vgg.forward(&img, &NNST_LAYERS, false);
-    let m = style.target.match_content(feats.taps())?;
+    let m = style.match_content(feats.taps())?;
     let (loss, _) = nnst_loss_matched(feats.taps(), &m)?;
     Ok((m, loss))
 }
 
-/// Loss and gradient w.r.t. the velocities for one view.
-fn view_loss_grad(
+/// AdamW's learning rate at scale `l`: the preset's `η` times
+/// [`StylizeParams::lr_scale`], in units of the groom radius (module notes).
+pub fn scale_learning_rate(scene: &StrandScene, params: &StylizeParams, l: usize) -> f32 {
+    params.preset.learning_rates[l] * params.lr_scale * scene.frame.radius
+}
+
+/// Wall time of each stage of one [`iteration`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StageTimes {
+    /// Eq. 5: `p + W v`, roots pinned.
+    pub transport: Duration,
+    /// Length preservation and collision projection ([`StrandScene::constrain`]).
+    pub constraints: Duration,
+    /// Splat render (projection, binning, compositing).
+    pub render: Duration,
+    /// VGG-19 forward to relu4_1, keeping what the backward needs.
+    pub vgg_forward: Duration,
+    /// NNST loss against the cached targets and its gradient at the taps.
+    pub loss: Duration,
+    /// VGG-19 backward to the image.
+    pub vgg_backward: Duration,
+    /// Splat backward to the control points.
+    pub splat_backward: Duration,
+    /// Back through the constraint projections to the transported points.
+    pub constraints_backward: Duration,
+    /// `Wᵀ`: point gradients to the velocities.
+    pub field_backward: Duration,
+    /// The AdamW step.
+    pub optimizer: Duration,
+}
+
+impl StageTimes {
+    /// The stages' names and times, in pipeline order.
+    pub fn stages(&self) -> [(&'static str, Duration); 10] {
+        [
+            ("transport", self.transport),
+            ("constraints", self.constraints),
+            ("render", self.render),
+            ("vgg_forward", self.vgg_forward),
+            ("nnst_loss", self.loss),
+            ("vgg_backward", self.vgg_backward),
+            ("splat_backward", self.splat_backward),
+            ("constraints_backward", self.constraints_backward),
+            ("field_backward", self.field_backward),
+            ("adamw", self.optimizer),
+        ]
+    }
+
+    /// Sum of the stages.
+    pub fn total(&self) -> Duration {
+        self.stages().iter().map(|s| s.1).sum()
+    }
+}
+
+/// What one [`iteration`] did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepReport {
+    /// NNST loss of the view before the step.
+    pub loss: f32,
+    /// The constraints' first collision pass on this iterate.
+    pub stats: CollisionStats,
+    /// Where the time went.
+    pub times: StageTimes,
+}
+
+/// One optimization step of Alg. 1 on a view whose targets are already
+/// matched: deform by `v` (flat `3 × samples`), render through `cam`, VGG-19,
+/// NNST loss against `matched`, the chain backward to `v`, and one `adam`
+/// step. A non-finite loss leaves `v` untouched and is an error.
+/// [`stylize`] runs exactly this per iteration; the `strands-iter`
+/// benchmark times it.
+pub fn iteration(
     scene: &StrandScene,
     vgg: &Vgg19,
-    strands: &FlatStrands,
     cam: &SplatCamera,
     matched: &NnstMatch,
-) -> Result<(f32, Vec<[f32; 3]>), PipelineError> {
-    let s = scene.strands(strands);
+    v: &mut [f32],
+    adam: &mut Adam,
+) -> Result<StepReport, PipelineError> {
+    let mut times = StageTimes::default();
+    let mut clock = Instant::now();
+    let mut lap = |slot: &mut Duration| {
+        let now = Instant::now();
+        *slot = now - clock;
+        clock = now;
+    };
+    let mut strands = scene.transport(&unflatten(v))?;
+    lap(&mut times.transport);
+    let mut tape = ConstraintTape::default();
+    let stats = scene.constrain_recorded(&mut strands, &mut tape)?;
+    lap(&mut times.constraints);
+    let s = scene.strands(&strands);
     let (img, cache) = render(&s, cam, &scene.style)?;
+    lap(&mut times.render);
     let fwd = vgg.forward(&img, &NNST_LAYERS, true);
+    lap(&mut times.vgg_forward);
     let (loss, tap_grads) = nnst_loss_matched(fwd.taps(), matched)?;
+    lap(&mut times.loss);
+    if !loss.is_finite() {
+        return Err(PipelineError::Diverged(format!("loss is {loss}")));
+    }
     let grad_img = vgg.backward(&fwd, &tap_grads);
-    let mut grad_points = render_backward(&s, cam, &scene.style, &cache, &grad_img)?;
+    drop(fwd);
+    lap(&mut times.vgg_backward);
+    let grad_points = render_backward(&s, cam, &scene.style, &cache, &grad_img)?;
+    lap(&mut times.splat_backward);
+    let mut grad_points = tape.backward(&scene.constraints.rest, &grad_points)?;
+    // The roots are pinned in `transport`: nothing reaches `v` through them.
     for &o in &strands.offsets[..strands.strand_count()] {
         grad_points[o] = [0.0; 3];
     }
-    Ok((loss, scene.field.backward(&grad_points)?))
+    lap(&mut times.constraints_backward);
+    let grad = flatten(&scene.field.backward(&grad_points)?);
+    lap(&mut times.field_backward);
+    adam.step(v, &grad);
+    lap(&mut times.optimizer);
+    Ok(StepReport { loss, stats, times })
 }
 
 /// Stylizes the scene's groom with `style` (RGB in `[0, 1]`; its luminance
@@ -622,6 +848,46 @@ pub fn stylize(
     params: &StylizeParams,
     progress: &mut dyn FnMut(&IterationReport),
 ) -> Result<StylizeResult, PipelineError> {
+    stylize_with(scene, style, vgg, params, FrameHooks::default(), progress)
+}
+
+/// Where an iteration of [`stylize_with`] stands, before it runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct IterationClock {
+    /// Scale index (0-based).
+    pub scale: usize,
+    /// Iteration within the scale (0-based).
+    pub iteration: u32,
+    /// Iterations of this scale.
+    pub iterations: u32,
+    /// Iterations of the whole frame already run (0-based index of this one).
+    pub done: u32,
+    /// Iterations of the whole frame.
+    pub total: u32,
+}
+
+/// What an animated sequence adds to one frame's optimization (Alg. 1 lines
+/// 5 and 7); the default is the static case.
+#[derive(Default)]
+pub struct FrameHooks<'a> {
+    /// Velocities `v_t` at the field's samples to start from instead of
+    /// zero (Alg. 1 line 5 starts from zero).
+    pub initial: Option<&'a [[f32; 3]]>,
+    /// Called before every iteration's transport with `v_t`, which it may
+    /// change in place: the EMA of eq. 8 towards the previous frame's field.
+    #[allow(clippy::type_complexity)]
+    pub before_iteration: Option<&'a mut dyn FnMut(IterationClock, &mut [[f32; 3]]) -> Result<(), PipelineError>>,
+}
+
+/// [`stylize`] with a sequence's per-frame [`FrameHooks`].
+pub fn stylize_with(
+    scene: &StrandScene,
+    style: &Image,
+    vgg: &Vgg19,
+    params: &StylizeParams,
+    mut hooks: FrameHooks<'_>,
+    progress: &mut dyn FnMut(&IterationReport),
+) -> Result<StylizeResult, PipelineError> {
     params.validate()?;
     if style.channels != 3 || style.height < 16 || style.width < 16 {
         return Err(PipelineError::Parameter(format!(
@@ -629,12 +895,18 @@ pub fn stylize(
             style.channels, style.height, style.width
         )));
     }
-    let grey = luminance3(style);
     let p = params.preset;
     vgg.prepare(VggLayer::Relu4_1);
 
     let n = scene.field.sample_count();
-    let mut v = vec![0.0f32; 3 * n];
+    let mut v = match hooks.initial {
+        Some(v0) if v0.len() != n => {
+            return Err(StrandError::Mismatch { what: "initial velocities", expected: n, got: v0.len() }.into())
+        }
+        Some(v0) => flatten(v0),
+        None => vec![0.0f32; 3 * n],
+    };
+    let (mut done, total) = (0u32, params.iterations.iter().sum::<u32>());
     let mut adam = Adam::adamw(3 * n, 0.0, params.weight_decay);
     let mut history = Vec::new();
 
@@ -651,9 +923,9 @@ pub fn stylize(
     for (l, &iters) in params.iterations.iter().enumerate() {
         let views = &angles[first..first + per_scale[l]];
         first += per_scale[l];
-        let sstyle = ScaleStyle::new(vgg, &grey, params.style_height(l))?;
+        let sstyle = style_target(vgg, style, params.style_height(l))?;
         if iters > 0 {
-            adam.lr = p.learning_rates[l] * params.lr_scale * scene.frame.radius;
+            adam.lr = scale_learning_rate(scene, params, l);
             let mut cache: HashMap<usize, (SplatCamera, NnstMatch)> = HashMap::new();
             for m in 0..iters {
                 let k = m as usize % views.len();
@@ -663,24 +935,25 @@ pub fn stylize(
                     cache.insert(k, (cam, matched));
                 }
                 let (cam, matched) = &cache[&k];
-                let vv = unflatten(&v);
-                let (strands, stats) = scene.deform(&vv)?;
-                let (loss, grad) = view_loss_grad(scene, vgg, &strands, cam, matched)?;
-                if !loss.is_finite() {
-                    return Err(PipelineError::Diverged(format!(
-                        "loss is {loss} at scale {} iteration {}",
-                        l + 1,
-                        m + 1
-                    )));
+                if let Some(hook) = hooks.before_iteration.as_mut() {
+                    let mut vv = unflatten(&v);
+                    hook(IterationClock { scale: l, iteration: m, iterations: iters, done, total }, &mut vv)?;
+                    v = flatten(&vv);
                 }
-                history.push(loss);
-                adam.step(&mut v, &flatten(&grad));
+                done += 1;
+                let step = iteration(scene, vgg, cam, matched, &mut v, &mut adam).map_err(|e| match e {
+                    PipelineError::Diverged(why) => {
+                        PipelineError::Diverged(format!("{why} at scale {} iteration {}", l + 1, m + 1))
+                    }
+                    e => e,
+                })?;
+                history.push(step.loss);
                 progress(&IterationReport {
                     scale: l,
                     iteration: m + 1,
                     iterations: iters,
-                    loss,
-                    inside: stats.inside,
+                    loss: step.loss,
+                    inside: step.stats.inside,
                 });
             }
         }
@@ -707,7 +980,7 @@ pub fn stylize(
         let feats = vgg.forward(&img, &NNST_LAYERS, false);
         before += l0 as f64;
         after += nnst_loss_matched(feats.taps(), &matched)?.0 as f64;
-        rematched += nnst_loss(feats.taps(), &finest.target)?.0 as f64;
+        rematched += nnst_loss(feats.taps(), &finest)?.0 as f64;
     }
     let k = eval_angles.len() as f64;
     let g = scene.guide_count;

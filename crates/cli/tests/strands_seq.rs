@@ -1,0 +1,143 @@
+//! `nst3d strands generate` and `nst3d strands --frames` on a tiny wind-blown
+//! fur ball: frame patterns expand, every frame is written and reads back
+//! with the input's topology, the sequence reports its flicker; a frame with
+//! other strands, or a pattern without a placeholder, fails with one line
+//! before any stylization.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use nst3d_io::groom::read_groom;
+
+fn shared(rel: &str) -> PathBuf {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
+    assert!(p.exists(), "shared test data missing: {} (the repo expects ../shared beside it)", p.display());
+    p
+}
+
+fn nst3d(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_nst3d")).current_dir(dir).args(args).output().expect("run nst3d")
+}
+
+fn ok(o: &Output) -> String {
+    let (out, err) = (String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "nst3d failed:\n{out}\n{err}");
+    out.into_owned()
+}
+
+/// The one error line of a failed run.
+fn fails(o: &Output) -> String {
+    assert!(!o.status.success(), "expected failure: {}", String::from_utf8_lossy(&o.stdout));
+    let err = String::from_utf8_lossy(&o.stderr).trim().to_string();
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    err
+}
+
+/// Frames 1-3 of a 30-strand fur ball in wind, and its sphere.
+fn generate(dir: &Path, strands: &str, frames: &str) -> Output {
+    nst3d(
+        dir,
+        &[
+            "strands",
+            "generate",
+            "fur-ball",
+            "--frames",
+            frames,
+            "--strands",
+            strands,
+            "--points",
+            "5",
+            "--out",
+            "anim/fur_####.ply",
+            "--mesh-out",
+            "sphere.ply",
+        ],
+    )
+}
+
+fn stylize_args<'a>(style: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
+        "strands",
+        "--groom",
+        "anim/fur_####.ply",
+        "--mesh",
+        "sphere.ply",
+        "--style",
+        style,
+        "--preset",
+        "fur-ball",
+        "--out",
+        "out/fur_%04d.ply",
+        "--render-size",
+        "48",
+        "--iters",
+        "3",
+        "--proxies",
+        "20",
+        "--views-per-scale",
+        "1",
+        "--lr-scale",
+        "1",
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
+#[test]
+fn generates_and_stylizes_a_frame_pattern() {
+    let dir = tempfile::tempdir().unwrap();
+    let style = shared("styles/starry_night.jpg");
+    let style = style.to_str().unwrap();
+    let said = ok(&generate(dir.path(), "30", "1-3"));
+    assert!(said.contains("3 frames"), "{said}");
+    let (f1, f2) = (
+        read_groom(&dir.path().join("anim/fur_0001.ply")).unwrap(),
+        read_groom(&dir.path().join("anim/fur_0002.ply")).unwrap(),
+    );
+    assert_eq!((f1.strand_count(), f1.strands[0].points.len()), (30, 5));
+    // The wind moves the strands between frames, roots stay.
+    assert_ne!(f1.strands[0].points[4], f2.strands[0].points[4]);
+    assert_eq!(f1.strands[0].points[0], f2.strands[0].points[0]);
+
+    let out = ok(&nst3d(dir.path(), &stylize_args(style, &["--frames", "1-3", "--preview", "prev/p_####.png"])));
+    for f in 1..=3 {
+        let g = read_groom(&dir.path().join(format!("out/fur_{f:04}.ply"))).unwrap();
+        // The input's topology (5 points per strand), not the preset's 9.
+        assert_eq!((g.strand_count(), g.strands[0].points.len()), (30, 5), "frame {f}");
+        assert!(dir.path().join(format!("prev/p_{f:04}.png")).exists());
+        assert!(out.contains(&format!("frame {f}: NNST loss")), "{out}");
+    }
+    assert!(!dir.path().join("out/fur_0004.ply").exists());
+    let summary = out.lines().find(|l| l.starts_with("sequence: 3 frames (EMA sigma 1 nu 0.6 + 1-euro")).expect(&out);
+    let flicker: f64 = summary.split("flicker ").nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap();
+    assert!(flicker.is_finite() && flicker >= 0.0, "{summary}");
+    assert!(summary.contains("0 control points inside the mesh"), "{summary}");
+}
+
+#[test]
+fn bad_sequences_fail_before_stylizing() {
+    let dir = tempfile::tempdir().unwrap();
+    let style = shared("styles/starry_night.jpg");
+    let style = style.to_str().unwrap();
+    ok(&generate(dir.path(), "30", "1-2"));
+    // Frame 3 from another groom: 29 strands.
+    ok(&generate(dir.path(), "29", "3"));
+    let err = fails(&nst3d(dir.path(), &stylize_args(style, &["--frames", "1-3"])));
+    assert!(err.contains("frame 3") && err.contains("29 strands, the first frame has 30"), "{err}");
+    assert!(!dir.path().join("out").exists(), "nothing is written");
+
+    let err = fails(&nst3d(dir.path(), &stylize_args(style, &["--frames", "1-2,4"])));
+    assert!(err.contains("fur_0004.ply"), "{err}");
+    let mut args = stylize_args(style, &["--frames", "1-2"]);
+    let out = args.iter().position(|&a| a == "out/fur_%04d.ply").unwrap();
+    args[out] = "out/fur.ply";
+    let err = fails(&nst3d(dir.path(), &args));
+    assert!(err.contains("--out") && err.contains("placeholder"), "{err}");
+    let err = fails(&nst3d(dir.path(), &stylize_args(style, &["--frames", "3-1"])));
+    assert!(err.contains("bad frame spec"), "{err}");
+    let err = fails(&nst3d(dir.path(), &stylize_args(style, &["--frames", "1-2", "--style-flow", "1,2"])));
+    assert!(err.contains("--style-flow"), "{err}");
+    let err = fails(&nst3d(dir.path(), &["strands", "generate", "fur-ball", "--out", "x.ply", "--fps", "0"]));
+    assert!(err.contains("--fps"), "{err}");
+}
