@@ -128,6 +128,17 @@ fn bad_grooms_give_one_line_errors() {
     std::fs::write(&nan_path, &nan).unwrap();
     assert_fails(&strands(&nan_path, &out, &[]), &out, "not finite");
 
+    // A strand of a single point is not a curve.
+    let one_path = dir.path().join("one.usda");
+    std::fs::write(
+        &one_path,
+        "#usda 1.0\n\ndef BasisCurves \"Groom\"\n{\n    uniform token type = \"linear\"\n    \
+         int[] curveVertexCounts = [3, 1]\n    \
+         point3f[] points = [(0, 0, 0), (0, 1, 0), (0, 2, 0), (1, 1, 1)]\n}\n",
+    )
+    .unwrap();
+    assert_fails(&strands(&one_path, &out, &[]), &out, "strand 1 has 1 point(s)");
+
     let bad_out = dir.path().join("out.abc");
     assert_fails(&strands(&shared("grooms/Bangs_100.hair"), &bad_out, &[]), &bad_out, ".usda or .ply");
 }
