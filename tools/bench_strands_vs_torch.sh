@@ -19,18 +19,7 @@ SIZE=${1:-600}
 ROUNDS=${2:-3}
 ITERS=${3:-3}
 DUMP=${DUMP:-/tmp/nst3d_strands_dump}
-PY=${TORCH_PYTHON:-}
-if [ -z "$PY" ]; then
-  if [ ! -x .venv-torch/bin/python ]; then
-    python3 -m venv .venv-torch
-    .venv-torch/bin/pip install -q torch numpy
-  fi
-  PY=.venv-torch/bin/python
-fi
-cargo build --release -q -p nst3d-cli
-peak() { grep -E "Maximum resident" "$1" | awk '{printf "%.0f", $NF/1024}'; }
-field() { grep -E "^$1 " "$2" | tail -1 | awk '{print $2}'; }
-med() { printf '%s\n' "$@" | sort -n | awk '{a[NR]=$1} END{print (NR%2)?a[(NR+1)/2]:(a[NR/2]+a[NR/2+1])/2}'; }
+. tools/bench_common.sh
 log=$(mktemp -d)
 ours=(); theirs=(); ours_cpu=(); theirs_cpu=()
 for r in $(seq "$ROUNDS"); do

@@ -11,16 +11,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 N=${1:-128}
 ROUNDS=${2:-3}
-PY=${TORCH_PYTHON:-}
-if [ -z "$PY" ]; then
-  if [ ! -x .venv-torch/bin/python ]; then
-    python3 -m venv .venv-torch
-    .venv-torch/bin/pip install -q torch numpy
-  fi
-  PY=.venv-torch/bin/python
-fi
-cargo build --release -q -p nst3d-cli
-peak() { grep -E "Maximum resident" "$1" | awk '{printf "%.0f", $NF/1024}'; }
+. tools/bench_common.sh
 for mode in velocity density; do
   ours=(); theirs=(); ours_mb=0; theirs_mb=0
   for r in $(seq "$ROUNDS"); do
@@ -31,7 +22,7 @@ for mode in velocity density; do
     echo "$mode round $r: nst3d ${o} ms  torch ${t} ms  ratio $(echo "scale=3; $o / $t" | bc)"
     ours+=("$o"); theirs+=("$t")
   done
-  mo=$(printf '%s\n' "${ours[@]}" | sort -n | awk '{a[NR]=$1} END{print (NR%2)?a[(NR+1)/2]:(a[NR/2]+a[NR/2+1])/2}')
-  mt=$(printf '%s\n' "${theirs[@]}" | sort -n | awk '{a[NR]=$1} END{print (NR%2)?a[(NR+1)/2]:(a[NR/2]+a[NR/2+1])/2}')
+  mo=$(med "${ours[@]}")
+  mt=$(med "${theirs[@]}")
   echo "$mode N=$N: median nst3d ${mo} ms, torch ${mt} ms, ratio $(echo "scale=3; $mo / $mt" | bc); peak RSS nst3d ${ours_mb} MB, torch ${theirs_mb} MB"
 done
