@@ -222,7 +222,7 @@ fn write_npy(path: &Path, descr: &str, shape: &[usize], bytes: &[u8]) -> std::io
     out.extend_from_slice(&(header.len() as u16).to_le_bytes());
     out.extend_from_slice(header.as_bytes());
     out.extend_from_slice(bytes);
-    std::fs::write(path, out)
+    nst3d_io::atomic::write_atomic(path, |w| w.write_all(&out))
 }
 
 fn npy_f32(dir: &Path, name: &str, shape: &[usize], v: &[f32]) -> std::io::Result<()> {
@@ -343,7 +343,7 @@ fn dump_scene(
         eps = adam.eps,
         wd = adam.weight_decay,
     );
-    std::fs::write(dir.join("meta.json"), meta)?;
+    nst3d_io::atomic::write_atomic(&dir.join("meta.json"), |w| w.write_all(meta.as_bytes()))?;
     Ok(())
 }
 

@@ -281,6 +281,9 @@ pub fn project_collisions_recorded(
 #[derive(Clone, Debug, Default)]
 pub struct ConstraintTape {
     steps: Vec<TapeStep>,
+    /// Applies projections without recording them (no copies of the groom
+    /// for a backward that will not run).
+    off: bool,
 }
 
 #[derive(Clone, Debug)]
@@ -292,8 +295,17 @@ enum TapeStep {
 }
 
 impl ConstraintTape {
+    /// A tape that records nothing: the projections run as usual, for
+    /// callers that need no gradient.
+    pub fn off() -> Self {
+        ConstraintTape { steps: Vec::new(), off: true }
+    }
+
     /// Length preservation of `strands` against `rest`, recorded.
     pub fn preserve_lengths(&mut self, strands: &mut FlatStrands, rest: &FlatStrands) -> Result<(), StrandError> {
+        if self.off {
+            return preserve_lengths(strands, rest);
+        }
         let input = strands.clone();
         preserve_lengths(strands, rest)?;
         self.steps.push(TapeStep::Lengths(input));
@@ -308,7 +320,9 @@ impl ConstraintTape {
         params: CollisionParams,
     ) -> Result<CollisionStats, StrandError> {
         let (stats, record) = project_collisions_recorded(strands, bvh, params)?;
-        self.steps.push(TapeStep::Collisions(record));
+        if !self.off {
+            self.steps.push(TapeStep::Collisions(record));
+        }
         Ok(stats)
     }
 
@@ -342,7 +356,7 @@ pub struct Constraints {
 impl Constraints {
     /// Applies length preservation then collision projection in place.
     pub fn apply(&self, strands: &mut FlatStrands) -> Result<CollisionStats, StrandError> {
-        self.apply_recorded(strands, &mut ConstraintTape::default())
+        self.apply_recorded(strands, &mut ConstraintTape::off())
     }
 
     /// [`Constraints::apply`], recording both projections on `tape`.

@@ -388,7 +388,7 @@ impl StrandScene {
     /// The constraint half of [`StrandScene::deform`] (see [`enforce`]), in
     /// place; returns the first pass's collision statistics.
     pub fn constrain(&self, s: &mut FlatStrands) -> Result<CollisionStats, PipelineError> {
-        self.constrain_recorded(s, &mut ConstraintTape::default())
+        self.constrain_recorded(s, &mut ConstraintTape::off())
     }
 
     /// [`StrandScene::constrain`], recording every projection on `tape` so
@@ -513,7 +513,7 @@ impl StrandScene {
             collider: self.constraints.collider.clone(),
             collision: self.constraints.collision,
         };
-        enforce(&mut out, &c, 200, &mut ConstraintTape::default())?;
+        enforce(&mut out, &c, 200, &mut ConstraintTape::off())?;
         Ok(out)
     }
 }
@@ -555,7 +555,7 @@ fn resolve_rest(
     let mut s = raw.clone();
     lift_roots(&mut s, bvh, lift_margin(diag));
     let c = Constraints { rest: raw.clone(), collider: Some(bvh.clone()), collision };
-    enforce(&mut s, &c, 200, &mut ConstraintTape::default())?;
+    enforce(&mut s, &c, 200, &mut ConstraintTape::off())?;
     Ok(s)
 }
 
