@@ -89,6 +89,7 @@ class Scene:
         self.targets = ld("targets.npy")
         self.style_columns = ld("style_columns.npy")
         self.render0 = ld("render0.npy")
+        self.grad0 = ld("grad0.npy") if (d / "grad0.npy").exists() else None
         self.is_root = torch.zeros(P, dtype=torch.bool)
         self.is_root[self.offsets[:-1]] = True
         r = self.rest.double().view(self.S, self.n, 3)
@@ -308,6 +309,14 @@ def main():
             ref = sc.meta["nst3d_loss_iter0"]
             l0 = loss.item()
             print(f"loss_iter0 torch {l0:.6f} nst3d {ref:.6f} (relative difference {abs(l0 - ref) / ref:.1e})")
+            if sc.grad0 is not None:
+                # Autograd's gradient at v = 0 against nst3d's hand-written chain
+                # (constraint tape, splat, VGG and field backwards).
+                g, r = v.grad.detach().double().flatten(), sc.grad0.double().flatten()
+                cos = float(g @ r / (g.norm() * r.norm()).clamp_min(1e-30))
+                rel = float((g - r).norm() / r.norm().clamp_min(1e-30))
+                print(f"grad_iter0 cosine {cos:.6f}, relative L2 difference {rel:.1e} "
+                      f"(|torch| {float(g.norm()):.3e}, |nst3d| {float(r.norm()):.3e})")
         else:
             times.append((lap[-1] - w0) * 1e3)
             cpu.append((time.process_time() - c0) * 1e3)

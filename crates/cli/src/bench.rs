@@ -6,12 +6,13 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
+use nst3d_features::Vgg19;
 use nst3d_features::VggLayer;
 use nst3d_io::groom::read_groom;
 use nst3d_io::mesh::read_mesh;
 use nst3d_strands::pipeline::{
-    iteration, match_view, poisson_view_angles, scale_learning_rate, style_target, Adam, NnstMatch, NnstTarget,
-    SplatCamera, StrandScene, StylizeParams, CONSTRAINT_PASSES, HARD_TAU_FRACTION, SEGMENT_TOLERANCE,
+    iteration, loss_and_gradient, match_view, poisson_view_angles, scale_learning_rate, style_target, Adam, NnstMatch,
+    NnstTarget, SplatCamera, StrandScene, StylizeParams, CONSTRAINT_PASSES, HARD_TAU_FRACTION, SEGMENT_TOLERANCE,
 };
 use nst3d_strands::Preset;
 use nst3d_stylize::{bench, Mode};
@@ -145,7 +146,7 @@ fn strands_iter(args: &BenchArgs) -> Result<()> {
     let mut v = vec![0.0f32; 3 * samples];
     let mut adam = Adam::adamw(3 * samples, scale_learning_rate(&scene, &params, finest), params.weight_decay);
     if let Some(dir) = &a.dump {
-        dump_scene(dir, &scene, &cam, &matched, &target, &adam, loss0)
+        dump_scene(dir, &scene, &vgg, &cam, &matched, &target, &adam, loss0)
             .with_context(|| format!("--dump {}", dir.display()))?;
     }
     // One warm-up iteration (its loss is iteration 0's), then the timed ones.
@@ -243,9 +244,11 @@ fn json_v3(v: [f32; 3]) -> String {
 /// `.npy` arrays plus `meta.json` (see tools/bench/strands_iter_torch.py).
 /// The collision constraint is handed over as each rest point's closest
 /// surface point and outward direction (the peer has no BVH).
+#[allow(clippy::too_many_arguments)]
 fn dump_scene(
     dir: &Path,
     scene: &StrandScene,
+    vgg: &Vgg19,
     cam: &SplatCamera,
     matched: &NnstMatch,
     target: &NnstTarget,
@@ -291,6 +294,10 @@ fn dump_scene(
     npy_f32(dir, "targets.npy", &[t.channels, t.height, t.width], &t.data)?;
     let c = target.columns();
     npy_f32(dir, "style_columns.npy", &[c.channels, c.height, c.width], &c.data)?;
+    // nst3d's gradient at v = 0, for the peer's autograd to check.
+    let samples = scene.field.sample_count();
+    let (_, grad0) = loss_and_gradient(scene, vgg, cam, matched, &vec![0.0; 3 * samples])?;
+    npy_f32(dir, "grad0.npy", &[samples, 3], &grad0)?;
     let img = scene.render(&scene.undeformed, cam)?;
     npy_f32(dir, "render0.npy", &[img.channels, img.height, img.width], &img.data)?;
     let st = &scene.style;

@@ -799,6 +799,25 @@ pub fn iteration(
     v: &mut [f32],
     adam: &mut Adam,
 ) -> Result<StepReport, PipelineError> {
+    let (mut report, grad) = loss_and_gradient(scene, vgg, cam, matched, v)?;
+    let clock = Instant::now();
+    adam.step(v, &grad);
+    report.times.optimizer = clock.elapsed();
+    Ok(report)
+}
+
+/// The forward and backward of one [`iteration`] without the optimizer
+/// step: the view's NNST loss at `v` and its gradient with respect to `v`
+/// (flat, like `v`). `report.times.optimizer` is zero. The `strands-iter`
+/// benchmark's dump hands this gradient to the PyTorch peer, whose autograd
+/// checks it.
+pub fn loss_and_gradient(
+    scene: &StrandScene,
+    vgg: &Vgg19,
+    cam: &SplatCamera,
+    matched: &NnstMatch,
+    v: &[f32],
+) -> Result<(StepReport, Vec<f32>), PipelineError> {
     let mut times = StageTimes::default();
     let mut clock = Instant::now();
     let mut lap = |slot: &mut Duration| {
@@ -834,9 +853,7 @@ pub fn iteration(
     lap(&mut times.constraints_backward);
     let grad = flatten(&scene.field.backward(&grad_points)?);
     lap(&mut times.field_backward);
-    adam.step(v, &grad);
-    lap(&mut times.optimizer);
-    Ok(StepReport { loss, stats, times })
+    Ok((StepReport { loss, stats, times }, grad))
 }
 
 /// Stylizes the scene's groom with `style` (RGB in `[0, 1]`; its luminance
