@@ -182,12 +182,20 @@ fn job_hash(args: &VolumeArgs, run_paths: &[PathBuf]) -> Result<u64> {
         args.camera_seed,
         args.weights,
     );
+    let mut read = vec![args.style.clone()];
+    read.extend(args.camera_file.clone());
+    job_fingerprint(&settings, &read, run_paths)
+}
+
+/// A stable hash of a job: its `settings` text, the contents of the files
+/// in `read` (small: a painting, a camera file) and the path, size and
+/// modification time of the files in `stamped` (the input frames).
+pub(crate) fn job_fingerprint(settings: &str, read: &[PathBuf], stamped: &[PathBuf]) -> Result<u64> {
     let mut h = fnv1a(settings.as_bytes(), 0xcbf2_9ce4_8422_2325);
-    h = fnv1a(&std::fs::read(&args.style).with_context(|| format!("{}", args.style.display()))?, h);
-    if let Some(c) = &args.camera_file {
-        h = fnv1a(&std::fs::read(c).with_context(|| format!("{}", c.display()))?, h);
+    for p in read {
+        h = fnv1a(&std::fs::read(p).with_context(|| format!("{}", p.display()))?, h);
     }
-    for p in run_paths {
+    for p in stamped {
         let meta = std::fs::metadata(p).with_context(|| format!("{}", p.display()))?;
         let mtime =
             meta.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map_or(0, |d| d.as_nanos());

@@ -29,10 +29,11 @@ use nst3d_strands::{
 };
 
 use crate::progress::Progress;
+use crate::sequence::job_fingerprint;
 use crate::volume::{load_vgg, PREVIEW_HEIGHT};
 
 /// Arguments of `nst3d strands`.
-#[derive(Args)]
+#[derive(Args, Clone, Debug)]
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct StrandsArgs {
     #[command(subcommand)]
@@ -62,6 +63,14 @@ pub struct StrandsArgs {
     /// --groom, --out and --preview are patterns with `####` or `%04d`.
     #[arg(long)]
     frames: Option<String>,
+    /// With --frames: start over, ignoring the state a killed run of the
+    /// same job left (otherwise the run resumes after its last finished frame).
+    #[arg(long, requires = "frames")]
+    force: bool,
+    /// With --frames: folder for the state saved after every frame (default:
+    /// `<out dir>/.nst3d-work/<hash of the job's inputs and settings>`).
+    #[arg(long, requires = "frames")]
+    work_dir: Option<PathBuf>,
     /// Temporal coherency of a sequence: `ema-one-euro` (the paper),
     /// `ema`, `one-euro`, or `off` (every frame stylized on its own).
     #[arg(long, value_enum, default_value = "ema-one-euro")]
@@ -127,7 +136,7 @@ pub struct StrandsArgs {
 }
 
 /// `nst3d strands` subcommands.
-#[derive(Subcommand)]
+#[derive(Subcommand, Clone, Debug)]
 enum StrandsCommand {
     /// Write a procedural groom (fur ball or grass patch, Table 1) and its
     /// mesh, optionally animated by a time-varying wind.
@@ -135,7 +144,7 @@ enum StrandsCommand {
 }
 
 /// Arguments of `nst3d strands generate`.
-#[derive(Args)]
+#[derive(Args, Clone, Debug)]
 struct GenerateArgs {
     /// Which groom.
     #[arg(value_enum)]
@@ -186,7 +195,7 @@ struct GenerateArgs {
 }
 
 /// Procedural grooms.
-#[derive(Clone, Copy, ValueEnum)]
+#[derive(Clone, Copy, Debug, ValueEnum)]
 enum GenerateKind {
     /// Straight fur along the normals of a sphere (Fig. 8).
     FurBall,
@@ -195,7 +204,7 @@ enum GenerateKind {
 }
 
 /// `--temporal` choices.
-#[derive(Clone, Copy, PartialEq, ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, ValueEnum)]
 enum TemporalArg {
     #[value(name = "ema-one-euro")]
     EmaOneEuro,
@@ -206,14 +215,14 @@ enum TemporalArg {
 }
 
 /// `--ema-clock` choices.
-#[derive(Clone, Copy, ValueEnum)]
+#[derive(Clone, Copy, Debug, ValueEnum)]
 enum EmaClockArg {
     Frame,
     Scale,
 }
 
 /// The presets by command-line name.
-#[derive(Clone, Copy, ValueEnum)]
+#[derive(Clone, Copy, Debug, ValueEnum)]
 enum PresetArg {
     ShortHair,
     #[value(name = "short-hair-360")]
@@ -519,10 +528,62 @@ fn run_sequence(args: &StrandsArgs, paths: &Paths, spec: &str, format: OutFormat
     params.flow = flow;
     let t = params.temporal;
     let mut seq = SequenceStylizer::new(&vgg, &painting, params)?;
-    let per_frame: u32 = seq.params().stylize.iterations.iter().sum();
-    let mut progress = Progress::new(per_frame as u64 * frames.len() as u64);
+
+    // Resume: the state saved after the last finished frame of this job.
+    let work = match &args.work_dir {
+        Some(w) => w.clone(),
+        None => {
+            let first_out = out_at(frames[0])?;
+            let dir = first_out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+            dir.join(".nst3d-work").join(format!("{:016x}", strands_job_hash(args, frames, &groom_at, &mesh_at)?))
+        }
+    };
+    let state_path = work.join(STATE_FILE);
+    if args.force && work.exists() {
+        std::fs::remove_dir_all(&work).with_context(|| format!("cannot clear the work folder {}", work.display()))?;
+    }
+    let mut done = 0usize;
     let mut worst = (0.0f64, 0.0f32, 0usize);
-    for &f in frames {
+    if state_path.exists() {
+        let bytes = std::fs::read(&state_path).with_context(|| state_path.display().to_string())?;
+        let extra =
+            seq.restore_state(&bytes).with_context(|| format!("{} (--force starts over)", state_path.display()))?;
+        let &[n, w0, w1, w2] = extra.as_slice() else {
+            bail!("{}: saved state has no frame count (--force starts over)", state_path.display());
+        };
+        done = n as usize;
+        if done > frames.len() {
+            bail!(
+                "{}: saved state has {done} frames done, the job has {} (--force starts over)",
+                state_path.display(),
+                frames.len()
+            );
+        }
+        for &f in &frames[..done] {
+            let out = out_at(f)?;
+            if !out.exists() {
+                bail!(
+                    "{}: output of frame {f} is missing but the saved state in {} has it done; --force starts over",
+                    out.display(),
+                    work.display()
+                );
+            }
+        }
+        worst = (w0, w1 as f32, w2 as usize);
+        if done == frames.len() {
+            eprintln!("all {done} frames already done (state in {}; --force redoes them)", work.display());
+        } else {
+            eprintln!(
+                "resuming after frame {} ({done} of {} done) from {}",
+                frames[done - 1],
+                frames.len(),
+                work.display()
+            );
+        }
+    }
+    let per_frame: u32 = seq.params().stylize.iterations.iter().sum();
+    let mut progress = Progress::new(per_frame as u64 * (frames.len() - done) as u64);
+    for (i, &f) in frames.iter().enumerate().skip(done) {
         let groom_path = groom_at(f)?;
         let groom = read_groom(&groom_path)?;
         let frame_mesh;
@@ -561,6 +622,11 @@ fn run_sequence(args: &StrandsArgs, paths: &Paths, spec: &str, format: OutFormat
             )),
             out.display()
         );
+        // Outputs first, then the state: a kill in between redoes this frame.
+        std::fs::create_dir_all(&work).with_context(|| format!("cannot create the work folder {}", work.display()))?;
+        let state = seq.save_state(&[(i + 1) as f64, worst.0, worst.1 as f64, worst.2 as f64]);
+        nst3d_io::atomic::write_atomic(&state_path, |w| w.write_all(&state))
+            .with_context(|| format!("cannot write {}", state_path.display()))?;
     }
     progress.finish();
     let s = seq.report();
@@ -597,6 +663,30 @@ fn run_sequence(args: &StrandsArgs, paths: &Paths, spec: &str, format: OutFormat
         worst.2
     );
     Ok(())
+}
+
+/// Name of the saved sequence state in the work folder.
+const STATE_FILE: &str = "strands.state";
+
+/// Everything a strand sequence's saved state depends on: the settings
+/// (not `--force`, `--work-dir`), the painting's contents, and every frame's
+/// groom and mesh by path, size and modification time. `--threads` is
+/// included: results are reproducible bit for bit only on the same count.
+fn strands_job_hash(
+    args: &StrandsArgs,
+    frames: &[i64],
+    groom_at: &dyn Fn(i64) -> Result<PathBuf>,
+    mesh_at: &dyn Fn(i64) -> Result<PathBuf>,
+) -> Result<u64> {
+    let mut a = args.clone();
+    (a.force, a.work_dir) = (false, None);
+    let mut stamped = Vec::with_capacity(2 * frames.len());
+    for &f in frames {
+        stamped.push(groom_at(f)?);
+        stamped.push(mesh_at(f)?);
+    }
+    let style = a.style.clone().context("--style is required")?;
+    job_fingerprint(&format!("{a:?}"), &[style], &stamped)
 }
 
 /// `nst3d strands generate`: the procedural groom at rest, or one file per

@@ -2,10 +2,12 @@
 //! fur ball: frame patterns expand, every frame is written and reads back
 //! with the input's topology, the sequence reports its flicker; a frame with
 //! other strands, or a pattern without a placeholder, fails with one line
-//! before any stylization.
+//! before any stylization; a killed sequence resumes after its last
+//! finished frame and ends with the bytes of an uninterrupted run.
 
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Command, Output, Stdio};
 
 use nst3d_io::groom::read_groom;
 
@@ -140,4 +142,60 @@ fn bad_sequences_fail_before_stylizing() {
     assert!(err.contains("--style-flow"), "{err}");
     let err = fails(&nst3d(dir.path(), &["strands", "generate", "fur-ball", "--out", "x.ply", "--fps", "0"]));
     assert!(err.contains("--fps"), "{err}");
+}
+
+/// Kill a run once frame 3's iterations start (frames 1-2 written, their
+/// state saved), rerun the same command: it resumes after frame 2 and every
+/// frame has the bytes of an uninterrupted run (the EMA and 1€ history came
+/// back exactly). A finished job is not redone; --force redoes it.
+#[test]
+fn a_killed_sequence_resumes_after_its_last_finished_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let style = shared("styles/starry_night.jpg");
+    let style = style.to_str().unwrap();
+    ok(&generate(dir.path(), "30", "1-4"));
+    let run = |out: &str, extra: &[&str]| {
+        let mut a = stylize_args(style, &["--frames", "1-4", "--threads", "1"]);
+        let o = a.iter().position(|&x| x == "out/fur_%04d.ply").unwrap();
+        a[o] = out;
+        a.extend_from_slice(extra);
+        let mut c = Command::new(env!("CARGO_BIN_EXE_nst3d"));
+        c.current_dir(dir.path()).args(a);
+        c
+    };
+    ok(&run("clean/fur_%04d.ply", &[]).output().unwrap());
+
+    let mut child = run("killed/fur_%04d.ply", &[]).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    let mut seen = false;
+    for line in BufReader::new(child.stderr.take().unwrap()).lines() {
+        if line.unwrap().contains("frame 3 scale 1/3") {
+            seen = true;
+            child.kill().unwrap();
+            break;
+        }
+    }
+    child.wait().unwrap();
+    assert!(seen, "never saw frame 3 start in the progress lines");
+    assert!(!dir.path().join("killed/fur_0003.ply").exists(), "killed too late");
+
+    let o = run("killed/fur_%04d.ply", &[]).output().unwrap();
+    let out = ok(&o);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("resuming after frame 2 (2 of 4 done)"), "{err}");
+    assert!(!out.contains("frame 1:") && out.contains("frame 3:"), "{out}");
+    assert!(out.contains("sequence: 4 frames"), "the report counts the resumed frames: {out}");
+    for f in 1..=4 {
+        let name = format!("fur_{f:04}.ply");
+        let a = std::fs::read(dir.path().join("clean").join(&name)).unwrap();
+        let b = std::fs::read(dir.path().join("killed").join(&name)).unwrap();
+        assert!(a == b, "frame {f} differs from the uninterrupted run");
+    }
+
+    let again = run("killed/fur_%04d.ply", &[]).output().unwrap();
+    ok(&again);
+    assert!(String::from_utf8_lossy(&again.stderr).contains("all 4 frames already done"));
+    let forced = ok(&run("killed/fur_%04d.ply", &["--force"]).output().unwrap());
+    assert!(forced.contains("frame 1:"), "{forced}");
+    let redone = std::fs::read(dir.path().join("killed/fur_0004.ply")).unwrap();
+    assert!(redone == std::fs::read(dir.path().join("clean/fur_0004.ply")).unwrap());
 }

@@ -58,7 +58,7 @@ pub use sequence::{
 pub use strands::FlatStrands;
 pub use temporal::{
     ema_blend, ema_blend_factor, smoothing_factor, transport_velocities, DerivativeSmoothing, OneEuroFilter,
-    OneEuroParams,
+    OneEuroHistory, OneEuroParams,
 };
 
 /// Everything that can go wrong in the groom stages; one line naming the

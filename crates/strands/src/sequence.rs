@@ -74,6 +74,8 @@ use crate::preset::TemporalParams;
 use crate::strands::FlatStrands;
 use crate::temporal::{ema_blend, ema_blend_factor, transport_velocities, OneEuroFilter};
 
+mod state;
+
 /// Neighbours of the inverse-distance interpolation that carries the
 /// previous frame's field (a sample that lands on a new one dominates its
 /// weights by ~10⁸, so the count only matters for a style flow).
@@ -93,6 +95,9 @@ pub enum SequenceError {
     /// A setting outside its valid range.
     #[error("bad parameter: {0}")]
     Parameter(String),
+    /// A saved sequence state could not be read back.
+    #[error("{0}")]
+    State(String),
     /// The frame's stylization failed.
     #[error("frame {frame}: {source}")]
     Frame {
@@ -658,6 +663,39 @@ mod tests {
         frames[1].strands.truncate(30);
         let e = s.stylize_frame(2, &frames[1], &mesh, &mut |_| {}).err().unwrap();
         assert!(matches!(e, SequenceError::Topology { frame: 2, .. }), "{e}");
+    }
+
+    #[test]
+    fn a_restored_state_continues_exactly_as_the_uninterrupted_run() {
+        let vgg = Vgg19::random(VggFlavor::Gatys, 7);
+        let style = stripes();
+        let (frames, mesh) = animation();
+        let (whole, whole_frames) = run(&vgg, &style, params(true, true));
+
+        // Frames 1-2, saved; a fresh stylizer (a new process) restores and
+        // runs frames 3-4.
+        let mut first = SequenceStylizer::new(&vgg, &style, params(true, true)).unwrap();
+        for (i, g) in frames[..2].iter().enumerate() {
+            first.stylize_frame(i as i64 + 1, g, &mesh, &mut |_| {}).unwrap();
+        }
+        let bytes = first.save_state(&[2.0, 0.5]);
+        let mut second = SequenceStylizer::new(&vgg, &style, params(true, true)).unwrap();
+        assert_eq!(second.restore_state(&bytes).unwrap(), vec![2.0, 0.5]);
+        for (i, g) in frames.iter().enumerate().skip(2) {
+            let r = second.stylize_frame(i as i64 + 1, g, &mesh, &mut |_| {}).unwrap();
+            assert_eq!(r.strands, whole_frames[i].strands, "frame {}", i + 1);
+            assert_eq!(r.flicker, whole_frames[i].flicker);
+        }
+        assert_eq!(second.report(), whole);
+
+        // Truncated, foreign or padded bytes are refused and change nothing.
+        let mut third = SequenceStylizer::new(&vgg, &style, params(true, true)).unwrap();
+        for bad in [&bytes[..bytes.len() / 2], &b"NST3DFS1 not a strand state"[..], &[bytes.as_slice(), &[0]].concat()]
+        {
+            let e = third.restore_state(bad).unwrap_err().to_string();
+            assert!(e.contains("state"), "{e}");
+        }
+        assert!(third.previous.is_none() && third.frames == 0);
     }
 
     #[test]

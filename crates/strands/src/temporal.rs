@@ -135,12 +135,15 @@ impl OneEuroParams {
     }
 }
 
+/// A 1€ filter's history: the last filtered value and derivative per point.
+pub type OneEuroHistory = (Vec<V3>, Vec<V3>);
+
 /// Per-point 1€ filter over a sequence of frames of the same point set.
 #[derive(Clone, Debug)]
 pub struct OneEuroFilter {
     params: OneEuroParams,
     /// `(p̂ᵗ⁻¹, ûᵗ⁻¹)` per point after the first frame.
-    state: Option<(Vec<V3>, Vec<V3>)>,
+    state: Option<OneEuroHistory>,
 }
 
 impl OneEuroFilter {
@@ -153,6 +156,23 @@ impl OneEuroFilter {
     /// Forgets the history (next frame passes through).
     pub fn reset(&mut self) {
         self.state = None;
+    }
+
+    /// The history: `(p̂ᵗ⁻¹, ûᵗ⁻¹)` per point, `None` before the first frame
+    /// (what a resumed sequence must restore, see [`crate::sequence`]).
+    pub fn history(&self) -> Option<(&[V3], &[V3])> {
+        self.state.as_ref().map(|(x, d)| (x.as_slice(), d.as_slice()))
+    }
+
+    /// Restores a history saved with [`OneEuroFilter::history`].
+    pub fn set_history(&mut self, history: Option<OneEuroHistory>) -> Result<(), StrandError> {
+        if let Some((x, d)) = &history {
+            if x.len() != d.len() {
+                return Err(StrandError::Mismatch { what: "1€ derivative history", expected: x.len(), got: d.len() });
+            }
+        }
+        self.state = history;
+        Ok(())
     }
 
     /// Filters one frame, estimating the speed from the signal (standard
