@@ -572,13 +572,8 @@ fn run_sequence(args: &StrandsArgs, paths: &Paths, spec: &str, format: OutFormat
         worst = (w0, w1 as f32, w2 as usize);
         if done == frames.len() {
             eprintln!("all {done} frames already done (state in {}; --force redoes them)", work.display());
-        } else {
-            eprintln!(
-                "resuming after frame {} ({done} of {} done) from {}",
-                frames[done - 1],
-                frames.len(),
-                work.display()
-            );
+        } else if let Some(last) = done.checked_sub(1).map(|i| frames[i]) {
+            eprintln!("resuming after frame {last} ({done} of {} done) from {}", frames.len(), work.display());
         }
     }
     let per_frame: u32 = seq.params().stylize.iterations.iter().sum();
