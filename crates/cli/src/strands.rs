@@ -539,8 +539,9 @@ fn run_sequence(args: &StrandsArgs, paths: &Paths, spec: &str, format: OutFormat
         }
     };
     let state_path = work.join(STATE_FILE);
-    if args.force && work.exists() {
-        std::fs::remove_dir_all(&work).with_context(|| format!("cannot clear the work folder {}", work.display()))?;
+    // Only our own file goes: --work-dir may name a folder that holds more.
+    if args.force && state_path.exists() {
+        std::fs::remove_file(&state_path).with_context(|| format!("cannot remove {}", state_path.display()))?;
     }
     let mut done = 0usize;
     let mut worst = (0.0f64, 0.0f32, 0usize);
