@@ -419,8 +419,8 @@ pub fn run(args: VolumeArgs) -> Result<()> {
             out_dir.join(".nst3d-work").join(format!("{:016x}", job_hash(&args, &sim.paths)?))
         }
     };
-    if args.force && work.exists() {
-        std::fs::remove_dir_all(&work).with_context(|| format!("cannot clear the work folder {}", work.display()))?;
+    if args.force {
+        DiskStore::remove(&work).with_context(|| format!("cannot clear the work folder {}", work.display()))?;
     }
     // A chunk of empty frames only has nothing to optimise.
     let mut store = if sim.is_empty() { None } else { Some(DiskStore::open(&work)?) };
@@ -527,7 +527,8 @@ pub fn run(args: VolumeArgs) -> Result<()> {
         );
     }
     // Every frame landed: the states are no longer needed (they are large).
-    let _ = std::fs::remove_dir_all(&work);
+    // Only the store's own files go: --work-dir may hold other things.
+    let _ = DiskStore::remove(&work);
     println!(
         "{} frames stylized ({:?} mode, EMA {}, {} camera{}); mean style loss {:.4e}; flicker {:.5}; {}wrote {}",
         stylized,

@@ -119,6 +119,32 @@ impl DiskStore {
         Ok(store)
     }
 
+    /// Deletes the state files a [`DiskStore`] keeps in `dir` (frame
+    /// states, the checkpoint, their temporary names), then `dir` itself if
+    /// nothing else is in it. Anything else there is left alone: `dir` may
+    /// be a user's `--work-dir` that holds other files. A missing `dir` is
+    /// not an error.
+    pub fn remove(dir: &Path) -> Result<(), SequenceError> {
+        let entries = match fs::read_dir(dir) {
+            Ok(e) => e,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+            Err(e) => return Err(io_err(dir, e)),
+        };
+        for entry in entries {
+            let entry = entry.map_err(|e| io_err(dir, e))?;
+            let name = entry.file_name().to_string_lossy().to_string();
+            let ours = name == CHECKPOINT
+                || parse_name(&name).is_some()
+                || ((name.starts_with("frame_") || name.starts_with(CHECKPOINT)) && name.contains(".tmp"));
+            if ours {
+                fs::remove_file(entry.path()).map_err(|e| io_err(&entry.path(), e))?;
+            }
+        }
+        // Fails, and is meant to, when other files remain.
+        let _ = fs::remove_dir(dir);
+        Ok(())
+    }
+
     /// The work folder.
     pub fn dir(&self) -> &Path {
         &self.dir
@@ -276,6 +302,17 @@ mod tests {
         assert_eq!(first(&store.load(2).unwrap().unwrap()), 22.0);
         fs::write(dir.join(CHECKPOINT), "garbage").unwrap();
         assert!(DiskStore::open(&dir).is_err());
-        fs::remove_dir_all(&dir).unwrap();
+
+        // Removing the store deletes its files only; a folder with nothing
+        // else goes too.
+        fs::write(dir.join("frame_000001.g00000003.tmp42"), "half").unwrap();
+        fs::write(dir.join("notes.txt"), "the user's").unwrap();
+        DiskStore::remove(&dir).unwrap();
+        let left: Vec<_> = fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(left, vec![std::ffi::OsString::from("notes.txt")]);
+        fs::remove_file(dir.join("notes.txt")).unwrap();
+        DiskStore::remove(&dir).unwrap();
+        assert!(!dir.exists());
+        DiskStore::remove(&dir).unwrap();
     }
 }
