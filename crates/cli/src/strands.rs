@@ -431,7 +431,15 @@ impl Checks {
         let rest_guides =
             FlatStrands { points: scene.rest.points[..guides.points.len()].to_vec(), offsets: guides.offsets.clone() };
         let vs_rest = max_length_change(&rest_guides, guides);
-        let bvh = MeshBvh::new(head)?;
+        // The scene's collider is this mesh's BVH already.
+        let built;
+        let bvh = match &scene.constraints.collider {
+            Some(b) => b,
+            None => {
+                built = MeshBvh::new(head)?;
+                &built
+            }
+        };
         let inside = written.points.iter().filter(|&&p| bvh.is_inside(p)).count();
         Ok(Checks { vs_input, vs_rest, inside })
     }

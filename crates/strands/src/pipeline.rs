@@ -377,12 +377,23 @@ impl StrandScene {
     /// pinned to the rest roots.
     pub fn transport(&self, v: &[[f32; 3]]) -> Result<FlatStrands, PipelineError> {
         let mut s = self.rest.with_points(self.field.forward(v)?)?;
-        // Roots stay attached to the scalp (their gradient is dropped in
-        // `view_loss_grad` to match).
+        // Roots stay attached to the scalp.
         for &o in &self.rest.offsets[..self.rest.strand_count()] {
             s.points[o] = self.rest.points[o];
         }
         Ok(s)
+    }
+
+    /// Backward of [`StrandScene::transport`]: the gradient at every
+    /// transported point to the velocities `v`. The pinned roots pass
+    /// nothing back, so their entries of `grad_points` are zeroed first.
+    pub fn transport_backward(&self, mut grad_points: Vec<[f32; 3]>) -> Result<Vec<[f32; 3]>, PipelineError> {
+        for &o in &self.rest.offsets[..self.rest.strand_count()] {
+            if let Some(g) = grad_points.get_mut(o) {
+                *g = [0.0; 3];
+            }
+        }
+        Ok(self.field.backward(&grad_points)?)
     }
 
     /// The constraint half of [`StrandScene::deform`] (see [`enforce`]), in
@@ -745,7 +756,7 @@ pub struct StageTimes {
     pub splat_backward: Duration,
     /// Back through the constraint projections to the transported points.
     pub constraints_backward: Duration,
-    /// `Wᵀ`: point gradients to the velocities.
+    /// `Wᵀ`: point gradients to the velocities (pinned roots dropped).
     pub field_backward: Duration,
     /// The AdamW step.
     pub optimizer: Duration,
@@ -845,13 +856,9 @@ pub fn loss_and_gradient(
     lap(&mut times.vgg_backward);
     let grad_points = render_backward(&s, cam, &scene.style, &cache, &grad_img)?;
     lap(&mut times.splat_backward);
-    let mut grad_points = tape.backward(&scene.constraints.rest, &grad_points)?;
-    // The roots are pinned in `transport`: nothing reaches `v` through them.
-    for &o in &strands.offsets[..strands.strand_count()] {
-        grad_points[o] = [0.0; 3];
-    }
+    let grad_points = tape.backward(&scene.constraints.rest, &grad_points)?;
     lap(&mut times.constraints_backward);
-    let grad = flatten(&scene.field.backward(&grad_points)?);
+    let grad = flatten(&scene.transport_backward(grad_points)?);
     lap(&mut times.field_backward);
     Ok((StepReport { loss, stats, times }, grad))
 }

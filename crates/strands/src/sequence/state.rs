@@ -114,7 +114,7 @@ impl<'b> Reader<'b> {
     }
     fn v3s(&mut self, what: &str) -> Result<Vec<V3>, SequenceError> {
         let n = self.len(12, what)?;
-        (0..n).map(|_| Ok([self.f32(what)?, self.f32(what)?, self.f32(what)?])).collect()
+        (0..n).map(|_| self.v3(what)).collect()
     }
     fn usizes(&mut self, what: &str) -> Result<Vec<usize>, SequenceError> {
         let n = self.len(8, what)?;
