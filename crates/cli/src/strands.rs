@@ -760,7 +760,7 @@ fn generate(g: GenerateArgs) -> Result<()> {
         }
     }
     if let Some(m) = &g.mesh_out {
-        write_mesh_ply(m, &mesh)?;
+        nst3d_io::mesh::write_mesh_ply(m, &mesh).with_context(|| format!("writing {}", m.display()))?;
     }
     println!(
         "wrote {} strands x {} points to {}{}{}",
@@ -775,25 +775,4 @@ fn generate(g: GenerateArgs) -> Result<()> {
         g.mesh_out.as_ref().map_or(String::new(), |m| format!("; mesh {}", m.display()))
     );
     Ok(())
-}
-
-/// ASCII PLY of a triangle mesh, written atomically (what `--mesh` reads).
-fn write_mesh_ply(path: &Path, mesh: &TriMesh) -> Result<()> {
-    nst3d_io::atomic::write_atomic(path, |w| {
-        write!(
-            w,
-            "ply\nformat ascii 1.0\ncomment Written by nst3d\nelement vertex {}\nproperty float x\nproperty float y\n\
-             property float z\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
-            mesh.vertices.len(),
-            mesh.triangles.len()
-        )?;
-        for v in &mesh.vertices {
-            writeln!(w, "{} {} {}", v[0], v[1], v[2])?;
-        }
-        for t in &mesh.triangles {
-            writeln!(w, "3 {} {} {}", t[0], t[1], t[2])?;
-        }
-        Ok(())
-    })
-    .with_context(|| format!("writing {}", path.display()))
 }

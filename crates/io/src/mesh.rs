@@ -22,6 +22,29 @@ pub struct TriMesh {
     pub normals: Option<Vec<[f32; 3]>>,
 }
 
+/// Writes `mesh` as an ASCII PLY (what `--mesh` reads), atomically: a
+/// killed job never leaves half a mesh. Normals are not written; readers
+/// recompute them from the triangles.
+pub fn write_mesh_ply(path: &Path, mesh: &TriMesh) -> std::io::Result<()> {
+    use std::io::Write;
+    crate::atomic::write_atomic(path, |w| {
+        write!(
+            w,
+            "ply\nformat ascii 1.0\ncomment Written by nst3d\nelement vertex {}\nproperty float x\nproperty float y\n\
+             property float z\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
+            mesh.vertices.len(),
+            mesh.triangles.len()
+        )?;
+        for v in &mesh.vertices {
+            writeln!(w, "{} {} {}", v[0], v[1], v[2])?;
+        }
+        for t in &mesh.triangles {
+            writeln!(w, "3 {} {} {}", t[0], t[1], t[2])?;
+        }
+        Ok(())
+    })
+}
+
 /// Everything that can go wrong reading a mesh; one line naming the file.
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
