@@ -18,7 +18,7 @@ DATA=$(realpath "$(dirname "$0")/../../shared/data")
 rm -rf "$OUT"; mkdir -p "$OUT"; cd "$OUT"
 N="$BIN --threads 2"
 STYLE=$DATA/styles/starry_night.jpg
-run() { "$@" > /dev/null 2>> log.txt || { echo "FAILED: $*" >&2; tail -3 log.txt >&2; exit 1; }; }
+run() { "$@" >> stdout.txt 2>> log.txt || { echo "FAILED: $*" >&2; tail -3 log.txt >&2; exit 1; }; }
 
 for mode in density velocity; do
   run $N volume --input "$DATA/volumes/smoke_000003.vdb" --style "$STYLE" --mode $mode \
@@ -45,4 +45,6 @@ run $N strands --groom 'fur_####.ply' --frames 1-3 --mesh sphere.ply --style "$S
     --scale-iters 1,1,2 --render-size 96 --out 'sfur_####.usda' --preview 'sfur_####.png'
 run $N strands generate grass --strands 50 --out grass.usda
 
+# The reports (stdout) and notes (log.txt, less the progress lines) are compared too.
+grep -v '^\[' log.txt > notes.txt
 find . -type f ! -name log.txt ! -path '*/.nst3d-work/*' | sort | xargs sha256sum

@@ -1,11 +1,11 @@
-//! `nst3d`: the command line over the nst3d crates. It parses arguments,
-//! reports progress and turns every failure into one line on stderr and a
+//! `nst3d`: the command line over the nst3d crates. Each command parses its
+//! arguments into the settings of one library job (`nst3d_volume`,
+//! `nst3d_groom`), runs it with a [`console::Console`] for progress, prints
+//! the report, and turns every failure into one line on stderr and a
 //! non-zero exit code; the work itself lives in the library crates.
 
 mod bench;
-mod preview;
-mod progress;
-mod sequence;
+mod console;
 mod strands;
 mod volume;
 
@@ -29,7 +29,7 @@ enum Command {
     /// Run a benchmark (see docs/PERFORMANCE.md).
     Bench(bench::BenchArgs),
     /// Draw smoke as PNGs: a front view, a turntable, original | stylized, or a sequence.
-    Preview(preview::PreviewArgs),
+    Preview(volume::preview::PreviewArgs),
     /// Stylize a hair or fur groom (strand style transfer, one frame).
     Strands(strands::StrandsArgs),
 }
@@ -56,7 +56,7 @@ fn main() {
     let result = match cli.command {
         Command::Volume(args) => volume::run(args),
         Command::Bench(args) => bench::run(args),
-        Command::Preview(args) => preview::run(args),
+        Command::Preview(args) => volume::preview::run(args),
         Command::Strands(args) => strands::run(args),
     };
     if let Err(e) = result {

@@ -6,6 +6,8 @@ pub mod fixture;
 pub mod gradcheck;
 pub mod grid;
 pub mod image;
+pub mod report;
 
 pub use grid::Grid3;
 pub use image::Image;
+pub use report::{Reporter, Silent};

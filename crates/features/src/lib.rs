@@ -40,6 +40,17 @@ pub enum FeaturesError {
     /// Neither known key layout was found.
     #[error("not a VGG-19 checkpoint: neither `features.0.weight` (torchvision) nor `0.weight` of shape [3, 3, 1, 1] (Gatys normalised VGG) found")]
     UnknownFlavor,
+    /// The weights file could not be found or read.
+    #[error(transparent)]
+    Weights(#[from] nst3d_weights::WeightsError),
+    /// A weights file that was read but is not a usable VGG-19.
+    #[error("{}: {source}", path.display())]
+    File {
+        /// The file.
+        path: std::path::PathBuf,
+        /// What is wrong with its tensors.
+        source: Box<FeaturesError>,
+    },
     /// A layer name that is not a VGG-19 ReLU.
     #[error("unknown VGG-19 layer `{0}` (expected relu1_1 .. relu5_1, e.g. relu3_1)")]
     UnknownLayer(String),

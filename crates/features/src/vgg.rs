@@ -219,6 +219,18 @@ impl Vgg19 {
         Self { flavor, pre, convs, pool: MaxPool2x2 { ceil_mode: flavor == VggFlavor::Gatys } }
     }
 
+    /// Loads the network from `explicit`, else from `$NST3D_VGG19`, else
+    /// from the user cache `tools/fetch_weights.sh` fills: the one place
+    /// every job (volume, groom, benchmark) finds its weights.
+    pub fn load(explicit: Option<&std::path::Path>) -> Result<Self, FeaturesError> {
+        let path = match explicit {
+            Some(p) => p.to_path_buf(),
+            None => nst3d_weights::locate_vgg19()?,
+        };
+        let tensors = nst3d_weights::load_vgg19_weights(&path)?;
+        Self::from_tensors(&tensors).map_err(|e| FeaturesError::File { path, source: Box::new(e) })
+    }
+
     /// Builds the network from a checkpoint's tensors, telling the flavor
     /// from its keys (`features.0.weight` = torchvision, `0.weight` of shape
     /// `[3, 3, 1, 1]` = Gatys). Only conv1_1 .. conv5_1 are read.

@@ -26,7 +26,6 @@ pub struct TriMesh {
 /// killed job never leaves half a mesh. Normals are not written; readers
 /// recompute them from the triangles.
 pub fn write_mesh_ply(path: &Path, mesh: &TriMesh) -> std::io::Result<()> {
-    use std::io::Write;
     crate::atomic::write_atomic(path, |w| {
         write!(
             w,

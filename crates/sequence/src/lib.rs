@@ -7,7 +7,9 @@ pub mod calibrate;
 pub mod ema;
 pub mod flicker;
 pub mod frames;
+pub mod job;
 pub mod store;
 
 pub use frames::{expand_pattern, FrameSpec, FramesError};
+pub use job::{default_work_dir, job_fingerprint};
 pub use store::DiskStore;

@@ -1,7 +1,8 @@
-//! `nst3d preview`: pictures of OpenVDB smoke for judging a result without
-//! Houdini. One front view, a turntable, an original | stylized sheet, or a
-//! whole sequence, all drawn by the transmittance renderer the optimiser sees
-//! (paper eq. 6), so what the artist judges is what the style loss judged.
+//! Pictures of OpenVDB smoke for judging a result without a DCC
+//! (`nst3d preview`): one front view, a turntable, an original | stylized
+//! sheet, or a whole sequence, all drawn by the transmittance renderer the
+//! optimiser sees (paper eq. 6), so what the artist judges is what the
+//! style loss judged.
 //!
 //! Everything shown together shares one dense box (the union of the active
 //! boxes), one camera set and one absorption γ: a compared file or a later
@@ -11,14 +12,16 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context, Result};
-use clap::Args;
 use nst3d_core::{Grid3, Image};
 use nst3d_io::image::{resize_to_height, side_by_side, write_png};
 use nst3d_io::vdb::{read_vdb, DenseBox, GridValues};
-use nst3d_render::{ring, Camera, Projection};
+use nst3d_render::{Camera, Projection};
 use nst3d_sequence::{expand_pattern, FrameSpec};
 
-use crate::volume::{auto_absorption, front_camera, CameraKind, UpAxis, PREVIEW_HEIGHT};
+use crate::cameras::{front_camera, turntable};
+use crate::dense::{in_box, union_box};
+use crate::look::{auto_absorption, transmittance_image, PREVIEW_HEIGHT};
+use crate::settings::UpAxis;
 
 /// Field of view of the preview cameras: the `nst3d volume` default, so a
 /// preview frames the smoke as the optimiser saw it.
@@ -33,46 +36,63 @@ const MAX_HEIGHT: usize = 8192;
 /// Width in pixels of the grey bar between original and stylized.
 const GAP: usize = 4;
 
-/// Arguments of `nst3d preview`.
-#[derive(Args)]
-pub struct PreviewArgs {
-    /// OpenVDB file to draw (with --frames, a pattern with `####` or `%04d`).
-    #[arg(long)]
-    pub(crate) input: PathBuf,
-    /// A second file (e.g. the stylized result) drawn to the right of --input
-    /// with the same camera and absorption; a pattern with --frames.
-    #[arg(long)]
-    pub(crate) compare: Option<PathBuf>,
-    /// Output PNG (written atomically); with --turntable or --frames a pattern
-    /// with `####` or `%04d` (turntable pictures are numbered from 1).
-    #[arg(long)]
-    pub(crate) out: PathBuf,
+/// What to draw: the settings of `nst3d preview`.
+#[derive(Clone, Debug)]
+pub struct PreviewSettings {
+    /// OpenVDB file to draw (with `frames`, a pattern with `####` or `%04d`).
+    pub input: PathBuf,
+    /// A second file (e.g. the stylized result) drawn to the right of
+    /// `input` with the same camera and absorption; a pattern with `frames`.
+    pub compare: Option<PathBuf>,
+    /// Output PNG (written atomically); with `turntable` or `frames` a
+    /// pattern (turntable pictures are numbered from 1).
+    pub out: PathBuf,
     /// Name of the float grid to draw.
-    #[arg(long, default_value = "density")]
-    pub(crate) grid: String,
-    /// Frames of a sequence (e.g. `1-40` or `1-3,5,7-20:2`), one PNG each.
-    #[arg(long)]
-    pub(crate) frames: Option<String>,
+    pub grid: String,
+    /// Frames of a sequence (e.g. `1-40`), one PNG each.
+    pub frames: Option<String>,
     /// Number of pictures around the volume, at evenly spaced azimuths from the front.
-    #[arg(long)]
-    pub(crate) turntable: Option<usize>,
+    pub turntable: Option<usize>,
     /// Turntable camera elevation in degrees above the horizon.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
-    pub(crate) elevation: f32,
+    pub elevation: f32,
     /// Camera projection.
-    #[arg(long, value_enum, default_value = "perspective")]
-    pub(crate) camera: CameraKind,
-    /// Which index axis points up in the file (Blender caches are z-up, Houdini y-up).
-    #[arg(long, value_enum, default_value = "z")]
-    pub(crate) up: UpAxis,
-    /// Absorption γ per unit density and voxel (default: the densest ray of
-    /// --input, or of its densest frame, gets optical depth 3; the same γ is
-    /// then used for --compare and every frame, so brightness does not pump).
-    #[arg(long, allow_negative_numbers = true)]
-    pub(crate) absorption: Option<f32>,
+    pub projection: Projection,
+    /// The file's up axis.
+    pub up: UpAxis,
+    /// Absorption γ; `None`: the densest ray of `input`, or of its densest
+    /// frame, gets optical depth 3, and the same γ is used for `compare`
+    /// and every frame, so brightness does not pump.
+    pub absorption: Option<f32>,
     /// Picture height in pixels (a compare sheet is two pictures wide).
-    #[arg(long, default_value_t = PREVIEW_HEIGHT)]
-    pub(crate) height: usize,
+    pub height: usize,
+}
+
+impl PreviewSettings {
+    /// The defaults of `nst3d preview` for drawing `input` into `out`.
+    pub fn new(input: impl Into<PathBuf>, out: impl Into<PathBuf>) -> Self {
+        Self {
+            input: input.into(),
+            compare: None,
+            out: out.into(),
+            grid: "density".into(),
+            frames: None,
+            turntable: None,
+            elevation: 0.0,
+            projection: Projection::Perspective,
+            up: UpAxis::Z,
+            absorption: None,
+            height: PREVIEW_HEIGHT,
+        }
+    }
+}
+
+/// What a preview job wrote.
+#[derive(Clone, Copy, Debug)]
+pub struct PreviewReport {
+    /// Pictures written.
+    pub pictures: usize,
+    /// The absorption they share.
+    pub absorption: f32,
 }
 
 /// One output picture: the volumes drawn side by side and where it goes.
@@ -83,10 +103,10 @@ struct Shot {
     out: PathBuf,
 }
 
-/// Runs `nst3d preview`.
-pub fn run(args: PreviewArgs) -> Result<()> {
-    check_args(&args)?;
-    let shots = plan(&args)?;
+/// Draws the pictures `args` asks for; nothing is left behind if any fails.
+pub fn preview(args: &PreviewSettings) -> Result<PreviewReport> {
+    check_args(args)?;
+    let shots = plan(args)?;
     let sequence = args.frames.is_some();
 
     // First pass: every file is read and checked before anything is written,
@@ -118,9 +138,9 @@ pub fn run(args: PreviewArgs) -> Result<()> {
         bail!("grid '{}' is empty in every frame: nothing to preview", args.grid);
     };
 
-    let front = front_camera(bx.dims, args.up, args.camera, FOV_DEG);
+    let front = front_camera(bx.dims, args.up, args.projection, FOV_DEG);
     let cameras = match args.turntable {
-        Some(n) => turntable(n, args.elevation, bx.dims, args.up, projection(args.camera)),
+        Some(n) => turntable(n, args.elevation, bx.dims, args.up, args.projection),
         None => vec![front],
     };
 
@@ -165,17 +185,11 @@ pub fn run(args: PreviewArgs) -> Result<()> {
             written.write(&out, &sheet)?;
         }
     }
-    let count = written.commit();
-    println!(
-        "wrote {count} preview picture{} ({}), absorption {gamma:.6}",
-        if count == 1 { "" } else { "s" },
-        args.out.display()
-    );
-    Ok(())
+    Ok(PreviewReport { pictures: written.commit(), absorption: gamma })
 }
 
 /// Checks the numeric arguments and mode combinations before reading anything.
-fn check_args(args: &PreviewArgs) -> Result<()> {
+fn check_args(args: &PreviewSettings) -> Result<()> {
     if let Some(g) = args.absorption {
         if !(g.is_finite() && g > 0.0) {
             bail!("--absorption must be a positive number, got {g}");
@@ -201,7 +215,7 @@ fn check_args(args: &PreviewArgs) -> Result<()> {
 /// The pictures to make: one per frame of a sequence, else one (a turntable
 /// expands its output pattern per camera later). Patterns are checked here so
 /// a missing placeholder fails before any file is read.
-fn plan(args: &PreviewArgs) -> Result<Vec<Shot>> {
+fn plan(args: &PreviewSettings) -> Result<Vec<Shot>> {
     let Some(spec) = &args.frames else {
         if args.turntable.is_some() {
             expand_pattern(&lossy(&args.out), 1).context("--out with --turntable")?;
@@ -248,36 +262,6 @@ fn load(path: &Path, grid: &str, allow_empty: bool) -> Result<Option<(DenseBox, 
     Ok(Some(g.to_dense()?))
 }
 
-/// Smallest box holding both.
-fn union_box(a: &DenseBox, b: &DenseBox) -> DenseBox {
-    let lo: [i32; 3] = std::array::from_fn(|i| a.origin[i].min(b.origin[i]));
-    let hi: [i64; 3] = std::array::from_fn(|i| {
-        (i64::from(a.origin[i]) + a.dims[i] as i64).max(i64::from(b.origin[i]) + b.dims[i] as i64)
-    });
-    DenseBox { origin: lo, dims: std::array::from_fn(|i| (hi[i] - i64::from(lo[i])) as usize) }
-}
-
-/// A loaded grid copied into the larger box `into`; an empty one is all zeros.
-fn in_box(loaded: Option<(DenseBox, Grid3)>, into: &DenseBox) -> Grid3 {
-    let Some((own, d)) = loaded else {
-        return Grid3::zeros(into.dims);
-    };
-    if own == *into {
-        return d;
-    }
-    let off: [usize; 3] = std::array::from_fn(|i| (own.origin[i] - into.origin[i]) as usize);
-    let [nx, ny, nz] = d.dims;
-    let mut out = Grid3::zeros(into.dims);
-    for z in 0..nz {
-        for y in 0..ny {
-            let dst = out.index(off[0], y + off[1], z + off[2]);
-            let src = d.index(0, y, z);
-            out.data[dst..dst + nx].copy_from_slice(&d.data[src..src + nx]);
-        }
-    }
-    out
-}
-
 /// Largest column sum of density along the front camera's axis (y for a
 /// z-up file, z for y-up): a camera-free stand-in for the densest ray, to
 /// pick which frame of a sequence sets γ. The densest frame, not the first,
@@ -300,43 +284,6 @@ fn column_peak(d: &Grid3, up: UpAxis) -> f32 {
         }
     }
     sums.into_iter().fold(0.0, f32::max)
-}
-
-/// The picture an artist sees: the rendered light `Σ d·τ` scaled by γ (as
-/// `ViewLoss::image` with exposure γ), about `1 − exp(−γ Σ d)`: white smoke
-/// on black that saturates gracefully instead of clipping.
-fn transmittance_image(d: &Grid3, cam: &Camera, gamma: f32) -> Result<Image> {
-    let (mut img, _) = nst3d_render::render(d, cam, gamma)?;
-    img.data.iter_mut().for_each(|v| *v *= gamma);
-    Ok(img)
-}
-
-/// The renderer's projection for a `--camera` choice.
-fn projection(kind: CameraKind) -> Projection {
-    match kind {
-        CameraKind::Orthographic => Projection::Orthographic,
-        CameraKind::Perspective => Projection::Perspective,
-    }
-}
-
-/// `count` [`ring`] cameras around the grid, starting at the front view of
-/// [`front_camera`] and turning towards +x. `ring` turns about +y; for a
-/// z-up file the ring is rotated +90° about x, which maps its front camera
-/// (eye on +z, +y up) onto the z-up front camera (eye on −y, +z up).
-fn turntable(count: usize, elevation: f32, dims: [usize; 3], up: UpAxis, projection: Projection) -> Vec<Camera> {
-    let cams = ring(count, elevation, dims, projection);
-    match up {
-        UpAxis::Y => cams,
-        UpAxis::Z => {
-            let rot = |v: [f32; 3]| [v[0], -v[2], v[1]];
-            cams.into_iter()
-                .map(|c| {
-                    let rel = rot(std::array::from_fn(|a| c.eye[a] - c.target[a]));
-                    Camera { eye: std::array::from_fn(|a| c.target[a] + rel[a]), up: rot(c.up), ..c }
-                })
-                .collect()
-        }
-    }
 }
 
 /// Common picture size for a camera set: one scale for all cameras, so a

@@ -1,0 +1,400 @@
+//! `nst3d strands`: the arguments of a groom job, turned once into
+//! [`StrandSettings`], run by [`nst3d_groom`], and its report printed; and
+//! `nst3d strands generate` for the procedural grooms of Table 1.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand, ValueEnum};
+use nst3d_groom::{GenerateKind, GenerateSettings, StrandSettings, Temporal};
+use nst3d_strands::{EmaClock, Preset, Wind};
+
+use crate::console::Console;
+
+/// Arguments of `nst3d strands`.
+#[derive(Args, Clone, Debug)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+pub struct StrandsArgs {
+    #[command(subcommand)]
+    command: Option<StrandsCommand>,
+    /// Input groom (.hair, .data, .ply, .usda, .abc); with --frames a
+    /// pattern such as `anim/fur_####.ply` or `fur_%04d.ply`.
+    #[arg(long, required = true)]
+    groom: Option<PathBuf>,
+    /// Head or body mesh the strands grow from (.ply or .obj); with --frames
+    /// it may be a pattern too (a moving head), else one mesh for all frames.
+    #[arg(long, required = true)]
+    mesh: Option<PathBuf>,
+    /// Style painting (PNG or JPEG); its luminance is matched.
+    #[arg(long, required = true)]
+    style: Option<PathBuf>,
+    /// Table 1 preset.
+    #[arg(long, value_enum, default_value = "short-hair")]
+    preset: PresetArg,
+    /// Output groom, .usda or .ply (written atomically); with --frames a pattern.
+    #[arg(long, required = true)]
+    out: Option<PathBuf>,
+    /// Before | after | painting preview PNG; with --frames a pattern.
+    #[arg(long)]
+    preview: Option<PathBuf>,
+    /// Frames of an animated groom (e.g. `1-24` or `1-3,5,7-20:2`), stylized
+    /// in order with the EMA and 1€ filter of the paper's Sec. 3.3; then
+    /// --groom, --out and --preview are patterns with `####` or `%04d`.
+    #[arg(long)]
+    frames: Option<String>,
+    /// With --frames: start over, ignoring the state a killed run of the
+    /// same job left (otherwise the run resumes after its last finished frame).
+    #[arg(long, requires = "frames")]
+    force: bool,
+    /// With --frames: folder for the state saved after every frame (default:
+    /// `<out dir>/.nst3d-work/<hash of the job's inputs and settings>`).
+    #[arg(long, requires = "frames")]
+    work_dir: Option<PathBuf>,
+    /// Temporal coherency of a sequence: `ema-one-euro` (the paper),
+    /// `ema`, `one-euro`, or `off` (every frame stylized on its own).
+    #[arg(long, value_enum, default_value = "ema-one-euro")]
+    temporal: TemporalArg,
+    /// EMA coefficient σ (default: the preset's, Table 1).
+    #[arg(long)]
+    ema_sigma: Option<f32>,
+    /// EMA decaying period ν, as a fraction of the iterations (default: the preset's).
+    #[arg(long)]
+    ema_nu: Option<f32>,
+    /// What the EMA's iteration count m runs over: each `scale` (Alg. 1's
+    /// inner counter: every scale restarts from the previous frame's field),
+    /// or the whole `frame` (measured to flicker more, docs/STRANDS.md).
+    #[arg(long, value_enum, default_value = "scale")]
+    ema_clock: EmaClockArg,
+    /// 1€ blending parameter α (default: the preset's).
+    #[arg(long)]
+    one_euro_alpha: Option<f32>,
+    /// 1€ scaling coefficient β (default: the preset's).
+    #[arg(long)]
+    one_euro_beta: Option<f32>,
+    /// 1€ minimum cutoff frequency f_min in Hz (default: the preset's).
+    #[arg(long)]
+    one_euro_fmin: Option<f32>,
+    /// Frame rate of the animation (1€ filter time step; default: the preset's, 24).
+    #[arg(long)]
+    fps: Option<f32>,
+    /// Style flow s*: a world-space velocity `X,Y,Z` in groom units per
+    /// frame that carries the stylization instead of the groom's own motion.
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    style_flow: Option<Vec<f32>>,
+    /// Total iterations over the three scales (default: the preset's),
+    /// split in the preset's proportions.
+    #[arg(long)]
+    iters: Option<u32>,
+    /// Square render size (default: the preset's; style sizes follow it).
+    #[arg(long)]
+    render_size: Option<usize>,
+    /// Proxy strands to grow (default: the preset's proxy/guide ratio).
+    #[arg(long)]
+    proxies: Option<usize>,
+    /// Seed of densification and camera sampling.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Multiplier on the preset's learning rates (scaled by the groom's radius).
+    #[arg(long, default_value_t = 0.3)]
+    lr_scale: f32,
+    /// Cameras per scale whose matches are cached (0: a new camera every iteration).
+    #[arg(long, default_value_t = 8)]
+    views_per_scale: usize,
+    /// Evaluation views with --views-per-scale 0 (otherwise the finest scale's views).
+    #[arg(long, default_value_t = 4)]
+    eval_views: usize,
+    /// Iterations of the three scales, e.g. 0,0,30 (overrides --iters).
+    #[arg(long, value_delimiter = ',')]
+    scale_iters: Option<Vec<u32>>,
+    /// Strand cross-section sigma in pixels at the groom centre's depth (default: the pipeline's).
+    #[arg(long)]
+    strand_width: Option<f32>,
+    /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).
+    #[arg(long)]
+    weights: Option<PathBuf>,
+}
+
+/// `nst3d strands` subcommands.
+#[derive(Subcommand, Clone, Debug)]
+enum StrandsCommand {
+    /// Write a procedural groom (fur ball or grass patch, Table 1) and its
+    /// mesh, optionally animated by a time-varying wind.
+    Generate(GenerateArgs),
+}
+
+/// Arguments of `nst3d strands generate`.
+#[derive(Args, Clone, Debug)]
+struct GenerateArgs {
+    /// Which groom.
+    #[arg(value_enum)]
+    kind: GenerateKindArg,
+    /// Output groom (.ply or .usda); with --frames a pattern such as `anim/fur_####.ply`.
+    #[arg(long)]
+    out: PathBuf,
+    /// The mesh the strands grow from (.ply), for `nst3d strands --mesh`.
+    #[arg(long)]
+    mesh_out: Option<PathBuf>,
+    /// Frames to write (e.g. `1-24`); frame f is the wind at time f / fps.
+    /// Without it the groom is written once, at rest.
+    #[arg(long)]
+    frames: Option<String>,
+    /// Strands (default: Table 1's, 8000 fur / 3000 grass).
+    #[arg(long)]
+    strands: Option<usize>,
+    /// Control points per strand.
+    #[arg(long, default_value_t = 9)]
+    points: usize,
+    /// Strand length (default: 0.25 fur / 0.3 grass).
+    #[arg(long)]
+    length: Option<f32>,
+    /// Fur ball radius.
+    #[arg(long, default_value_t = 1.0)]
+    radius: f32,
+    /// Seed of the root sampler.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Frame rate of the animation.
+    #[arg(long, default_value_t = 24.0)]
+    fps: f32,
+    /// Wind push at the tips, in strand lengths (0: no wind).
+    #[arg(long, default_value_t = Wind::default().strength)]
+    wind: f32,
+    /// Wind azimuth at time 0, degrees in the XZ plane (0 = +X).
+    #[arg(long, default_value_t = Wind::default().direction_deg, allow_hyphen_values = true)]
+    wind_direction: f32,
+    /// How fast the wind turns, degrees per second.
+    #[arg(long, default_value_t = Wind::default().turn_deg_per_s, allow_hyphen_values = true)]
+    wind_turn: f32,
+    /// Gust wavelength along the wind, scene units.
+    #[arg(long, default_value_t = Wind::default().wavelength)]
+    wind_wavelength: f32,
+    /// Gust frequency, Hz.
+    #[arg(long, default_value_t = Wind::default().frequency_hz)]
+    wind_frequency: f32,
+}
+
+/// Procedural grooms.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum GenerateKindArg {
+    /// Straight fur along the normals of a sphere (Fig. 8).
+    FurBall,
+    /// Near-vertical blades on a plane (Fig. 12).
+    Grass,
+}
+
+/// `--temporal` choices.
+#[derive(Clone, Copy, Debug, PartialEq, ValueEnum)]
+enum TemporalArg {
+    #[value(name = "ema-one-euro")]
+    EmaOneEuro,
+    Ema,
+    #[value(name = "one-euro")]
+    OneEuro,
+    Off,
+}
+
+/// `--ema-clock` choices.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum EmaClockArg {
+    Frame,
+    Scale,
+}
+
+/// The presets by command-line name.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum PresetArg {
+    ShortHair,
+    #[value(name = "short-hair-360")]
+    ShortHair360,
+    LongHair,
+    Cat,
+    FurBall,
+    Grass,
+}
+
+impl PresetArg {
+    fn preset(self) -> Preset {
+        match self {
+            PresetArg::ShortHair => Preset::ShortHair,
+            PresetArg::ShortHair360 => Preset::ShortHair360,
+            PresetArg::LongHair => Preset::LongHair,
+            PresetArg::Cat => Preset::Cat,
+            PresetArg::FurBall => Preset::FurBall,
+            PresetArg::Grass => Preset::Grass,
+        }
+    }
+}
+
+impl From<TemporalArg> for Temporal {
+    fn from(t: TemporalArg) -> Self {
+        match t {
+            TemporalArg::EmaOneEuro => Temporal::EmaOneEuro,
+            TemporalArg::Ema => Temporal::Ema,
+            TemporalArg::OneEuro => Temporal::OneEuro,
+            TemporalArg::Off => Temporal::Off,
+        }
+    }
+}
+
+impl StrandsArgs {
+    /// The library's settings: the arguments as they are, typed.
+    fn settings(self) -> Result<StrandSettings> {
+        // clap enforces these unless a subcommand is given.
+        let need = |p: Option<PathBuf>, name: &str| p.with_context(|| format!("{name} is required"));
+        let style_flow = match self.style_flow {
+            None => None,
+            Some(v) if v.len() == 3 => Some([v[0], v[1], v[2]]),
+            Some(v) => bail!("--style-flow needs three finite numbers X,Y,Z, got {v:?}"),
+        };
+        let scale_iters = match self.scale_iters {
+            None => None,
+            Some(n) if n.len() == 3 => Some([n[0], n[1], n[2]]),
+            Some(n) => bail!("--scale-iters needs three comma-separated counts, got {}", n.len()),
+        };
+        Ok(StrandSettings {
+            groom: need(self.groom, "--groom")?,
+            mesh: need(self.mesh, "--mesh")?,
+            style: need(self.style, "--style")?,
+            out: need(self.out, "--out")?,
+            preview: self.preview,
+            preset: self.preset.preset(),
+            frames: self.frames,
+            force: self.force,
+            work_dir: self.work_dir,
+            temporal: self.temporal.into(),
+            ema_sigma: self.ema_sigma,
+            ema_nu: self.ema_nu,
+            ema_clock: match self.ema_clock {
+                EmaClockArg::Frame => EmaClock::Frame,
+                EmaClockArg::Scale => EmaClock::Scale,
+            },
+            one_euro_alpha: self.one_euro_alpha,
+            one_euro_beta: self.one_euro_beta,
+            one_euro_fmin: self.one_euro_fmin,
+            fps: self.fps,
+            style_flow,
+            iters: self.iters,
+            render_size: self.render_size,
+            proxies: self.proxies,
+            seed: self.seed,
+            lr_scale: self.lr_scale,
+            views_per_scale: self.views_per_scale,
+            eval_views: self.eval_views,
+            scale_iters,
+            strand_width: self.strand_width,
+            weights: self.weights,
+        })
+    }
+}
+
+/// Runs `nst3d strands`.
+pub fn run(args: StrandsArgs) -> Result<()> {
+    if let Some(StrandsCommand::Generate(g)) = args.command {
+        return generate(g);
+    }
+    let s = args.settings()?;
+    nst3d_groom::OutFormat::of(&s.out)?;
+    if s.frames.is_some() {
+        return run_sequence(&s);
+    }
+    let r = nst3d_groom::stylize_groom_file(&s, &mut Console::default())?;
+    println!(
+        "{}: {} strands ({} control points, as in the input) stylized ({}, {} proxies, {} iterations at {}px); \
+         NNST loss {:.4e} -> {:.4e} ({:+.1}%; re-matched on the result {:.4e}); \
+         max length change {:.3}% vs input ({:.4}% vs rest); {} control points inside the mesh; wrote {}",
+        r.groom.display(),
+        r.strands,
+        r.points,
+        r.preset,
+        r.proxies,
+        r.iterations,
+        r.render_size,
+        r.eval_before,
+        r.eval_after,
+        -100.0 * r.loss_drop(),
+        r.eval_after_rematched,
+        100.0 * r.checks.vs_input,
+        100.0 * r.checks.vs_rest,
+        r.checks.inside,
+        r.out.display()
+    );
+    Ok(())
+}
+
+/// `nst3d strands --frames`: the animated groom, then the sequence's mean
+/// losses and flicker.
+fn run_sequence(s: &StrandSettings) -> Result<()> {
+    let r = nst3d_groom::stylize_groom_sequence(s, &mut Console::default())?;
+    let t = r.temporal;
+    let mode = match r.mode {
+        Temporal::EmaOneEuro => format!(
+            "EMA sigma {} nu {} + 1-euro alpha {} beta {} f_min {} Hz at {} fps",
+            t.ema_sigma, t.ema_nu, t.blend_alpha, t.beta, t.min_cutoff_hz, t.fps
+        ),
+        Temporal::Ema => format!("EMA sigma {} nu {}", t.ema_sigma, t.ema_nu),
+        Temporal::OneEuro => {
+            format!("1-euro alpha {} beta {} f_min {} Hz at {} fps", t.blend_alpha, t.beta, t.min_cutoff_hz, t.fps)
+        }
+        Temporal::Off => "per-frame, no temporal filtering".into(),
+    };
+    let q = &r.sequence;
+    println!(
+        "sequence: {} frames ({}; {}, {} iterations/frame at {}px); mean NNST loss {:.4e} -> {:.4e} \
+         (output {:.4e}, re-matched {:.4e}); flicker {:.5} (motion-compensated), raw frame difference {:.5} \
+         (input {:.5}); max length change {:.3}% vs input ({:.4}% vs rest); {} control points inside the mesh",
+        q.frames,
+        mode,
+        r.preset,
+        r.iterations,
+        r.render_size,
+        q.eval_before,
+        q.eval_optimized,
+        q.eval_output,
+        q.eval_output_rematched,
+        q.flicker,
+        q.flicker_raw,
+        q.flicker_input_raw,
+        100.0 * r.worst.vs_input,
+        100.0 * r.worst.vs_rest,
+        r.worst.inside
+    );
+    Ok(())
+}
+
+/// `nst3d strands generate`: the procedural groom at rest, or one file per
+/// frame of its wind animation, and its mesh.
+fn generate(g: GenerateArgs) -> Result<()> {
+    let settings = GenerateSettings {
+        kind: match g.kind {
+            GenerateKindArg::FurBall => GenerateKind::FurBall,
+            GenerateKindArg::Grass => GenerateKind::Grass,
+        },
+        out: g.out,
+        mesh_out: g.mesh_out,
+        frames: g.frames,
+        strands: g.strands,
+        points: g.points,
+        length: g.length,
+        radius: g.radius,
+        seed: g.seed,
+        fps: g.fps,
+        wind: Wind {
+            direction_deg: g.wind_direction,
+            turn_deg_per_s: g.wind_turn,
+            strength: g.wind,
+            wavelength: g.wind_wavelength,
+            frequency_hz: g.wind_frequency,
+        },
+    };
+    let r = nst3d_groom::generate(&settings)?;
+    let w = &r.written;
+    println!(
+        "wrote {} strands x {} points to {}{}{}",
+        r.strands,
+        r.points,
+        w.first().map_or(String::new(), |p| p.display().to_string()),
+        if w.len() > 1 { format!(" .. {} ({} frames)", w[w.len() - 1].display(), w.len()) } else { String::new() },
+        r.mesh.as_ref().map_or(String::new(), |m| format!("; mesh {}", m.display()))
+    );
+    Ok(())
+}

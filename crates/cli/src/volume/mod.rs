@@ -1,0 +1,262 @@
+//! `nst3d volume`: the arguments of a volume job, turned once into
+//! [`VolumeSettings`], run by [`nst3d_volume::stylize`], and its report printed.
+
+pub mod preview;
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::{Args, ValueEnum};
+use nst3d_features::VggLayer;
+use nst3d_render::Projection;
+use nst3d_stylize::Mode;
+use nst3d_volume::{SequenceReport, SequenceSettings, UpAxis, VolumeReport, VolumeSettings};
+
+use crate::console::{plural, Console};
+
+/// Arguments of `nst3d volume`.
+#[derive(Args)]
+pub struct VolumeArgs {
+    /// Input OpenVDB file.
+    #[arg(long)]
+    pub input: PathBuf,
+    /// Style painting (PNG or JPEG).
+    #[arg(long)]
+    pub style: PathBuf,
+    /// Output OpenVDB file (written atomically).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Before/after preview PNG.
+    #[arg(long)]
+    pub preview: Option<PathBuf>,
+    /// Frames to stylize as a sequence (e.g. `1-120` or `1-3,5,7-20:2`);
+    /// then --input and --out are patterns with `####` or `%04d`.
+    #[arg(long)]
+    pub frames: Option<String>,
+    /// EMA weight α of the temporal coherence (eq. 4), sequences only.
+    #[arg(long, default_value_t = 0.7)]
+    pub ema: f32,
+    /// Let each octave's first sweep run without EMA blending (on by
+    /// default: it makes farm chunks meet at their seams and cuts flicker
+    /// further at the same style loss; docs/FARM.md, docs/SEQUENCES.md).
+    /// `--ema-settle false` runs Algorithm 1 exactly as printed.
+    #[arg(long, value_name = "BOOL", num_args = 0..=1, default_value_t = true, default_missing_value = "true",
+          action = clap::ArgAction::Set)]
+    pub ema_settle: bool,
+    /// Simulation velocity grid for the EMA (default: the first of velocity, vel, v).
+    #[arg(long)]
+    pub velocity_grid: Option<String>,
+    /// Voxels per frame per unit of the velocity grid (default: fitted to the data).
+    #[arg(long)]
+    pub velocity_scale: Option<f32>,
+    /// Name of the float grid to stylize.
+    #[arg(long, default_value = "density")]
+    pub grid: String,
+    /// velocity (transport by an optimised velocity, eq. 2) or density (scale field, eq. 5).
+    #[arg(long, default_value = "velocity")]
+    pub mode: Mode,
+    /// Octaves (coarse-to-fine levels).
+    #[arg(long, default_value_t = 2)]
+    pub octaves: usize,
+    /// Adam iterations per octave.
+    #[arg(long, default_value_t = 20)]
+    pub iters: usize,
+    /// Adam learning rate (default: 0.5 voxels per step in velocity mode, 0.1 in density mode).
+    #[arg(long)]
+    pub lr: Option<f32>,
+    /// Largest stylization velocity, in voxels (velocity mode; default 4% of
+    /// the grid's largest side, at least 1 voxel, so small grids keep their shape).
+    #[arg(long)]
+    pub vmax: Option<f32>,
+    /// Smallest density scale (density mode).
+    #[arg(long, default_value_t = 0.0)]
+    pub smin: f32,
+    /// Largest density scale (density mode).
+    #[arg(long, default_value_t = 2.0)]
+    pub smax: f32,
+    /// Style image scale factor (smaller = larger patterns).
+    #[arg(long, default_value_t = 0.5)]
+    pub style_scale: f32,
+    /// Match the painting's colour statistics too (by default only its
+    /// luminance: the renderer draws grey smoke, which cannot reach colour Grams).
+    #[arg(long)]
+    pub style_color: bool,
+    /// VGG-19 layers whose Gram matrices are matched.
+    #[arg(long, value_delimiter = ',', default_value = "relu1_1,relu2_1,relu3_1,relu4_1")]
+    pub layers: Vec<VggLayer>,
+    /// Absorption γ per unit density and voxel (default: chosen so the densest ray has optical depth 3).
+    #[arg(long)]
+    pub absorption: Option<f32>,
+    /// Apply the differentiable histogram equalization of eq. 7 (helps dense, flat-white smoke).
+    #[arg(long)]
+    pub equalize: bool,
+    /// Camera projection.
+    #[arg(long, value_enum, default_value = "perspective")]
+    pub camera: CameraKind,
+    /// Vertical field of view of the perspective camera, degrees.
+    #[arg(long, default_value_t = 30.0)]
+    pub fov: f32,
+    /// Which index axis points up in the file (Blender caches are z-up, Houdini y-up).
+    #[arg(long, value_enum, default_value = "z")]
+    pub up: UpArg,
+    /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache; see tools/fetch_weights.sh).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+    /// Camera set Θ whose style losses are summed each iteration: `front`,
+    /// `omniview:N` (N Poisson-disk cameras on a sphere, Sec. 4) or
+    /// `ring:N[:ELEV]` (a turntable of N cameras at ELEV degrees).
+    #[arg(long, default_value = "front", conflicts_with = "camera_file")]
+    pub cameras: String,
+    /// Shot camera or camera path (JSON, world space; see docs/CAMERAS.md).
+    #[arg(long)]
+    pub camera_file: Option<PathBuf>,
+    /// Seed of the omniview camera placement.
+    #[arg(long, default_value_t = 0)]
+    pub camera_seed: u64,
+    /// Also report the style loss seen from this camera set (same syntax as
+    /// --cameras), before and after: views the optimiser never saw.
+    #[arg(long)]
+    pub eval_cameras: Option<String>,
+    /// Farm chunk: stylize and write only frames START-END of --frames.
+    #[arg(long, requires = "frames")]
+    pub chunk: Option<String>,
+    /// Frames of overlap a chunk also optimises on each side (not written),
+    /// so its EMA sees the same neighbours as one whole run (docs/FARM.md).
+    #[arg(long, default_value_t = 0)]
+    pub warmup: i64,
+    /// Redo frames whose output file already exists.
+    #[arg(long)]
+    pub force: bool,
+    /// Folder for per-frame optimisation state and the checkpoint (default:
+    /// `<out dir>/.nst3d-work/<hash of the job's inputs and settings>`).
+    #[arg(long)]
+    pub work_dir: Option<PathBuf>,
+}
+
+/// Camera projection, as named on the command line.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum CameraKind {
+    Orthographic,
+    Perspective,
+}
+
+impl From<CameraKind> for Projection {
+    fn from(k: CameraKind) -> Self {
+        match k {
+            CameraKind::Orthographic => Projection::Orthographic,
+            CameraKind::Perspective => Projection::Perspective,
+        }
+    }
+}
+
+/// The file's up axis, as named on the command line.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum UpArg {
+    Y,
+    Z,
+}
+
+impl From<UpArg> for UpAxis {
+    fn from(u: UpArg) -> Self {
+        match u {
+            UpArg::Y => UpAxis::Y,
+            UpArg::Z => UpAxis::Z,
+        }
+    }
+}
+
+impl VolumeArgs {
+    /// The library's settings: the arguments as they are, typed.
+    fn settings(self) -> VolumeSettings {
+        let sequence = self.frames.map(|frames| SequenceSettings {
+            frames,
+            ema: self.ema,
+            ema_settle: self.ema_settle,
+            velocity_grid: self.velocity_grid,
+            velocity_scale: self.velocity_scale,
+            chunk: self.chunk,
+            warmup: self.warmup,
+            force: self.force,
+            work_dir: self.work_dir,
+        });
+        VolumeSettings {
+            input: self.input,
+            style: self.style,
+            out: self.out,
+            preview: self.preview,
+            grid: self.grid,
+            mode: self.mode,
+            octaves: self.octaves,
+            iters: self.iters,
+            lr: self.lr,
+            vmax: self.vmax,
+            smin: self.smin,
+            smax: self.smax,
+            style_scale: self.style_scale,
+            style_color: self.style_color,
+            layers: self.layers,
+            absorption: self.absorption,
+            equalize: self.equalize,
+            projection: self.camera.into(),
+            fov: self.fov,
+            up: self.up.into(),
+            weights: self.weights,
+            cameras: self.cameras,
+            camera_file: self.camera_file,
+            camera_seed: self.camera_seed,
+            eval_cameras: self.eval_cameras,
+            sequence,
+        }
+    }
+}
+
+/// Runs `nst3d volume`.
+pub fn run(args: VolumeArgs) -> Result<()> {
+    let ema = args.ema;
+    // A single frame still checks --ema, as it always has.
+    if !(0.0..1.0).contains(&ema) {
+        anyhow::bail!("--ema must be in [0, 1), got {ema}");
+    }
+    let settings = args.settings();
+    match nst3d_volume::stylize(&settings, &mut Console::default())? {
+        VolumeReport::Frame(r) => {
+            if let Some((before, after)) = r.held_out {
+                println!(
+                    "held-out cameras {}: mean style loss {before:.4e} -> {after:.4e}",
+                    settings.eval_cameras.as_deref().unwrap_or("")
+                );
+            }
+            println!(
+                "{}: grid '{}' {}x{}x{} stylized ({:?} mode, {} camera{}); style loss {:.4e} -> {:.4e} ({:.0}% lower); wrote {}",
+                r.input.display(),
+                r.grid,
+                r.dims[0],
+                r.dims[1],
+                r.dims[2],
+                r.mode,
+                r.cameras,
+                plural(r.cameras),
+                r.loss_before,
+                r.loss_after,
+                100.0 * r.loss_drop(),
+                r.out.display()
+            );
+        }
+        VolumeReport::Sequence(SequenceReport::NothingToDo { frames, start, end }) => {
+            println!("all {frames} frames {start}-{end} already exist; nothing to do (--force redoes them)");
+        }
+        VolumeReport::Sequence(SequenceReport::Done(s)) => println!(
+            "{} frames stylized ({:?} mode, EMA {}, {} camera{}); mean style loss {:.4e}; flicker {:.5}; {}wrote {}",
+            s.stylized,
+            s.mode,
+            s.ema,
+            s.cameras,
+            plural(s.cameras),
+            s.mean_loss,
+            s.flicker,
+            if s.unchanged > 0 { format!("{} empty frames copied unchanged; ", s.unchanged) } else { String::new() },
+            s.output
+        ),
+    }
+    Ok(())
+}

@@ -1,0 +1,79 @@
+//! `nst3d preview`: pictures of OpenVDB smoke drawn by the transmittance
+//! renderer the optimiser sees ([`nst3d_volume::preview`]).
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+use nst3d_volume::{PreviewSettings, PREVIEW_HEIGHT};
+
+use super::{CameraKind, UpArg};
+use crate::console::plural;
+
+/// Arguments of `nst3d preview`.
+#[derive(Args)]
+pub struct PreviewArgs {
+    /// OpenVDB file to draw (with --frames, a pattern with `####` or `%04d`).
+    #[arg(long)]
+    pub input: PathBuf,
+    /// A second file (e.g. the stylized result) drawn to the right of --input
+    /// with the same camera and absorption; a pattern with --frames.
+    #[arg(long)]
+    pub compare: Option<PathBuf>,
+    /// Output PNG (written atomically); with --turntable or --frames a pattern
+    /// with `####` or `%04d` (turntable pictures are numbered from 1).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Name of the float grid to draw.
+    #[arg(long, default_value = "density")]
+    pub grid: String,
+    /// Frames of a sequence (e.g. `1-40` or `1-3,5,7-20:2`), one PNG each.
+    #[arg(long)]
+    pub frames: Option<String>,
+    /// Number of pictures around the volume, at evenly spaced azimuths from the front.
+    #[arg(long)]
+    pub turntable: Option<usize>,
+    /// Turntable camera elevation in degrees above the horizon.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub elevation: f32,
+    /// Camera projection.
+    #[arg(long, value_enum, default_value = "perspective")]
+    pub camera: CameraKind,
+    /// Which index axis points up in the file (Blender caches are z-up, Houdini y-up).
+    #[arg(long, value_enum, default_value = "z")]
+    pub up: UpArg,
+    /// Absorption γ per unit density and voxel (default: the densest ray of
+    /// --input, or of its densest frame, gets optical depth 3; the same γ is
+    /// then used for --compare and every frame, so brightness does not pump).
+    #[arg(long, allow_negative_numbers = true)]
+    pub absorption: Option<f32>,
+    /// Picture height in pixels (a compare sheet is two pictures wide).
+    #[arg(long, default_value_t = PREVIEW_HEIGHT)]
+    pub height: usize,
+}
+
+/// Runs `nst3d preview`.
+pub fn run(args: PreviewArgs) -> Result<()> {
+    let settings = PreviewSettings {
+        input: args.input,
+        compare: args.compare,
+        out: args.out,
+        grid: args.grid,
+        frames: args.frames,
+        turntable: args.turntable,
+        elevation: args.elevation,
+        projection: args.camera.into(),
+        up: args.up.into(),
+        absorption: args.absorption,
+        height: args.height,
+    };
+    let r = nst3d_volume::preview(&settings)?;
+    println!(
+        "wrote {} preview picture{} ({}), absorption {:.6}",
+        r.pictures,
+        plural(r.pictures),
+        settings.out.display(),
+        r.absorption
+    );
+    Ok(())
+}

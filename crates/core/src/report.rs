@@ -1,0 +1,45 @@
+//! How a long job talks to whoever started it. The library never prints:
+//! the command line turns these calls into a progress bar and stderr lines,
+//! a Python binding into callbacks, a test into nothing at all.
+
+/// Receives a job's progress and messages. Every method has an empty
+/// default, so a caller implements only what it shows.
+pub trait Reporter {
+    /// The job is about to run `steps` optimisation steps (the length of a
+    /// progress bar). Called once, before the first [`Reporter::step`].
+    fn begin(&mut self, steps: u64) {
+        let _ = steps;
+    }
+    /// One step done; `message` says where the job is (octave, iteration, loss).
+    fn step(&mut self, message: &str) {
+        let _ = message;
+    }
+    /// The steps are over (the bar can go).
+    fn end(&mut self) {}
+    /// A remark about the input or a choice the job made on the user's
+    /// behalf (a grid not copied, frames without velocity): worth reading,
+    /// never an error.
+    fn note(&mut self, message: &str) {
+        let _ = message;
+    }
+    /// Where the job stands (resuming, frames kept, the sequence's box).
+    fn status(&mut self, message: &str) {
+        let _ = message;
+    }
+    /// A part of the job failed while the rest goes on (one frame of a
+    /// sequence); the job's error at the end says how many.
+    fn warn(&mut self, message: &str) {
+        let _ = message;
+    }
+    /// A result worth keeping in a log (one finished frame of a sequence).
+    fn result(&mut self, message: &str) {
+        let _ = message;
+    }
+}
+
+/// A [`Reporter`] that shows nothing (tests, batch callers that only want
+/// the returned report).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Silent;
+
+impl Reporter for Silent {}

@@ -1,0 +1,228 @@
+//! An animated groom stylized frame by frame with the temporal coherency of
+//! Sec. 3.3 ([`SequenceStylizer`]: EMA on the velocities, 1€ filter on the
+//! points). Every frame's groom is read once up front and its topology
+//! checked against the first, so a bad frame 200 fails in seconds, not
+//! after hours. One output (and preview) is written per frame as soon as it
+//! is done, then the whole stylizer state, so a killed job resumes after
+//! its last finished frame and ends bit-identical to an uninterrupted one.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use nst3d_core::Reporter;
+use nst3d_features::Vgg19;
+use nst3d_io::groom::read_groom;
+use nst3d_io::mesh::read_mesh;
+use nst3d_sequence::{default_work_dir, job_fingerprint, FrameSpec};
+use nst3d_strands::{check_topology, FlatStrands, Flow, SequenceParams, SequenceStylizer, TemporalParams};
+
+use crate::files::{frame_path, is_pattern, write_groom, write_preview, Checks};
+use crate::settings::{OutFormat, StrandSettings, Temporal};
+
+/// Name of the saved sequence state in the work folder.
+pub const STATE_FILE: &str = "strands.state";
+
+/// What an animated-groom job did.
+#[derive(Clone, Debug)]
+pub struct GroomSequenceReport {
+    /// The sequence's losses and flicker ([`SequenceStylizer::report`]).
+    pub sequence: nst3d_strands::SequenceReport,
+    /// The temporal settings used.
+    pub temporal: TemporalParams,
+    /// Which filters ran.
+    pub mode: Temporal,
+    /// The preset's name.
+    pub preset: &'static str,
+    /// Iterations per frame over all scales.
+    pub iterations: u32,
+    /// Square render size.
+    pub render_size: usize,
+    /// The worst lengths and collisions over the frames.
+    pub worst: Checks,
+}
+
+/// Stylizes the frames `s.frames` of the animated groom `s.groom`.
+pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -> Result<GroomSequenceReport> {
+    let format = OutFormat::of(&s.out)?;
+    s.check()?;
+    let spec = s.frames.as_deref().context("the job has no frames (set `frames`)")?;
+    let frames = FrameSpec::parse(spec)?;
+    let frames = frames.frames();
+    let groom_at = |f| frame_path(&s.groom, f, "--groom");
+    let out_at = |f| frame_path(&s.out, f, "--out");
+    out_at(frames[0])?;
+    if let Some(p) = &s.preview {
+        frame_path(p, frames[0], "--preview")?;
+    }
+    let mesh_varies = is_pattern(&s.mesh);
+    let mesh_at = |f| if mesh_varies { frame_path(&s.mesh, f, "--mesh") } else { Ok(s.mesh.clone()) };
+    let flow = match s.style_flow {
+        None => Flow::Animation,
+        Some(v) => Flow::Style(v),
+    };
+
+    // Every frame's groom up front: present, readable, same topology.
+    let first = read_groom(&groom_at(frames[0])?)?;
+    for &f in &frames[1..] {
+        let path = groom_at(f)?;
+        let g = read_groom(&path)?;
+        check_topology(&first, f, &g).with_context(|| path.display().to_string())?;
+    }
+    let fixed_mesh = if mesh_varies { None } else { Some(read_mesh(&s.mesh)?) };
+    if mesh_varies {
+        for &f in frames {
+            let p = mesh_at(f)?;
+            if !p.exists() {
+                bail!("{}: mesh of frame {f} not found", p.display());
+            }
+        }
+    }
+    let painting = nst3d_io::image::load_style(&s.style, 1.0)?;
+    let vgg = Vgg19::load(s.weights.as_deref())?;
+    let stylize = s.stylize_params(first.strand_count());
+    let (temporal, borrowed) = s.temporal_params();
+    if borrowed {
+        reporter.note(&format!(
+            "preset {} has no temporal parameters in Table 1; using Long Hair's (override with --ema-sigma, \
+             --ema-nu, --one-euro-*)",
+            s.preset.params().name
+        ));
+    }
+    let mut params = SequenceParams::new(stylize, temporal);
+    (params.ema, params.one_euro) = match s.temporal {
+        Temporal::EmaOneEuro => (true, true),
+        Temporal::Ema => (true, false),
+        Temporal::OneEuro => (false, true),
+        Temporal::Off => (false, false),
+    };
+    params.ema_clock = s.ema_clock;
+    params.flow = flow;
+    let mut seq = SequenceStylizer::new(&vgg, &painting, params)?;
+
+    // Resume: the state saved after the last finished frame of this job.
+    let work = match &s.work_dir {
+        Some(w) => w.clone(),
+        None => default_work_dir(&out_at(frames[0])?, job_hash(s, frames, &groom_at, &mesh_at)?),
+    };
+    let state_path = work.join(STATE_FILE);
+    // Only our own file goes: the work folder may hold more.
+    if s.force && state_path.exists() {
+        std::fs::remove_file(&state_path).with_context(|| format!("cannot remove {}", state_path.display()))?;
+    }
+    let mut done = 0usize;
+    let mut worst = Checks::default();
+    if state_path.exists() {
+        let bytes = std::fs::read(&state_path).with_context(|| state_path.display().to_string())?;
+        let extra =
+            seq.restore_state(&bytes).with_context(|| format!("{} (--force starts over)", state_path.display()))?;
+        let &[n, w0, w1, w2] = extra.as_slice() else {
+            bail!("{}: saved state has no frame count (--force starts over)", state_path.display());
+        };
+        done = n as usize;
+        if done > frames.len() {
+            bail!(
+                "{}: saved state has {done} frames done, the job has {} (--force starts over)",
+                state_path.display(),
+                frames.len()
+            );
+        }
+        for &f in &frames[..done] {
+            let out = out_at(f)?;
+            if !out.exists() {
+                bail!(
+                    "{}: output of frame {f} is missing but the saved state in {} has it done; --force starts over",
+                    out.display(),
+                    work.display()
+                );
+            }
+        }
+        worst = Checks { vs_input: w0, vs_rest: w1 as f32, inside: w2 as usize };
+        if done == frames.len() {
+            reporter
+                .status(&format!("all {done} frames already done (state in {}; --force redoes them)", work.display()));
+        } else if let Some(last) = done.checked_sub(1).map(|i| frames[i]) {
+            reporter.status(&format!(
+                "resuming after frame {last} ({done} of {} done) from {}",
+                frames.len(),
+                work.display()
+            ));
+        }
+    }
+    let per_frame: u32 = seq.params().stylize.iterations.iter().sum();
+    reporter.begin(per_frame as u64 * (frames.len() - done) as u64);
+    for (i, &f) in frames.iter().enumerate().skip(done) {
+        let groom = read_groom(&groom_at(f)?)?;
+        let frame_mesh;
+        let mesh = match &fixed_mesh {
+            Some(m) => m,
+            None => {
+                frame_mesh = read_mesh(&mesh_at(f)?)?;
+                &frame_mesh
+            }
+        };
+        let r = seq.stylize_frame(f, &groom, mesh, &mut |r| {
+            reporter.step(&format!(
+                "frame {f} scale {}/3 iteration {}/{} loss {:.4e}",
+                r.scale + 1,
+                r.iteration,
+                r.iterations,
+                r.loss
+            ))
+        })?;
+        let out = out_at(f)?;
+        let written = r.scene.to_input_topology(&FlatStrands::from_groom(&groom)?, &r.guides)?;
+        write_groom(&out, format, &written)?;
+        if let Some(p) = &s.preview {
+            write_preview(&frame_path(p, f, "--preview")?, &r.scene, &r.strands, &painting)?;
+        }
+        worst = worst.worst(Checks::new(&groom, &r.scene, &r.guides, &written, mesh)?);
+        reporter.result(&format!(
+            "frame {f}: NNST loss {:.4e} -> {:.4e} (output {:.4e}){}; wrote {}",
+            r.eval_before,
+            r.optimized.eval_after,
+            r.eval_output,
+            r.flicker.map_or(String::new(), |k| format!(
+                "; flicker {:.5} (raw {:.5}, input {:.5})",
+                k.compensated, k.raw, k.input_raw
+            )),
+            out.display()
+        ));
+        // Outputs first, then the state: a kill in between redoes this frame.
+        std::fs::create_dir_all(&work).with_context(|| format!("cannot create the work folder {}", work.display()))?;
+        let state = seq.save_state(&[(i + 1) as f64, worst.vs_input, worst.vs_rest as f64, worst.inside as f64]);
+        nst3d_io::atomic::write_atomic(&state_path, |w| w.write_all(&state))
+            .with_context(|| format!("cannot write {}", state_path.display()))?;
+    }
+    reporter.end();
+    let p = &seq.params().stylize;
+    Ok(GroomSequenceReport {
+        sequence: seq.report(),
+        temporal,
+        mode: s.temporal,
+        preset: p.preset.name,
+        iterations: per_frame,
+        render_size: p.render_size,
+        worst,
+    })
+}
+
+/// Everything a strand sequence's saved state depends on: the settings
+/// (not `force`, `work_dir`), the painting's contents, and every frame's
+/// groom and mesh by path, size and modification time. The thread count is
+/// included: results are reproducible bit for bit only on the same count.
+fn job_hash(
+    s: &StrandSettings,
+    frames: &[i64],
+    groom_at: &dyn Fn(i64) -> Result<PathBuf>,
+    mesh_at: &dyn Fn(i64) -> Result<PathBuf>,
+) -> Result<u64> {
+    let mut a = s.clone();
+    (a.force, a.work_dir) = (false, None);
+    let mut stamped = Vec::with_capacity(2 * frames.len());
+    for &f in frames {
+        stamped.push(groom_at(f)?);
+        stamped.push(mesh_at(f)?);
+    }
+    let settings = format!("{a:?}|threads {}", rayon::current_num_threads());
+    Ok(job_fingerprint(&settings, &[s.style.clone()], &stamped)?)
+}

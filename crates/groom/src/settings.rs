@@ -1,0 +1,218 @@
+//! The settings of a groom job, typed once: a front end fills a
+//! [`StrandSettings`] and the library checks and runs it.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Result};
+use nst3d_strands::pipeline::StylizeParams;
+use nst3d_strands::{EmaClock, Preset, TemporalParams};
+
+/// Which temporal coherence an animated groom gets (Sec. 3.3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Temporal {
+    /// The paper: EMA on the velocities and the 1€ filter on the points.
+    EmaOneEuro,
+    /// The EMA only.
+    Ema,
+    /// The 1€ filter only.
+    OneEuro,
+    /// Every frame stylized on its own.
+    Off,
+}
+
+/// Everything `nst3d strands` can be asked, for one groom or an animation.
+#[derive(Clone, Debug)]
+pub struct StrandSettings {
+    /// Input groom (.hair, .data, .ply, .usda, .abc); with `frames` a pattern.
+    pub groom: PathBuf,
+    /// Head or body mesh the strands grow from (.ply or .obj); with
+    /// `frames` it may be a pattern too (a moving head).
+    pub mesh: PathBuf,
+    /// Style painting (PNG or JPEG); its luminance is matched.
+    pub style: PathBuf,
+    /// Output groom, .usda or .ply (written atomically); with `frames` a pattern.
+    pub out: PathBuf,
+    /// Before | after | painting preview PNG; with `frames` a pattern.
+    pub preview: Option<PathBuf>,
+    /// Table 1 preset.
+    pub preset: Preset,
+    /// Frames of an animated groom (e.g. `1-24`), stylized in order.
+    pub frames: Option<String>,
+    /// Start over, ignoring the state a killed run of the same job left.
+    pub force: bool,
+    /// Folder of the state saved after every frame; `None`:
+    /// `<out dir>/.nst3d-work/<hash of the job>`.
+    pub work_dir: Option<PathBuf>,
+    /// Temporal coherence of a sequence.
+    pub temporal: Temporal,
+    /// EMA coefficient σ (default: the preset's).
+    pub ema_sigma: Option<f32>,
+    /// EMA decaying period ν, as a fraction of the iterations (default: the preset's).
+    pub ema_nu: Option<f32>,
+    /// What the EMA's iteration count m runs over.
+    pub ema_clock: EmaClock,
+    /// 1€ blending parameter α (default: the preset's).
+    pub one_euro_alpha: Option<f32>,
+    /// 1€ scaling coefficient β (default: the preset's).
+    pub one_euro_beta: Option<f32>,
+    /// 1€ minimum cutoff frequency f_min in Hz (default: the preset's).
+    pub one_euro_fmin: Option<f32>,
+    /// Frame rate of the animation (default: the preset's).
+    pub fps: Option<f32>,
+    /// Style flow s*: a world-space velocity in groom units per frame that
+    /// carries the stylization instead of the groom's own motion.
+    pub style_flow: Option<[f32; 3]>,
+    /// Total iterations over the three scales (default: the preset's).
+    pub iters: Option<u32>,
+    /// Square render size (default: the preset's).
+    pub render_size: Option<usize>,
+    /// Proxy strands to grow (default: the preset's proxy/guide ratio).
+    pub proxies: Option<usize>,
+    /// Seed of densification and camera sampling.
+    pub seed: u64,
+    /// Multiplier on the preset's learning rates (scaled by the groom's radius).
+    pub lr_scale: f32,
+    /// Cameras per scale whose matches are cached (0: a new camera every iteration).
+    pub views_per_scale: usize,
+    /// Evaluation views with `views_per_scale` 0.
+    pub eval_views: usize,
+    /// Iterations of the three scales (overrides `iters`).
+    pub scale_iters: Option<[u32; 3]>,
+    /// Strand cross-section sigma in pixels (default: the pipeline's).
+    pub strand_width: Option<f32>,
+    /// VGG-19 weights file; `None`: `$NST3D_VGG19`, else the user cache.
+    pub weights: Option<PathBuf>,
+}
+
+impl StrandSettings {
+    /// The command line's defaults for stylizing `groom` on `mesh` with `style` into `out`.
+    pub fn new(
+        groom: impl Into<PathBuf>,
+        mesh: impl Into<PathBuf>,
+        style: impl Into<PathBuf>,
+        out: impl Into<PathBuf>,
+    ) -> Self {
+        Self {
+            groom: groom.into(),
+            mesh: mesh.into(),
+            style: style.into(),
+            out: out.into(),
+            preview: None,
+            preset: Preset::ShortHair,
+            frames: None,
+            force: false,
+            work_dir: None,
+            temporal: Temporal::EmaOneEuro,
+            ema_sigma: None,
+            ema_nu: None,
+            ema_clock: EmaClock::Scale,
+            one_euro_alpha: None,
+            one_euro_beta: None,
+            one_euro_fmin: None,
+            fps: None,
+            style_flow: None,
+            iters: None,
+            render_size: None,
+            proxies: None,
+            seed: 0,
+            lr_scale: 0.3,
+            views_per_scale: 8,
+            eval_views: 4,
+            scale_iters: None,
+            strand_width: None,
+            weights: None,
+        }
+    }
+
+    /// Checks the numbers before any slow work.
+    pub fn check(&self) -> Result<()> {
+        if self.iters == Some(0) {
+            bail!("--iters must be at least 1");
+        }
+        if !(self.lr_scale.is_finite() && self.lr_scale > 0.0) {
+            bail!("--lr-scale must be a positive number, got {}", self.lr_scale);
+        }
+        if self.scale_iters.is_some_and(|n| n.iter().all(|&k| k == 0)) {
+            bail!("--scale-iters must run at least one iteration");
+        }
+        if let Some(w) = self.strand_width {
+            if !(w.is_finite() && w > 0.0) {
+                bail!("--strand-width must be a positive number of pixels, got {w}");
+            }
+        }
+        if let Some(v) = self.style_flow {
+            if !v.iter().all(|c| c.is_finite()) {
+                bail!("--style-flow needs three finite numbers X,Y,Z, got {v:?}");
+            }
+        }
+        Ok(())
+    }
+
+    /// The stylization settings for a groom of `guides` strands (proxies
+    /// default to the preset's proxy/guide ratio).
+    pub fn stylize_params(&self, guides: usize) -> StylizeParams {
+        let mut params = StylizeParams::from_preset(self.preset.params(), guides);
+        if let Some(n) = self.iters {
+            params = params.with_total_iterations(n);
+        }
+        if let Some(r) = self.render_size {
+            params.render_size = r;
+        }
+        if let Some(m) = self.proxies {
+            params.proxies = m;
+        }
+        params.seed = self.seed;
+        params.lr_scale = self.lr_scale;
+        params.views_per_scale = self.views_per_scale;
+        params.eval_views = self.eval_views;
+        if let Some(n) = self.scale_iters {
+            params.iterations = n;
+        }
+        if let Some(w) = self.strand_width {
+            params.strand_width_px = w;
+        }
+        params
+    }
+
+    /// The temporal settings of a sequence: the preset's (Table 1) with any
+    /// overrides, and whether the preset had none (static presets borrow
+    /// Long Hair's, the animated hair example).
+    pub fn temporal_params(&self) -> (TemporalParams, bool) {
+        let preset = self.preset.params();
+        let borrowed = preset.temporal.is_none();
+        let mut t =
+            preset.temporal.unwrap_or_else(|| Preset::LongHair.params().temporal.expect("Long Hair is animated"));
+        let set = |dst: &mut f32, v: Option<f32>| {
+            if let Some(v) = v {
+                *dst = v;
+            }
+        };
+        set(&mut t.ema_sigma, self.ema_sigma);
+        set(&mut t.ema_nu, self.ema_nu);
+        set(&mut t.blend_alpha, self.one_euro_alpha);
+        set(&mut t.beta, self.one_euro_beta);
+        set(&mut t.min_cutoff_hz, self.one_euro_fmin);
+        set(&mut t.fps, self.fps);
+        (t, borrowed)
+    }
+}
+
+/// The groom formats nst3d writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OutFormat {
+    /// USD BasisCurves, text.
+    Usda,
+    /// PLY strand points, the layout the readers take.
+    Ply,
+}
+
+impl OutFormat {
+    /// The format `path`'s extension names.
+    pub fn of(path: &Path) -> Result<Self> {
+        match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+            Some("usda") => Ok(Self::Usda),
+            Some("ply") => Ok(Self::Ply),
+            _ => bail!("--out {}: the output groom must end in .usda or .ply", path.display()),
+        }
+    }
+}

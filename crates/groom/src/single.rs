@@ -1,0 +1,109 @@
+//! One groom stylized (strand style transfer paper, Alg. 1 for one frame)
+//! by [`nst3d_strands::pipeline::stylize`]. The groom and its head mesh are
+//! read and checked and the output format picked from the output's
+//! extension before the slow part. The stylized guides are written
+//! atomically in the input's topology (proxies are render-only and not
+//! written); the preview is before | after | painting from the front camera
+//! (the direction the groom's roots face).
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use nst3d_core::Reporter;
+use nst3d_features::Vgg19;
+use nst3d_io::groom::read_groom;
+use nst3d_io::mesh::read_mesh;
+use nst3d_strands::pipeline::{stylize, StrandScene};
+use nst3d_strands::FlatStrands;
+
+use crate::files::{write_groom, write_preview, Checks};
+use crate::settings::{OutFormat, StrandSettings, Temporal};
+
+/// What a single-groom job did.
+#[derive(Clone, Debug)]
+pub struct GroomReport {
+    /// The input groom.
+    pub groom: PathBuf,
+    /// Strands written (the input's).
+    pub strands: usize,
+    /// Control points written (the input's).
+    pub points: usize,
+    /// The preset's name.
+    pub preset: &'static str,
+    /// Proxy strands grown for rendering.
+    pub proxies: usize,
+    /// Iterations over all scales.
+    pub iterations: u32,
+    /// Square render size.
+    pub render_size: usize,
+    /// NNST loss over the evaluation views before and after.
+    pub eval_before: f32,
+    /// After.
+    pub eval_after: f32,
+    /// After, with the NNST targets matched again on the result.
+    pub eval_after_rematched: f32,
+    /// Lengths and collisions of what was written.
+    pub checks: Checks,
+    /// The written file.
+    pub out: PathBuf,
+}
+
+impl GroomReport {
+    /// Relative drop of the evaluation loss, `1 − after / before`.
+    pub fn loss_drop(&self) -> f32 {
+        1.0 - self.eval_after / self.eval_before
+    }
+}
+
+/// Stylizes the groom `s.groom` into `s.out` (and `s.preview`).
+pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Result<GroomReport> {
+    let format = OutFormat::of(&s.out)?;
+    s.check()?;
+    if s.frames.is_some() {
+        bail!("{} names frames: run it as a sequence", s.groom.display());
+    }
+    if s.temporal != Temporal::EmaOneEuro || s.style_flow.is_some() {
+        bail!("--temporal and --style-flow apply to sequences; add --frames");
+    }
+    let groom = read_groom(&s.groom)?;
+    let head = read_mesh(&s.mesh)?;
+    let painting = nst3d_io::image::load_style(&s.style, 1.0)?;
+    let vgg = Vgg19::load(s.weights.as_deref())?;
+    let params = s.stylize_params(groom.strand_count());
+
+    let scene = StrandScene::new(&groom, &head, &params)
+        .with_context(|| format!("{} on {}", s.groom.display(), s.mesh.display()))?;
+    let total: u32 = params.iterations.iter().sum();
+    reporter.begin(total as u64);
+    let result = stylize(&scene, &painting, &vgg, &params, &mut |r| {
+        reporter.step(&format!(
+            "scale {}/3 iteration {}/{} loss {:.4e}",
+            r.scale + 1,
+            r.iteration,
+            r.iterations,
+            r.loss
+        ))
+    })?;
+    reporter.end();
+
+    let written = scene.to_input_topology(&FlatStrands::from_groom(&groom)?, &result.guides)?;
+    write_groom(&s.out, format, &written)?;
+    if let Some(preview) = &s.preview {
+        write_preview(preview, &scene, &result.strands, &painting)?;
+    }
+    let checks = Checks::new(&groom, &scene, &result.guides, &written, &head)?;
+    Ok(GroomReport {
+        groom: s.groom.clone(),
+        strands: written.strand_count(),
+        points: written.points.len(),
+        preset: params.preset.name,
+        proxies: scene.rest.strand_count() - scene.guide_count,
+        iterations: total,
+        render_size: params.render_size,
+        eval_before: result.eval_before,
+        eval_after: result.eval_after,
+        eval_after_rematched: result.eval_after_rematched,
+        checks,
+        out: s.out.clone(),
+    })
+}

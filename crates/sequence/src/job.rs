@@ -1,0 +1,43 @@
+//! A farm job's identity: which work folder its saved state lives in. A
+//! rerun of the same job (same settings, same painting, same input frames)
+//! finds its folder again and resumes; any change makes a new folder, so a
+//! stale state is never applied to different work.
+
+use std::path::{Path, PathBuf};
+
+/// FNV-1a, 64 bits: a stable name for a job's work folder (the same on
+/// every machine and build, unlike the standard library's hasher).
+fn fnv1a(bytes: &[u8], mut h: u64) -> u64 {
+    for b in bytes {
+        h ^= *b as u64;
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    h
+}
+
+/// A stable hash of a job: its `settings` text, the contents of the files
+/// in `read` (small: a painting, a camera file) and the path, size and
+/// modification time of the files in `stamped` (the input frames, which may
+/// be large: their contents are not read).
+pub fn job_fingerprint(settings: &str, read: &[PathBuf], stamped: &[PathBuf]) -> std::io::Result<u64> {
+    let named = |p: &Path, e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", p.display()));
+    let mut h = fnv1a(settings.as_bytes(), 0xcbf2_9ce4_8422_2325);
+    for p in read {
+        h = fnv1a(&std::fs::read(p).map_err(|e| named(p, e))?, h);
+    }
+    for p in stamped {
+        let meta = std::fs::metadata(p).map_err(|e| named(p, e))?;
+        let mtime =
+            meta.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map_or(0, |d| d.as_nanos());
+        h = fnv1a(format!("{}|{}|{mtime}", p.display(), meta.len()).as_bytes(), h);
+    }
+    Ok(h)
+}
+
+/// The default work folder of a job whose first output is `out`:
+/// `<out dir>/.nst3d-work/<hash>`, beside the outputs so it lands on the
+/// same (shared) disk every blade of the farm sees.
+pub fn default_work_dir(out: &Path, hash: u64) -> PathBuf {
+    let dir = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    dir.join(".nst3d-work").join(format!("{hash:016x}"))
+}

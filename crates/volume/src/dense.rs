@@ -1,0 +1,80 @@
+//! Sparse grids become dense boxes of voxels for the optimiser and the
+//! renderer, and several grids (the frames of a simulation, a result and its
+//! original) share one box so cameras and fields line up between them.
+
+use nst3d_core::Grid3;
+use nst3d_io::vdb::DenseBox;
+
+/// Copies `src`, whose voxel (0,0,0) is index `src_origin`, into `dst`,
+/// whose voxel (0,0,0) is index `dst_origin`. Voxels outside `dst` are
+/// dropped: one frame's box may stick out of a box fixed by other frames.
+pub fn paste(src: &Grid3, src_origin: [i32; 3], dst: &mut Grid3, dst_origin: [i32; 3]) {
+    let [nx, ny, nz] = src.dims;
+    let dims = dst.dims;
+    for z in 0..nz {
+        for y in 0..ny {
+            let (oy, oz) = (src_origin[1] + y as i32 - dst_origin[1], src_origin[2] + z as i32 - dst_origin[2]);
+            let ox = src_origin[0] - dst_origin[0];
+            if oy < 0 || oz < 0 || oy as usize >= dims[1] || oz as usize >= dims[2] || ox < 0 {
+                continue;
+            }
+            let at = dst.index(ox as usize, oy as usize, oz as usize);
+            let n = nx.min(dims[0] - ox as usize);
+            dst.data[at..at + n].copy_from_slice(&src.data[src.index(0, y, z)..][..n]);
+        }
+    }
+}
+
+/// Surrounds a grid with `m` voxels of empty space on every side.
+pub fn pad(g: &Grid3, m: usize) -> Grid3 {
+    if m == 0 {
+        return g.clone();
+    }
+    let [nx, ny, nz] = g.dims;
+    let mut out = Grid3::zeros([nx + 2 * m, ny + 2 * m, nz + 2 * m]);
+    let m = m as i32;
+    paste(g, [m; 3], &mut out, [0; 3]);
+    out
+}
+
+/// Smallest box holding both.
+pub fn union_box(a: &DenseBox, b: &DenseBox) -> DenseBox {
+    let lo: [i32; 3] = std::array::from_fn(|i| a.origin[i].min(b.origin[i]));
+    let hi: [i64; 3] = std::array::from_fn(|i| {
+        (i64::from(a.origin[i]) + a.dims[i] as i64).max(i64::from(b.origin[i]) + b.dims[i] as i64)
+    });
+    DenseBox { origin: lo, dims: std::array::from_fn(|i| (hi[i] - i64::from(lo[i])) as usize) }
+}
+
+/// A loaded grid moved into the larger box `into`; an empty one (`None`) is all zeros.
+pub fn in_box(loaded: Option<(DenseBox, Grid3)>, into: &DenseBox) -> Grid3 {
+    let Some((own, d)) = loaded else {
+        return Grid3::zeros(into.dims);
+    };
+    if own == *into {
+        return d;
+    }
+    let mut out = Grid3::zeros(into.dims);
+    paste(&d, own.origin, &mut out, into.origin);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paste_places_and_clips() {
+        let mut src = Grid3::zeros([2, 2, 2]);
+        src.data.iter_mut().enumerate().for_each(|(i, v)| *v = i as f32 + 1.0);
+        let padded = pad(&src, 1);
+        assert_eq!(padded.dims, [4, 4, 4]);
+        assert_eq!(padded.data[padded.index(1, 1, 1)], 1.0);
+        assert_eq!(padded.data[padded.index(2, 2, 2)], 8.0);
+        assert_eq!(padded.data.iter().sum::<f32>(), 36.0);
+        // Half of the source sticks out of the destination along y.
+        let mut dst = Grid3::zeros([2, 1, 2]);
+        paste(&src, [0, 0, 0], &mut dst, [0, 1, 0]);
+        assert_eq!(dst.data, vec![3.0, 4.0, 7.0, 8.0]);
+    }
+}

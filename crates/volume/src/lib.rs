@@ -1,0 +1,53 @@
+//! nst3d's volume jobs, each one library call from files to files:
+//!
+//! - [`stylize`]: one OpenVDB frame ([`stylize_frame_file`], paper Sec. 3)
+//!   or a whole simulation with the EMA of Algorithm 1
+//!   ([`stylize_sequence_files`], Sec. 3.2), chunked for a farm;
+//! - [`preview`]: pictures of smoke drawn by the same transmittance renderer.
+//!
+//! A front end fills a [`VolumeSettings`] (or [`PreviewSettings`]) once,
+//! passes a [`Reporter`] for progress and messages, and gets a typed report
+//! back; errors are `anyhow` chains whose messages, joined, make the one
+//! line a user sees. The numerical stages live in their own crates
+//! (`stylize`, `render`, `features`, `loss`, `sequence`); this crate turns
+//! files, grids and camera sets into their inputs and their results back
+//! into files.
+
+#![warn(missing_docs)]
+
+pub mod cameras;
+pub mod dense;
+pub mod frame;
+pub mod look;
+pub mod output;
+pub mod preview;
+pub mod sequence;
+pub mod settings;
+pub mod simulation;
+pub mod style;
+
+pub use cameras::{front_camera, turntable, CameraSet, Cameras, Lens};
+pub use frame::{stylize_frame_file, FrameReport};
+pub use look::PREVIEW_HEIGHT;
+pub use nst3d_core::{Reporter, Silent};
+pub use preview::{preview, PreviewReport, PreviewSettings};
+pub use sequence::{stylize_sequence_files, SequenceReport, SequenceSummary};
+pub use settings::{SequenceSettings, UpAxis, VolumeSettings};
+
+/// What a volume job did: one frame, or a sequence.
+#[derive(Clone, Debug)]
+pub enum VolumeReport {
+    /// A single frame was stylized.
+    Frame(FrameReport),
+    /// A sequence (or chunk) was stylized, or had nothing left to do.
+    Sequence(SequenceReport),
+}
+
+/// Runs the volume job `settings` describes: a sequence when it has
+/// [`VolumeSettings::sequence`], else one frame.
+pub fn stylize(settings: &VolumeSettings, reporter: &mut dyn Reporter) -> anyhow::Result<VolumeReport> {
+    Ok(match settings.sequence {
+        Some(_) => VolumeReport::Sequence(stylize_sequence_files(settings, reporter)?),
+        None => VolumeReport::Frame(stylize_frame_file(settings, reporter)?),
+    })
+}

@@ -1,0 +1,72 @@
+//! How a volume looks to the loss and to the artist: the absorption γ that
+//! keeps renders between flat and saturated, the views of a camera set, and
+//! the pictures of a density.
+
+use anyhow::{bail, Result};
+use nst3d_core::{Grid3, Image};
+use nst3d_render::Camera;
+use nst3d_stylize::{ViewLoss, ViewSpec};
+
+/// Height of the preview sheets in pixels.
+pub const PREVIEW_HEIGHT: usize = 384;
+
+/// Absorption giving the densest ray an optical depth of 3: dense enough to
+/// show shape, thin enough that the image does not flatten to white.
+pub fn auto_absorption(d: &Grid3, camera: &Camera) -> Result<f32> {
+    // With γ = 0 the render is the plain column sum of density along each ray.
+    let (sums, _) = nst3d_render::render(d, camera, 0.0)?;
+    let max = sums.data.iter().copied().fold(0.0f32, f32::max);
+    if !(max > 0.0) {
+        bail!("the density is zero everywhere in view: nothing to stylize");
+    }
+    Ok(3.0 / max)
+}
+
+/// Absorption from `explicit`, or the smallest [`auto_absorption`] over
+/// every density and camera given, so no view of any frame saturates.
+pub fn absorption_for<'a>(explicit: Option<f32>, pairs: impl Iterator<Item = (&'a Grid3, &'a Camera)>) -> Result<f32> {
+    match explicit {
+        Some(g) if g.is_finite() && g > 0.0 => Ok(g),
+        Some(g) => bail!("--absorption must be a positive number, got {g}"),
+        None => {
+            let mut best = f32::INFINITY;
+            for (d, c) in pairs {
+                if let Ok(g) = auto_absorption(d, c) {
+                    best = best.min(g);
+                }
+            }
+            if !best.is_finite() {
+                bail!("the density is zero everywhere in view: nothing to stylize");
+            }
+            Ok(best)
+        }
+    }
+}
+
+/// Views for `cameras` with absorption `gamma`.
+pub fn views_of(cameras: &[Camera], gamma: f32, equalize: bool) -> Vec<ViewSpec> {
+    cameras.iter().map(|c| ViewSpec { camera: Some(*c), gamma, exposure: gamma, equalize }).collect()
+}
+
+/// Mean style loss of `d` over `views` (0 for none).
+pub fn mean_loss(loss: &ViewLoss, d: &Grid3, views: &[ViewSpec]) -> Result<f32> {
+    let mut total = 0.0;
+    for v in views {
+        total += loss.loss(d, v)?;
+    }
+    Ok(total / views.len().max(1) as f32)
+}
+
+/// The picture an artist sees of a density: the network's grey image, 2x.
+pub fn display(loss: &ViewLoss, d: &Grid3, view: &ViewSpec) -> Result<Image> {
+    Ok(nst3d_render::upsample2x(&loss.image(d, view)?))
+}
+
+/// The picture an artist sees: the rendered light `Σ d·τ` scaled by γ (as
+/// `ViewLoss::image` with exposure γ), about `1 − exp(−γ Σ d)`: white smoke
+/// on black that saturates gracefully instead of clipping.
+pub fn transmittance_image(d: &Grid3, cam: &Camera, gamma: f32) -> Result<Image> {
+    let (mut img, _) = nst3d_render::render(d, cam, gamma)?;
+    img.data.iter_mut().for_each(|v| *v *= gamma);
+    Ok(img)
+}

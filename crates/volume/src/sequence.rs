@@ -1,0 +1,507 @@
+//! A whole simulation stylized with the EMA temporal coherence of
+//! Algorithm 1 ([`nst3d_sequence::ema`]), as one job or as one farm chunk.
+//!
+//! All frames are densified into one common box (the union of their active
+//! boxes plus the velocity margin) so fields can be carried from frame to
+//! frame. Frames are read from disk when needed and every frame's field and
+//! Adam moments live in a work folder ([`DiskStore`]), always, whatever the
+//! sequence length: memory holds a few frames, and a killed run resumes from
+//! its last completed sweep. Farm chunks optimise their frames plus a
+//! warm-up overlap but derive the box, velocity scale and absorption from
+//! the whole frame range, so every chunk solves the same problem.
+//!
+//! Frames whose grid is empty (a simulation's first frames often are) are
+//! copied to the output unchanged and cut the EMA chain; frames without a
+//! velocity grid are carried to their neighbour unmoved (identity advection),
+//! so the EMA still couples them, only without following the flow.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use nst3d_core::{Grid3, Reporter};
+use nst3d_io::vdb::{read_vdb, GridValues, Transform};
+use nst3d_sequence::ema::{stylize_sequence_with, SequenceParams, Simulation, StateStore};
+use nst3d_sequence::{default_work_dir, expand_pattern, job_fingerprint, DiskStore, FrameSpec};
+use nst3d_stylize::{Mode, ViewLoss, ViewSpec};
+
+use crate::cameras::Cameras;
+use crate::look::{absorption_for, mean_loss, views_of};
+use crate::output::write_stylized;
+use crate::settings::{SequenceSettings, UpAxis, VolumeSettings};
+use crate::simulation::{VdbSimulation, VELOCITY_NAMES};
+use crate::style::load_style_and_vgg;
+
+/// What a sequence job did.
+#[derive(Clone, Debug)]
+pub enum SequenceReport {
+    /// Every frame of the chunk was already written (and `force` was off).
+    NothingToDo {
+        /// Frames in the chunk.
+        frames: usize,
+        /// The chunk's first frame number.
+        start: i64,
+        /// Its last.
+        end: i64,
+    },
+    /// Frames were stylized and written.
+    Done(SequenceSummary),
+}
+
+/// The figures of a finished sequence job.
+#[derive(Clone, Debug)]
+pub struct SequenceSummary {
+    /// Frames stylized and written.
+    pub stylized: usize,
+    /// Empty frames copied through unchanged.
+    pub unchanged: usize,
+    /// The optimised quantity.
+    pub mode: Mode,
+    /// The EMA weight α.
+    pub ema: f32,
+    /// Cameras per frame.
+    pub cameras: usize,
+    /// Mean style loss of the written frames over their cameras.
+    pub mean_loss: f32,
+    /// Mean flicker of consecutive written frames ([`nst3d_sequence::flicker`]).
+    pub flicker: f64,
+    /// The output pattern.
+    pub output: String,
+}
+
+/// The frames a run touches: the chunk's frames plus its warm-up, and which
+/// of them it writes.
+struct Plan {
+    /// Every frame of the sequence (the chunk's context).
+    all: Vec<i64>,
+    /// Input file of each of `all`.
+    paths: Vec<PathBuf>,
+    /// Frames optimised by this run (chunk plus warm-up).
+    run_frames: Vec<i64>,
+    /// Output file of each of `run_frames`.
+    outs: Vec<PathBuf>,
+    /// Indices into `run_frames` still to be written.
+    todo: Vec<usize>,
+    /// The chunk's first and last frame.
+    start: i64,
+    end: i64,
+    /// Frames of the chunk.
+    written: usize,
+}
+
+/// The settings' frames, chunk and warm-up turned into file lists.
+fn plan(s: &VolumeSettings, seq: &SequenceSettings) -> Result<Plan> {
+    let spec = FrameSpec::parse(&seq.frames)?;
+    let input = s.input.to_string_lossy().to_string();
+    let output = s.out.to_string_lossy().to_string();
+    let all = spec.frames().to_vec();
+    if seq.warmup < 0 {
+        bail!("--warmup must be 0 or more frames, got {}", seq.warmup);
+    }
+    let (start, end) = match &seq.chunk {
+        Some(c) => parse_chunk(c)?,
+        None => (all[0], all[all.len() - 1]),
+    };
+    let written: Vec<i64> = spec.within(start, end);
+    if written.is_empty() {
+        bail!("--chunk {start}-{end} holds none of the frames {}", seq.frames);
+    }
+    // The chunk optimises its frames plus the warm-up on each side.
+    let run_frames = spec.within(start.saturating_sub(seq.warmup), end.saturating_add(seq.warmup));
+    let out_of = |f: i64| {
+        expand_pattern(&output, f).map(PathBuf::from).context("--out must be a pattern too when --frames is given")
+    };
+    let paths: Vec<PathBuf> =
+        all.iter().map(|&f| expand_pattern(&input, f).map(PathBuf::from)).collect::<Result<_, _>>()?;
+    let outs: Vec<PathBuf> = run_frames.iter().map(|&f| out_of(f)).collect::<Result<_, _>>()?;
+    let todo: Vec<usize> = (0..run_frames.len())
+        .filter(|&i| (start..=end).contains(&run_frames[i]) && (seq.force || !outs[i].exists()))
+        .collect();
+    Ok(Plan { all, paths, run_frames, outs, todo, start, end, written: written.len() })
+}
+
+/// A farm chunk: `START-END` (frame numbers, inclusive).
+fn parse_chunk(s: &str) -> Result<(i64, i64)> {
+    let spec = FrameSpec::parse(s).with_context(|| format!("--chunk '{s}'"))?;
+    let f = spec.frames();
+    if f.len() != (f[f.len() - 1] - f[0] + 1) as usize {
+        bail!("--chunk '{s}' must be one range START-END");
+    }
+    Ok((f[0], f[f.len() - 1]))
+}
+
+/// What one pass over every frame of the sequence found.
+struct Survey {
+    /// The transform of the first frame with smoke.
+    transform: Transform,
+    /// Lowest and highest active index over all frames.
+    lo: [i32; 3],
+    hi: [i32; 3],
+    /// `empty[i]`: frame `all[i]`'s grid has no active voxel.
+    empty: Vec<bool>,
+    /// Grid names of each frame.
+    grid_names: Vec<Vec<String>>,
+}
+
+/// One pass over ALL frames of the sequence, not just the chunk: the common
+/// box, the velocity scale and the absorption must be the same in every
+/// chunk or the chunks would not blend at their seams.
+fn survey(s: &VolumeSettings, paths: &[PathBuf]) -> Result<Survey> {
+    let mut transform: Option<Transform> = None;
+    let mut lo = [i32::MAX; 3];
+    let mut hi = [i32::MIN; 3];
+    // Frames whose grid has no active voxel (a simulation's first frames
+    // often do): nothing to stylize, so they are written unchanged and the
+    // EMA chain is cut there rather than carried through emptiness.
+    let mut empty = Vec::with_capacity(paths.len());
+    let mut grid_names: Vec<Vec<String>> = Vec::with_capacity(paths.len());
+    for p in paths {
+        let file = read_vdb(p)?;
+        let grid = file.grid(&s.grid).with_context(|| format!("{}: no grid named '{}'", p.display(), s.grid))?;
+        if matches!(grid.values, GridValues::Unsupported { .. } | GridValues::Vec3(_)) {
+            bail!("{}: grid '{}' is not a float grid", p.display(), s.grid);
+        }
+        if grid.has_non_finite() {
+            bail!("{}: grid '{}' has non-finite values", p.display(), s.grid);
+        }
+        grid_names.push(file.grids.iter().map(|g| g.name.clone()).collect());
+        let Some((a, b)) = grid.active_bbox() else {
+            empty.push(true);
+            continue;
+        };
+        empty.push(false);
+        // The transform of an empty frame does not matter: it is copied as it is.
+        match &transform {
+            None => transform = Some(grid.transform.clone()),
+            Some(t) if t.voxel_size != grid.transform.voxel_size => {
+                bail!(
+                    "{}: voxel size {:?} differs from the first frame's {:?}",
+                    p.display(),
+                    grid.transform.voxel_size,
+                    t.voxel_size
+                )
+            }
+            _ => {}
+        }
+        for k in 0..3 {
+            lo[k] = lo[k].min(a[k]);
+            hi[k] = hi[k].max(b[k]);
+        }
+    }
+    let Some(transform) = transform else {
+        bail!("every frame's grid '{}' is empty: nothing to stylize", s.grid);
+    };
+    Ok(Survey { transform, lo, hi, empty, grid_names })
+}
+
+/// The velocity grid the EMA follows: the one asked for, else the first of
+/// [`VELOCITY_NAMES`] some frame with smoke has; notes what it cannot follow.
+fn velocity_grid(
+    seq: &SequenceSettings,
+    sv: &Survey,
+    all: &[i64],
+    reporter: &mut dyn Reporter,
+) -> Result<Option<String>> {
+    let has = |i: usize, name: &str| sv.grid_names[i].iter().any(|g| g == name);
+    let live_all: Vec<usize> = (0..sv.empty.len()).filter(|&i| !sv.empty[i]).collect();
+    let velocity_grid = match &seq.velocity_grid {
+        Some(v) if !live_all.iter().any(|&i| has(i, v)) => {
+            bail!("no frame with smoke has a velocity grid '{v}' (grids: {})", sv.grid_names[live_all[0]].join(", "))
+        }
+        Some(v) => Some(v.clone()),
+        None => VELOCITY_NAMES.iter().find(|n| live_all.iter().any(|&i| has(i, n))).map(|n| n.to_string()),
+    };
+    match &velocity_grid {
+        None => reporter.note(&format!(
+            "no velocity grid (looked for {}): the EMA carries each frame's field to the next unmoved (no advection)",
+            VELOCITY_NAMES.join(", ")
+        )),
+        Some(v) => {
+            let missing: Vec<i64> = live_all.iter().filter(|&&i| !has(i, v)).map(|&i| all[i]).collect();
+            if !missing.is_empty() {
+                reporter.note(&format!(
+                    "frames {missing:?} have no grid '{v}': the EMA carries their fields to the next frame unmoved"
+                ));
+            }
+        }
+    }
+    Ok(velocity_grid)
+}
+
+/// Everything the optimised states depend on, so a work folder is only
+/// reused by the same job: settings, the style image and camera file
+/// contents, and each input frame's size and modification time.
+fn job_hash(s: &VolumeSettings, seq: &SequenceSettings, run_paths: &[PathBuf]) -> Result<u64> {
+    let settings = format!(
+        "{:?}|{:?}|{:?}|{}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{}|{:?}|{}|{:?}",
+        s.input,
+        Some(&seq.frames),
+        seq.chunk,
+        seq.warmup,
+        s.out,
+        seq.ema,
+        seq.ema_settle,
+        seq.velocity_grid,
+        seq.velocity_scale,
+        s.grid,
+        matches!(s.mode, Mode::Velocity),
+        s.lr,
+        s.vmax,
+        s.octaves,
+        s.iters,
+        s.smin,
+        s.smax,
+        s.absorption,
+        s.layers.iter().map(|l| format!("{l:?}")).collect::<Vec<_>>(),
+        s.style_scale,
+        s.style_color,
+        s.equalize,
+        matches!(s.projection, nst3d_render::Projection::Perspective),
+        s.fov,
+        matches!(s.up, UpAxis::Z),
+        s.cameras,
+        s.camera_seed,
+        s.weights,
+    );
+    let mut read = vec![s.style.clone()];
+    read.extend(s.camera_file.clone());
+    Ok(job_fingerprint(&settings, &read, run_paths)?)
+}
+
+/// Stylizes the frames `s.sequence` names, or one chunk of them with its
+/// warm-up overlap (docs/FARM.md); frames already written are kept unless
+/// `force`. A killed run started again with the same settings resumes.
+pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Result<SequenceReport> {
+    s.check()?;
+    let seq = s.sequence.as_ref().context("the job has no frames to stylize (set the sequence settings)")?;
+    let Plan { all, paths, run_frames, outs, todo, start, end, written } = plan(s, seq)?;
+    let existing = written - todo.len();
+    if todo.is_empty() {
+        return Ok(SequenceReport::NothingToDo { frames: written, start, end });
+    }
+    if existing > 0 {
+        reporter.status(&format!("{existing} of {written} frames already exist and are kept (--force redoes them)"));
+    }
+
+    let sv = survey(s, &paths)?;
+    let velocity_grid = velocity_grid(seq, &sv, &all, reporter)?;
+    let is_empty = |f: i64| all.iter().position(|&a| a == f).is_some_and(|i| sv.empty[i]);
+    let passed: Vec<i64> = todo.iter().map(|&i| run_frames[i]).filter(|&f| is_empty(f)).collect();
+    if !passed.is_empty() {
+        reporter.note(&format!(
+            "frames {passed:?} have an empty grid '{}'; they are written unchanged (not stylized)",
+            s.grid
+        ));
+    }
+    let (lo, hi) = (sv.lo, sv.hi);
+    let extent = (0..3).map(|k| (hi[k] - lo[k] + 1) as usize).max().unwrap_or(1);
+    let vmax = s.vmax_for(extent);
+    let margin = s.margin(vmax) as i32;
+    let origin = lo.map(|v| v - margin);
+    let dims: [usize; 3] = std::array::from_fn(|k| (hi[k] - lo[k] + 1 + 2 * margin) as usize);
+    if dims.iter().product::<usize>() > (1 << 28) {
+        bail!("the frames' common box {dims:?} is too large to stylize densely");
+    }
+    let mut full = VdbSimulation {
+        paths: paths.clone(),
+        grid: s.grid.clone(),
+        velocity_grid,
+        velocity_scale: 1.0,
+        origin,
+        dims,
+        linked: Vec::new(),
+    };
+    if full.velocity_grid.is_some() {
+        full.velocity_scale = match seq.velocity_scale {
+            Some(v) if v.is_finite() && v >= 0.0 => v,
+            Some(v) => bail!("--velocity-scale must be a non-negative number, got {v}"),
+            None => full.calibrate()?,
+        };
+    }
+    // The frames optimised: the run's frames with smoke. `run_index[k]` is
+    // frame k's place in `run_frames`; two are linked when adjacent there.
+    let run_index: Vec<usize> = (0..run_frames.len()).filter(|&i| !is_empty(run_frames[i])).collect();
+    let live: Vec<i64> = run_index.iter().map(|&i| run_frames[i]).collect();
+    let sim_of = |i: usize| run_index.iter().position(|&r| r == i);
+    let input = s.input.to_string_lossy().to_string();
+    let sim = VdbSimulation {
+        paths: live.iter().map(|&f| expand_pattern(&input, f).map(PathBuf::from)).collect::<Result<_, _>>()?,
+        linked: (0..run_index.len()).map(|k| k == 0 || run_index[k] == run_index[k - 1] + 1).collect(),
+        ..full.clone()
+    };
+    reporter.status(&format!(
+        "{} frames ({} to write, {} warm-up, {} empty), common box {}x{}x{} at {:?}, velocity grid {} (x{:.4} voxels/frame)",
+        run_frames.len(),
+        todo.len(),
+        run_frames.iter().filter(|&&f| !(start..=end).contains(&f)).count(),
+        run_frames.len() - sim.len(),
+        dims[0],
+        dims[1],
+        dims[2],
+        origin,
+        sim.velocity_grid.as_deref().unwrap_or("none"),
+        sim.velocity_scale
+    ));
+
+    let (style, vgg) = load_style_and_vgg(s)?;
+    let cameras = Cameras::of(s)?;
+    let cams_at = |f: i64| cameras.at(f as f64, dims, &sv.transform, origin);
+    let live_all: Vec<usize> = (0..all.len()).filter(|&i| !sv.empty[i]).collect();
+    // The densest frame and view of the whole sequence set the absorption
+    // for all, so brightness does not pump and chunks agree.
+    let gamma = match s.absorption {
+        Some(_) => absorption_for(s.absorption, std::iter::empty())?,
+        None => {
+            let mut best = f32::INFINITY;
+            for &t in &live_all {
+                let d = full.density(t)?;
+                let cams = cams_at(all[t]);
+                if let Ok(g) = absorption_for(None, cams.iter().map(|c| (&d, c))) {
+                    best = best.min(g);
+                }
+            }
+            if !best.is_finite() {
+                bail!("the density is zero everywhere in view: nothing to stylize");
+            }
+            best
+        }
+    };
+    let views: Vec<Vec<ViewSpec>> = live.iter().map(|&f| views_of(&cams_at(f), gamma, s.equalize)).collect();
+    let loss = ViewLoss::new(&vgg, &style, &s.style_spec())?;
+    // Unused by the sweeps (each frame has its views); any view of the run will do.
+    let first_view = match views.first() {
+        Some(v) => v[0].clone(),
+        None => views_of(&cams_at(all[live_all[0]]), gamma, s.equalize).remove(0),
+    };
+    let params =
+        SequenceParams { frame: s.frame_params(vmax, &first_view), alpha: seq.ema, settle_first_sweep: seq.ema_settle };
+
+    let work = match &seq.work_dir {
+        Some(w) => w.clone(),
+        None => default_work_dir(&s.out, job_hash(s, seq, &sim.paths)?),
+    };
+    if seq.force {
+        DiskStore::remove(&work).with_context(|| format!("cannot clear the work folder {}", work.display()))?;
+    }
+    // A chunk of empty frames only has nothing to optimise.
+    let mut store = if sim.is_empty() { None } else { Some(DiskStore::open(&work)?) };
+    if let Some(store) = &mut store {
+        let n = sim.len();
+        let per_octave = s.iters * n;
+        let mut done_steps = 0;
+        if let Some(r) = store.resume_point() {
+            done_steps = (r.octave * s.iters + r.sweeps_done) * n;
+            if r.octave + 1 == r.octaves && r.sweeps_done == s.iters {
+                reporter.status(&format!(
+                    "optimisation already complete in {}; writing the missing frames",
+                    work.display()
+                ));
+            } else {
+                reporter.status(&format!(
+                    "resuming at octave {} sweep {} from {}",
+                    r.octave + 1,
+                    r.sweeps_done + 1,
+                    work.display()
+                ));
+            }
+        }
+        // A resumed run counts only the steps left.
+        reporter.begin((s.octaves * per_octave).saturating_sub(done_steps) as u64);
+        stylize_sequence_with(&sim, &loss, &|t| views[t].clone(), &params, store, &mut |p| {
+            reporter.step(&format!(
+                "octave {} sweep {}/{} frame {} loss {:.4e}",
+                p.octave + 1,
+                p.iteration,
+                s.iters,
+                live[p.frame],
+                p.loss
+            ))
+        })?;
+        reporter.end();
+    }
+
+    // Write every frame we can; one that fails is reported and the others still land.
+    let mut failures = Vec::new();
+    let mut losses = 0.0;
+    let (mut stylized, mut unchanged) = (0usize, 0usize);
+    let (mut flicker_sum, mut pairs) = (0.0f64, 0usize);
+    let mut prev: Option<(usize, Grid3)> = None;
+    let mut dropped_noted = false;
+    for &i in &todo {
+        let Some(t) = sim_of(i) else {
+            // An empty frame: the input file byte for byte, so every grid is as it was.
+            let src = &paths[all.iter().position(|&a| a == run_frames[i]).expect("run frames are --frames")];
+            let copied =
+                std::fs::read(src).and_then(|bytes| nst3d_io::atomic::write_atomic(&outs[i], |w| w.write_all(&bytes)));
+            match copied {
+                Ok(()) => unchanged += 1,
+                Err(e) => {
+                    reporter.warn(&format!("frame {} failed: {}: {e}", run_frames[i], outs[i].display()));
+                    failures.push(run_frames[i]);
+                }
+            }
+            continue;
+        };
+        let result = (|| -> Result<(Grid3, Vec<String>)> {
+            let d = sim.density(t)?;
+            let store = store.as_mut().expect("frames with smoke were optimised");
+            let st = store.load(t)?.context("the frame has no optimised field")?;
+            let d = st.field.transport(&d);
+            if d.data.iter().any(|v| !v.is_finite()) {
+                bail!("stylization produced non-finite densities (try a smaller --lr)");
+            }
+            let file = read_vdb(&sim.paths[t])?;
+            file.grid(&s.grid).context("the grid vanished")?;
+            let dropped = write_stylized(&outs[i], &file, &s.grid, &sv.transform, origin, &d)?;
+            Ok((d, dropped))
+        })();
+        match result {
+            Ok((d, dropped)) => {
+                // Said once: every frame of a simulation has the same grids.
+                if !dropped.is_empty() && !dropped_noted {
+                    reporter.note(&format!("{} not copied to the outputs", dropped.join(", ")));
+                    dropped_noted = true;
+                }
+                stylized += 1;
+                losses += mean_loss(&loss, &d, &views[t])?;
+                // Flicker of consecutive written frames, computed pairwise so
+                // memory holds two frames.
+                if let Some((tp, dp)) = &prev {
+                    if *tp + 1 == t && sim.linked(t) {
+                        let vel = sim.velocity(*tp)?;
+                        let render =
+                            |g: &Grid3| loss.image(g, &views[t][0]).expect("the view rendered during optimisation");
+                        flicker_sum +=
+                            nst3d_sequence::flicker::flicker(&[dp.clone(), d.clone()], &[vel, None], render) as f64;
+                        pairs += 1;
+                    }
+                }
+                prev = Some((t, d));
+            }
+            Err(e) => {
+                reporter.warn(&format!("frame {} failed: {e:#}", run_frames[i]));
+                failures.push(run_frames[i]);
+            }
+        }
+    }
+    if !failures.is_empty() {
+        bail!(
+            "{} of {} frames failed: {:?} (rerun to retry them; finished frames are kept)",
+            failures.len(),
+            todo.len(),
+            failures
+        );
+    }
+    // Every frame landed: the states are no longer needed (they are large).
+    // Only the store's own files go: the work folder may hold other things.
+    let _ = DiskStore::remove(&work);
+    Ok(SequenceReport::Done(SequenceSummary {
+        stylized,
+        unchanged,
+        mode: s.mode,
+        ema: seq.ema,
+        cameras: views.first().map_or(0, |v| v.len()),
+        mean_loss: losses / stylized.max(1) as f32,
+        flicker: if pairs > 0 { flicker_sum / pairs as f64 } else { 0.0 },
+        output: s.out.to_string_lossy().to_string(),
+    }))
+}

@@ -1,0 +1,210 @@
+//! The settings of a volume job, typed once: a front end (the command
+//! line, a Python binding) fills a [`VolumeSettings`] and the library checks
+//! and runs it. Defaults are the command line's.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Result};
+use nst3d_features::VggLayer;
+use nst3d_render::Projection;
+use nst3d_stylize::{FrameParams, Limits, Mode, StyleSpec, ViewSpec};
+
+/// Which index axis of a file points up: Blender caches are z-up, Houdini's y-up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UpAxis {
+    /// Houdini, Maya: the front camera looks along −z.
+    Y,
+    /// Blender, the OpenUSD sample: the front camera looks along +y.
+    Z,
+}
+
+/// Everything `nst3d volume` can be asked, for one frame or a sequence.
+#[derive(Clone, Debug)]
+pub struct VolumeSettings {
+    /// Input OpenVDB file; with [`VolumeSettings::sequence`] a pattern with `####` or `%04d`.
+    pub input: PathBuf,
+    /// Style painting (PNG or JPEG).
+    pub style: PathBuf,
+    /// Output OpenVDB file (a pattern for a sequence), written atomically.
+    pub out: PathBuf,
+    /// Before | after | painting preview PNG (single frames).
+    pub preview: Option<PathBuf>,
+    /// Name of the float grid to stylize.
+    pub grid: String,
+    /// Transport by an optimised velocity (eq. 2) or a density scale field (eq. 5).
+    pub mode: Mode,
+    /// Coarse-to-fine levels.
+    pub octaves: usize,
+    /// Adam iterations per octave (sweeps per octave for a sequence).
+    pub iters: usize,
+    /// Adam learning rate; `None`: 0.5 voxels per step in velocity mode, 0.1 in density mode.
+    pub lr: Option<f32>,
+    /// Largest stylization velocity in voxels; `None`: 4 % of the grid's
+    /// largest side, at least 1 voxel, so small grids keep their shape.
+    pub vmax: Option<f32>,
+    /// Smallest density scale (density mode).
+    pub smin: f32,
+    /// Largest density scale (density mode).
+    pub smax: f32,
+    /// Style image scale factor (smaller = larger patterns).
+    pub style_scale: f32,
+    /// Match the painting's colour Grams too, not only its luminance's.
+    pub style_color: bool,
+    /// VGG-19 layers whose Gram matrices are matched.
+    pub layers: Vec<VggLayer>,
+    /// Absorption γ per unit density and voxel; `None`: the densest ray gets optical depth 3.
+    pub absorption: Option<f32>,
+    /// The differentiable histogram equalization of eq. 7.
+    pub equalize: bool,
+    /// Camera projection.
+    pub projection: Projection,
+    /// Vertical field of view of the perspective camera, degrees.
+    pub fov: f32,
+    /// The file's up axis.
+    pub up: UpAxis,
+    /// VGG-19 weights file; `None`: `$NST3D_VGG19`, else the user cache.
+    pub weights: Option<PathBuf>,
+    /// Camera set Θ: `front`, `omniview:N` or `ring:N[:ELEV]` (see [`crate::CameraSet`]).
+    pub cameras: String,
+    /// A shot camera or camera path (JSON, world space) instead of [`VolumeSettings::cameras`].
+    pub camera_file: Option<PathBuf>,
+    /// Seed of the omniview camera placement.
+    pub camera_seed: u64,
+    /// A camera set whose style loss is also reported before and after:
+    /// views the optimiser never saw (single frames).
+    pub eval_cameras: Option<String>,
+    /// Frames and temporal coherence when the input is a simulation.
+    pub sequence: Option<SequenceSettings>,
+}
+
+/// The sequence half of a volume job (paper Sec. 3.2, Algorithm 1), and
+/// what a render farm needs: chunks, warm-up, resume.
+#[derive(Clone, Debug)]
+pub struct SequenceSettings {
+    /// Frames, e.g. `1-120` or `1-3,5,7-20:2`.
+    pub frames: String,
+    /// EMA weight α of eq. 4.
+    pub ema: f32,
+    /// Each octave's first sweep runs without EMA blending (docs/FARM.md);
+    /// `false` runs Algorithm 1 exactly as printed.
+    pub ema_settle: bool,
+    /// Simulation velocity grid; `None`: the first of velocity, vel, v.
+    pub velocity_grid: Option<String>,
+    /// Voxels per frame per velocity unit; `None`: fitted to the data.
+    pub velocity_scale: Option<f32>,
+    /// Farm chunk `START-END`: only these frames are written.
+    pub chunk: Option<String>,
+    /// Frames of overlap a chunk also optimises on each side (not written).
+    pub warmup: i64,
+    /// Redo frames whose output exists, and drop any saved state.
+    pub force: bool,
+    /// Folder of the per-frame states and checkpoint; `None`:
+    /// `<out dir>/.nst3d-work/<hash of the job>`.
+    pub work_dir: Option<PathBuf>,
+}
+
+impl Default for SequenceSettings {
+    fn default() -> Self {
+        Self {
+            frames: String::new(),
+            ema: 0.7,
+            ema_settle: true,
+            velocity_grid: None,
+            velocity_scale: None,
+            chunk: None,
+            warmup: 0,
+            force: false,
+            work_dir: None,
+        }
+    }
+}
+
+impl VolumeSettings {
+    /// The command line's defaults for stylizing `input` with `style` into `out`.
+    pub fn new(input: impl Into<PathBuf>, style: impl Into<PathBuf>, out: impl Into<PathBuf>) -> Self {
+        Self {
+            input: input.into(),
+            style: style.into(),
+            out: out.into(),
+            preview: None,
+            grid: "density".into(),
+            mode: Mode::Velocity,
+            octaves: 2,
+            iters: 20,
+            lr: None,
+            vmax: None,
+            smin: 0.0,
+            smax: 2.0,
+            style_scale: 0.5,
+            style_color: false,
+            layers: vec![VggLayer::Relu1_1, VggLayer::Relu2_1, VggLayer::Relu3_1, VggLayer::Relu4_1],
+            absorption: None,
+            equalize: false,
+            projection: Projection::Perspective,
+            fov: 30.0,
+            up: UpAxis::Z,
+            weights: None,
+            cameras: "front".into(),
+            camera_file: None,
+            camera_seed: 0,
+            eval_cameras: None,
+            sequence: None,
+        }
+    }
+
+    /// Checks the numbers before any slow work, so a typo fails in a second.
+    pub fn check(&self) -> Result<()> {
+        if self.octaves == 0 || self.iters == 0 {
+            bail!("--octaves and --iters must be at least 1");
+        }
+        for (name, v) in
+            [("--vmax", self.vmax.unwrap_or(1.0)), ("--fov", self.fov), ("--style-scale", self.style_scale)]
+        {
+            if !(v.is_finite() && v > 0.0) {
+                bail!("{name} must be a positive number, got {v}");
+            }
+        }
+        if !(self.smin.is_finite() && self.smax.is_finite() && self.smin < self.smax && self.smin >= 0.0) {
+            bail!("need 0 <= --smin < --smax, got {} and {}", self.smin, self.smax);
+        }
+        let ema = self.sequence.as_ref().map_or(SequenceSettings::default().ema, |s| s.ema);
+        if !(0.0..1.0).contains(&ema) {
+            bail!("--ema must be in [0, 1), got {ema}");
+        }
+        Ok(())
+    }
+
+    /// The Gram layers, equally weighted.
+    pub(crate) fn style_spec(&self) -> StyleSpec {
+        StyleSpec { layers: self.layers.clone(), layer_weights: vec![1.0; self.layers.len()] }
+    }
+
+    /// The optimiser settings shared by single frames and sequences.
+    pub(crate) fn frame_params(&self, vmax: f32, view: &ViewSpec) -> FrameParams {
+        let lr = self.lr.unwrap_or(match self.mode {
+            Mode::Velocity => 0.5,
+            Mode::Density => 0.1,
+        });
+        FrameParams {
+            mode: self.mode,
+            octaves: self.octaves,
+            iterations: self.iters,
+            learning_rate: lr,
+            limits: Limits { vmax, smin: self.smin, smax: self.smax },
+            view: view.clone(),
+        }
+    }
+
+    /// The default `vmax` for a box whose largest side is `extent` voxels.
+    pub(crate) fn vmax_for(&self, extent: usize) -> f32 {
+        self.vmax.unwrap_or_else(|| (0.04 * extent as f32).max(1.0))
+    }
+
+    /// Empty voxels around the box, so the velocity can move smoke outwards.
+    pub(crate) fn margin(&self, vmax: f32) -> usize {
+        match self.mode {
+            Mode::Velocity => vmax.ceil() as usize + 1,
+            Mode::Density => 0,
+        }
+    }
+}
