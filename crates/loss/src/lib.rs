@@ -2,11 +2,13 @@
 //! transfer (paper Sec. 3): the renders of the stylized smoke must carry the
 //! style image's VGG-19 feature correlations at a few layers.
 //!
-//! Everything mirrors `/work/shared/bench/torch_ref.py`:
+//! Everything mirrors `../shared/bench/torch_ref.py`:
 //! `gram(f) = F Fᵀ / (h·w)` with `F` the `C x (h·w)` feature matrix, and the
 //! loss is `Σ_l w_l · F.mse_loss(gram(F_l), G_l)`.
 //!
 //! Each differentiable op has its backward right after its forward.
+
+#![warn(missing_docs)]
 
 pub mod nnst;
 

@@ -5,6 +5,8 @@
 //! operation, including where it rounds to `f32`, so a run matches the
 //! reference to float rounding and Adam settings carry over unchanged.
 
+#![warn(missing_docs)]
+
 use rayon::prelude::*;
 
 /// Why an optimizer state or setting was rejected.

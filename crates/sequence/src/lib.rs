@@ -3,6 +3,8 @@
 //! exponential moving average that carries the stylisation from frame to
 //! frame along the simulation's own velocity (eq. 4, Algorithm 1).
 
+#![warn(missing_docs)]
+
 pub mod calibrate;
 pub mod ema;
 pub mod flicker;

@@ -7,6 +7,8 @@
 //! - [`frame`]: the multi-octave Adam loop over a single density grid.
 //! - [`bench`]: the `volume-iter` benchmark work of `shared/bench/README.md`.
 
+#![warn(missing_docs)]
+
 pub mod bench;
 pub mod field;
 pub mod frame;

@@ -7,6 +7,8 @@
 //! All positions and velocities are in voxel-index units of the grid they
 //! belong to (voxel centres at integers, `[x, y, z]` order).
 
+#![warn(missing_docs)]
+
 mod resample;
 mod sample;
 mod transport;

@@ -1,6 +1,8 @@
 //! Reading pretrained network weights: PyTorch `.pth` (legacy pickle and zip
 //! archives) and `.safetensors`, into plain `f32` tensors by name.
 
+#![warn(missing_docs)]
+
 use std::collections::BTreeMap;
 
 /// One named tensor: its shape (PyTorch order) and values, row-major.
