@@ -1,13 +1,21 @@
 //! Shared value types of nst3d: the dense voxel grid every stage passes along,
-//! the planar image the renderer produces and the network consumes, and the
+//! the planar image the renderer produces and the network consumes, the
+//! groom and triangle mesh the strand pipeline works on, the `Reporter` a
+//! long job reports its progress through, and the
 //! finite-difference gradient check every differentiable op is tested with.
+
+#![warn(missing_docs)]
 
 pub mod fixture;
 pub mod gradcheck;
 pub mod grid;
+pub mod groom;
 pub mod image;
+pub mod mesh;
 pub mod report;
 
 pub use grid::Grid3;
+pub use groom::{Groom, GroomError, Strand, StrandSpline};
 pub use image::Image;
+pub use mesh::TriMesh;
 pub use report::{Reporter, Silent};

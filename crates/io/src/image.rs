@@ -1,40 +1,12 @@
 //! Style paintings in, preview pictures out.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use image::imageops::FilterType;
 use nst3d_core::Image;
 
 use crate::atomic::write_atomic;
-
-/// Why an image could not be read or written.
-#[derive(Debug, thiserror::Error)]
-pub enum ImageError {
-    /// The file is missing or unreadable.
-    #[error("cannot read image {path}: {reason}")]
-    Read {
-        /// The file.
-        path: PathBuf,
-        /// What went wrong.
-        reason: String,
-    },
-    /// The image has a size the pipeline cannot use.
-    #[error("image {path}: {reason}")]
-    Size {
-        /// The file.
-        path: PathBuf,
-        /// What is wrong with its size.
-        reason: String,
-    },
-    /// Writing failed.
-    #[error("cannot write image {path}: {reason}")]
-    Write {
-        /// The file.
-        path: PathBuf,
-        /// What went wrong.
-        reason: String,
-    },
-}
+use crate::{Error, ErrorKind};
 
 /// Largest side we accept for a style image after scaling: the VGG pass on it
 /// grows with the area, and 2048² already takes minutes on a farm CPU.
@@ -44,13 +16,11 @@ pub const MAX_STYLE_SIDE: usize = 2048;
 /// `scale` (the paper's style-image scale factor: smaller images give larger
 /// patterns). Resizing uses a triangle filter with antialiasing so shrinking a
 /// painting does not alias its brush strokes.
-pub fn load_style(path: &Path, scale: f32) -> Result<Image, ImageError> {
-    let read_err = |reason: String| ImageError::Read { path: path.to_path_buf(), reason };
+pub fn load_style(path: &Path, scale: f32) -> Result<Image, Error> {
+    let read_err = |reason: String| Error::new(path, ErrorKind::ImageRead { reason });
+    let size_err = |reason: String| Error::new(path, ErrorKind::ImageSize { reason });
     if !(scale.is_finite() && scale > 0.0) {
-        return Err(ImageError::Size {
-            path: path.to_path_buf(),
-            reason: format!("style scale must be a positive number, got {scale}"),
-        });
+        return Err(size_err(format!("style scale must be a positive number, got {scale}")));
     }
     let reader = image::ImageReader::open(path)
         .map_err(|e| read_err(e.to_string()))?
@@ -61,12 +31,9 @@ pub fn load_style(path: &Path, scale: f32) -> Result<Image, ImageError> {
     let w = ((w0 as f32 * scale).round() as usize).max(1);
     let h = ((h0 as f32 * scale).round() as usize).max(1);
     if w < 16 || h < 16 || w > MAX_STYLE_SIDE || h > MAX_STYLE_SIDE {
-        return Err(ImageError::Size {
-            path: path.to_path_buf(),
-            reason: format!(
-                "scaled style image is {w}x{h}; each side must be 16..={MAX_STYLE_SIDE} pixels (adjust --style-scale)"
-            ),
-        });
+        return Err(size_err(format!(
+            "scaled style image is {w}x{h}; each side must be 16..={MAX_STYLE_SIDE} pixels (adjust --style-scale)"
+        )));
     }
     let img = if (w as u32, h as u32) != (w0, h0) {
         image::imageops::resize(&img, w as u32, h as u32, FilterType::Triangle)
@@ -154,18 +121,20 @@ pub fn resize_to_height(img: &Image, height: usize) -> Image {
 }
 
 /// Writes a PNG atomically (temporary name, then rename).
-pub fn write_png(path: &Path, img: &Image) -> Result<(), ImageError> {
+pub fn write_png(path: &Path, img: &Image) -> Result<(), Error> {
     let rgb = to_rgb8(img);
     write_atomic(path, |w| {
         let mut buf = std::io::Cursor::new(Vec::new());
         rgb.write_to(&mut buf, image::ImageFormat::Png).map_err(std::io::Error::other)?;
         w.write_all(buf.get_ref())
     })
-    .map_err(|e| ImageError::Write { path: path.to_path_buf(), reason: e.to_string() })
+    .map_err(|e| Error::new(path, ErrorKind::ImageWrite { reason: e.to_string() }))
 }
 
 #[cfg(test)]
 mod tests {
+    use std::path::PathBuf;
+
     use super::*;
 
     fn style(name: &str) -> PathBuf {

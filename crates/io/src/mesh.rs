@@ -5,22 +5,13 @@
 //! relative indices). Polygons are triangulated as fans from their first
 //! corner, which is exact for the convex faces DCC exports carry.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use crate::groom::bytes::{corrupt, FormatError};
+pub use nst3d_core::mesh::TriMesh;
+
+use crate::bytes::{corrupt, read_file};
 use crate::groom::ply::parse_ply;
-
-/// An indexed triangle mesh.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct TriMesh {
-    /// Vertex positions.
-    pub vertices: Vec<[f32; 3]>,
-    /// Counter-clockwise vertex index triples.
-    pub triangles: Vec<[u32; 3]>,
-    /// Per-vertex normals when the file stores them (PLY `nx, ny, nz`; OBJ
-    /// `vn` folded onto positions, see [`read_mesh`]).
-    pub normals: Option<Vec<[f32; 3]>>,
-}
+use crate::{Error, ErrorKind};
 
 /// Writes `mesh` as an ASCII PLY (what `--mesh` reads), atomically: a
 /// killed job never leaves half a mesh. Normals are not written; readers
@@ -44,124 +35,18 @@ pub fn write_mesh_ply(path: &Path, mesh: &TriMesh) -> std::io::Result<()> {
     })
 }
 
-/// Everything that can go wrong reading a mesh; one line naming the file.
-#[derive(Debug, thiserror::Error)]
-pub enum MeshError {
-    /// The file could not be opened or read.
-    #[error("{path}: cannot read: {source}")]
-    Open {
-        /// File concerned.
-        path: PathBuf,
-        /// Underlying error.
-        source: std::io::Error,
-    },
-    /// Neither the content nor the extension is PLY or OBJ.
-    #[error("{path}: not a mesh file nst3d reads (expected .ply or .obj)")]
-    UnknownFormat {
-        /// File concerned.
-        path: PathBuf,
-    },
-    /// The file ends before the structure it announces.
-    #[error("{path}: truncated: needed {needed} more bytes at offset {offset} while reading {what}")]
-    Truncated {
-        /// File concerned.
-        path: PathBuf,
-        /// What was being decoded.
-        what: &'static str,
-        /// Byte offset where the read started.
-        offset: usize,
-        /// Bytes requested.
-        needed: usize,
-    },
-    /// A value in the file is inconsistent (bad index, bad number, ...).
-    #[error("{path}: corrupt: {reason}")]
-    Corrupt {
-        /// File concerned.
-        path: PathBuf,
-        /// What is wrong.
-        reason: String,
-    },
-    /// Valid file using a feature this reader does not implement.
-    #[error("{path}: unsupported: {reason}")]
-    Unsupported {
-        /// File concerned.
-        path: PathBuf,
-        /// The feature.
-        reason: String,
-    },
-}
-
-impl MeshError {
-    fn from_format(path: &Path, e: FormatError) -> Self {
-        match e {
-            FormatError::Truncated { what, offset, needed } => {
-                MeshError::Truncated { path: path.into(), what, offset, needed }
-            }
-            FormatError::Corrupt(reason) => MeshError::Corrupt { path: path.into(), reason },
-            FormatError::Unsupported(reason) => MeshError::Unsupported { path: path.into(), reason },
-        }
-    }
-}
-
-impl TriMesh {
-    /// Area-weighted vertex normals: each triangle adds its unnormalized
-    /// cross product (twice its area times its normal) to its corners, so
-    /// large faces dominate slivers. A vertex touching no non-degenerate
-    /// triangle gets `[0, 0, 0]`.
-    pub fn vertex_normals(&self) -> Vec<[f32; 3]> {
-        let mut acc = vec![[0f64; 3]; self.vertices.len()];
-        let p = |i: u32| self.vertices[i as usize].map(f64::from);
-        for t in &self.triangles {
-            if t.iter().any(|&i| i as usize >= self.vertices.len()) {
-                continue;
-            }
-            let (a, b, c) = (p(t[0]), p(t[1]), p(t[2]));
-            let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-            let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-            let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
-            for &i in t {
-                for a in 0..3 {
-                    acc[i as usize][a] += n[a];
-                }
-            }
-        }
-        acc.into_iter()
-            .map(|n| {
-                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-                if len > 0.0 {
-                    n.map(|c| (c / len) as f32)
-                } else {
-                    [0.0; 3]
-                }
-            })
-            .collect()
-    }
-
-    /// Axis-aligned bounds `(min, max)`; `None` without vertices.
-    pub fn bbox(&self) -> Option<([f32; 3], [f32; 3])> {
-        let first = *self.vertices.first()?;
-        Some(self.vertices.iter().fold((first, first), |(mut lo, mut hi), p| {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-            (lo, hi)
-        }))
-    }
-}
-
 /// Reads a `.ply` or `.obj` mesh, chosen by magic (`ply`) then extension.
 /// OBJ normals are per corner in the file; they are folded onto positions
 /// (the last corner naming a vertex wins) and kept only when every corner
 /// names one. Texture coordinates and materials are ignored.
-pub fn read_mesh(path: &Path) -> Result<TriMesh, MeshError> {
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Open { path: path.into(), source })?;
+pub fn read_mesh(path: &Path) -> Result<TriMesh, Error> {
+    let bytes = read_file(path)?;
     read_mesh_bytes(path, &bytes)
 }
 
 /// [`read_mesh`] on bytes in memory; `path` names them in errors and its
 /// extension picks the format when the content has no magic.
-pub fn read_mesh_bytes(path: &Path, bytes: &[u8]) -> Result<TriMesh, MeshError> {
+pub fn read_mesh_bytes(path: &Path, bytes: &[u8]) -> Result<TriMesh, Error> {
     let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
     let mesh = if bytes.starts_with(b"ply") {
         parse_ply_mesh(bytes)
@@ -169,14 +54,17 @@ pub fn read_mesh_bytes(path: &Path, bytes: &[u8]) -> Result<TriMesh, MeshError> 
         match ext.as_deref() {
             Some("ply") => parse_ply_mesh(bytes),
             Some("obj") => parse_obj(bytes),
-            _ => return Err(MeshError::UnknownFormat { path: path.into() }),
+            _ => {
+                let reason = "expected .ply or .obj".into();
+                return Err(Error::new(path, ErrorKind::UnknownFormat { what: "mesh", reason }));
+            }
         }
     };
-    mesh.map_err(|e| MeshError::from_format(path, e))
+    mesh.map_err(Error::at(path))
 }
 
 /// Appends the fan triangulation of `poly`, checking every index.
-fn push_fan(out: &mut Vec<[u32; 3]>, poly: &[u32], vertex_count: usize, face: usize) -> Result<(), FormatError> {
+fn push_fan(out: &mut Vec<[u32; 3]>, poly: &[u32], vertex_count: usize, face: usize) -> Result<(), ErrorKind> {
     if poly.len() < 3 {
         return Err(corrupt(format!("face {face} has {} corners, need at least 3", poly.len())));
     }
@@ -189,7 +77,7 @@ fn push_fan(out: &mut Vec<[u32; 3]>, poly: &[u32], vertex_count: usize, face: us
     Ok(())
 }
 
-fn parse_ply_mesh(bytes: &[u8]) -> Result<TriMesh, FormatError> {
+fn parse_ply_mesh(bytes: &[u8]) -> Result<TriMesh, ErrorKind> {
     let ply = parse_ply(bytes, &|el, prop| match el {
         "vertex" => matches!(prop, "x" | "y" | "z" | "nx" | "ny" | "nz"),
         "face" => matches!(prop, "vertex_indices" | "vertex_index"),
@@ -227,7 +115,7 @@ fn parse_ply_mesh(bytes: &[u8]) -> Result<TriMesh, FormatError> {
 }
 
 /// Resolves an OBJ index (1-based, or negative = relative to the end).
-fn obj_index(tok: &str, len: usize, line: usize, what: &str) -> Result<u32, FormatError> {
+fn obj_index(tok: &str, len: usize, line: usize, what: &str) -> Result<u32, ErrorKind> {
     let i: i64 = tok.parse().map_err(|_| corrupt(format!("line {line}: bad {what} index '{tok}'")))?;
     let resolved = if i > 0 { i - 1 } else { len as i64 + i };
     if i == 0 || resolved < 0 || resolved >= len as i64 {
@@ -236,7 +124,7 @@ fn obj_index(tok: &str, len: usize, line: usize, what: &str) -> Result<u32, Form
     Ok(resolved as u32)
 }
 
-fn parse_obj(bytes: &[u8]) -> Result<TriMesh, FormatError> {
+fn parse_obj(bytes: &[u8]) -> Result<TriMesh, ErrorKind> {
     let text = std::str::from_utf8(bytes).map_err(|e| corrupt(format!("OBJ is not UTF-8 text ({e})")))?;
     let mut vertices: Vec<[f32; 3]> = Vec::new();
     let mut vn: Vec<[f32; 3]> = Vec::new();
@@ -247,7 +135,7 @@ fn parse_obj(bytes: &[u8]) -> Result<TriMesh, FormatError> {
     let mut all_corners_have_normals = true;
     let mut poly: Vec<u32> = Vec::new();
     let mut faces = 0usize;
-    let vec3 = |w: &mut std::str::SplitAsciiWhitespace, line: usize, what: &str| -> Result<[f32; 3], FormatError> {
+    let vec3 = |w: &mut std::str::SplitAsciiWhitespace, line: usize, what: &str| -> Result<[f32; 3], ErrorKind> {
         let mut v = [0f32; 3];
         for c in v.iter_mut() {
             let tok = w.next().ok_or_else(|| corrupt(format!("line {line}: {what} needs 3 numbers")))?;
@@ -280,7 +168,7 @@ fn parse_obj(bytes: &[u8]) -> Result<TriMesh, FormatError> {
                     poly.push(v);
                 }
                 push_fan(&mut triangles, &poly, vertices.len(), faces).map_err(|e| match e {
-                    FormatError::Corrupt(r) => corrupt(format!("line {line}: {r}")),
+                    ErrorKind::Corrupt { offset: None, reason } => corrupt(format!("line {line}: {reason}")),
                     other => other,
                 })?;
                 faces += 1;

@@ -8,7 +8,7 @@
 //! tiles are expanded into voxels, so a grid is just a set of 8³ leaves
 //! ([`SparseGrid`]). Grids of other value types are listed (name, transform,
 //! metadata) as [`GridValues::Unsupported`] with their voxels skipped, and
-//! any attempt to use their values fails with [`VdbError::UnsupportedValueType`].
+//! any attempt to use their values fails with [`ErrorKind::UnsupportedValueType`].
 //!
 //! [`write_vdb`] writes format version 224 (what OpenVDB 10 writes) with
 //! zlib-compressed, active-value-only node buffers; voxels keep their index
@@ -28,131 +28,14 @@ use std::path::{Path, PathBuf};
 
 use nst3d_core::Grid3;
 
+use crate::bytes::read_file;
+use crate::{Error, ErrorKind};
+
 pub use tree::{leaf_offset, leaf_origin, Leaf, SparseGrid, LEAF_DIM, LEAF_VOXELS};
 
 /// Most voxels a dense conversion or tile expansion may produce (2²⁸, i.e.
 /// 1 GiB of `f32`, a 640³ box); bigger requests are refused before allocating.
 pub const MAX_DENSE_VOXELS: u64 = 1 << 28;
-
-/// Everything that can go wrong reading, converting or writing a volume.
-/// Each message is one line naming the file (or grid) and the problem.
-#[derive(Debug, thiserror::Error)]
-pub enum VdbError {
-    /// The file could not be opened or read.
-    #[error("{path}: cannot read: {source}")]
-    Open {
-        /// File concerned.
-        path: PathBuf,
-        /// Underlying error.
-        source: std::io::Error,
-    },
-    /// The first 8 bytes are not the OpenVDB magic number.
-    #[error("{path}: not an OpenVDB file (bad magic number)")]
-    NotVdb {
-        /// File concerned.
-        path: PathBuf,
-    },
-    /// File format older than 222 (pre-2013 OpenVDB).
-    #[error("{path}: OpenVDB file format version {version} is too old (need 222 or newer)")]
-    UnsupportedVersion {
-        /// File concerned.
-        path: PathBuf,
-        /// Version found in the header.
-        version: u32,
-    },
-    /// The file ends before the structure it announces.
-    #[error("{path}: truncated: needed {needed} more bytes at offset {offset} while reading {what}")]
-    Truncated {
-        /// File concerned.
-        path: PathBuf,
-        /// What was being decoded.
-        what: &'static str,
-        /// Byte offset where the read started.
-        offset: usize,
-        /// Bytes requested.
-        needed: usize,
-    },
-    /// A value in the file is inconsistent (bad count, bad compression frame, ...).
-    #[error("{path}: corrupt at offset {offset}: {reason}")]
-    Corrupt {
-        /// File concerned.
-        path: PathBuf,
-        /// Byte offset near the problem.
-        offset: usize,
-        /// What is wrong.
-        reason: String,
-    },
-    /// A grid holds a value type other than float or vec3s.
-    #[error("{path}: grid '{grid}' has unsupported value type '{tree_type}' (supported: Tree_float_5_4_3, Tree_vec3s_5_4_3)")]
-    UnsupportedValueType {
-        /// File concerned.
-        path: PathBuf,
-        /// Grid name.
-        grid: String,
-        /// Tree type name from the grid descriptor.
-        tree_type: String,
-    },
-    /// A grid's transform is not linear (e.g. a frustum map).
-    #[error("{path}: grid '{grid}' has unsupported transform '{map}' (only linear maps are read)")]
-    UnsupportedTransform {
-        /// File concerned.
-        path: PathBuf,
-        /// Grid name.
-        grid: String,
-        /// Map type name.
-        map: String,
-    },
-    /// The grid has no active voxels, so it has no bounding box to densify.
-    #[error("{file}: grid '{grid}' is empty (no active voxels)")]
-    EmptyGrid {
-        /// File the grid came from, or `<memory>`.
-        file: String,
-        /// Grid name.
-        grid: String,
-    },
-    /// A dense conversion or tile expansion would exceed [`MAX_DENSE_VOXELS`].
-    #[error("{file}: grid '{grid}' would need {voxels} dense voxels (limit {limit})")]
-    TooLarge {
-        /// File the grid came from, or `<memory>`.
-        file: String,
-        /// Grid name.
-        grid: String,
-        /// Voxels requested.
-        voxels: u128,
-        /// The limit, [`MAX_DENSE_VOXELS`].
-        limit: u64,
-    },
-    /// An active voxel holds NaN or infinity.
-    #[error("{file}: grid '{grid}' has a non-finite value at voxel {ijk:?}")]
-    NonFinite {
-        /// File the grid came from, or `<memory>`.
-        file: String,
-        /// Grid name.
-        grid: String,
-        /// First offending voxel found.
-        ijk: [i32; 3],
-    },
-    /// A float-only operation was asked of a vec3 grid or the reverse.
-    #[error("{file}: grid '{grid}' holds {found} values, expected {expected}")]
-    WrongValueType {
-        /// File the grid came from, or `<memory>`.
-        file: String,
-        /// Grid name.
-        grid: String,
-        /// Value type the grid has.
-        found: &'static str,
-        /// Value type the operation needs.
-        expected: &'static str,
-    },
-    /// Writing the output failed.
-    #[error("{path}: cannot write: {source}")]
-    Write {
-        /// File concerned.
-        path: PathBuf,
-        /// Underlying error.
-        source: std::io::Error,
-    },
-}
 
 /// One metadata value, as OpenVDB types them.
 #[derive(Clone, Debug, PartialEq)]
@@ -279,7 +162,7 @@ pub enum GridValues {
     /// A grid of another value type (e.g. Houdini's `Tree_int32_5_4_3`
     /// obstacles); its name, transform and metadata are read, its voxels are
     /// skipped, and converting or writing it fails with
-    /// [`VdbError::UnsupportedValueType`].
+    /// [`ErrorKind::UnsupportedValueType`].
     Unsupported {
         /// Tree type name from the grid descriptor.
         tree_type: String,
@@ -348,42 +231,39 @@ pub struct DenseBox {
 }
 
 /// Reads every grid of an OpenVDB file.
-pub fn read_vdb(path: &Path) -> Result<VdbFile, VdbError> {
-    let bytes = std::fs::read(path).map_err(|source| VdbError::Open { path: path.to_path_buf(), source })?;
+pub fn read_vdb(path: &Path) -> Result<VdbFile, Error> {
+    let bytes = read_file(path)?;
     read::parse(path, &bytes)
 }
 
 /// Decodes an OpenVDB file already in memory; `path` only names it in errors.
-pub fn read_vdb_bytes(path: &Path, bytes: &[u8]) -> Result<VdbFile, VdbError> {
+pub fn read_vdb_bytes(path: &Path, bytes: &[u8]) -> Result<VdbFile, Error> {
     read::parse(path, bytes)
 }
 
 /// Writes `grids` to `path` (format 224, zlib-compressed buffers, half
 /// floats where [`VdbGrid::saved_as_half`]), atomically.
-pub fn write_vdb(path: &Path, grids: &[VdbGrid]) -> Result<(), VdbError> {
+pub fn write_vdb(path: &Path, grids: &[VdbGrid]) -> Result<(), Error> {
     let bytes = write_vdb_bytes(path, grids)?;
-    crate::atomic::write_atomic(path, |w| w.write_all(&bytes))
-        .map_err(|source| VdbError::Write { path: path.to_path_buf(), source })
+    crate::atomic::write_atomic(path, |w| w.write_all(&bytes)).map_err(|e| Error::new(path, ErrorKind::Write(e)))
 }
 
 /// Encodes `grids` as an OpenVDB file in memory (what [`write_vdb`] writes);
 /// `path` only names the output in errors. Fails on an
 /// [`GridValues::Unsupported`] grid.
-pub fn write_vdb_bytes(path: &Path, grids: &[VdbGrid]) -> Result<Vec<u8>, VdbError> {
+pub fn write_vdb_bytes(path: &Path, grids: &[VdbGrid]) -> Result<Vec<u8>, Error> {
     if let Some(g) = grids.iter().find(|g| matches!(g.values, GridValues::Unsupported { .. })) {
         let GridValues::Unsupported { tree_type } = &g.values else { unreachable!() };
-        return Err(VdbError::UnsupportedValueType {
-            path: path.to_path_buf(),
-            grid: g.name.clone(),
-            tree_type: tree_type.clone(),
-        });
+        let kind = ErrorKind::UnsupportedValueType { grid: g.name.clone(), tree_type: tree_type.clone() };
+        return Err(Error::new(path, kind));
     }
     Ok(write::encode(grids))
 }
 
 impl VdbGrid {
-    fn source_name(&self) -> String {
-        self.source_path.as_ref().map_or_else(|| "<memory>".to_string(), |p| p.display().to_string())
+    /// The grid's file in errors, `<memory>` for a grid built in memory.
+    fn error(&self, kind: ErrorKind) -> Error {
+        Error::new(self.source_path.as_deref().unwrap_or(Path::new("<memory>")), kind)
     }
 
     /// Number of active voxels.
@@ -421,22 +301,16 @@ impl VdbGrid {
 
     /// The dense box covering the active voxels, checked against
     /// [`MAX_DENSE_VOXELS`] and for non-finite values.
-    fn dense_box(&self) -> Result<DenseBox, VdbError> {
-        let (lo, hi) = self
-            .active_bbox()
-            .ok_or_else(|| VdbError::EmptyGrid { file: self.source_name(), grid: self.name.clone() })?;
+    fn dense_box(&self) -> Result<DenseBox, Error> {
+        let (lo, hi) =
+            self.active_bbox().ok_or_else(|| self.error(ErrorKind::EmptyGrid { grid: self.name.clone() }))?;
         let dims = [0, 1, 2].map(|a| (i64::from(hi[a]) - i64::from(lo[a]) + 1) as u128);
         let voxels = dims[0] * dims[1] * dims[2];
         if voxels > u128::from(MAX_DENSE_VOXELS) {
-            return Err(VdbError::TooLarge {
-                file: self.source_name(),
-                grid: self.name.clone(),
-                voxels,
-                limit: MAX_DENSE_VOXELS,
-            });
+            return Err(self.error(ErrorKind::TooLarge { grid: self.name.clone(), voxels, limit: MAX_DENSE_VOXELS }));
         }
         if let Some(ijk) = self.first_non_finite() {
-            return Err(VdbError::NonFinite { file: self.source_name(), grid: self.name.clone(), ijk });
+            return Err(self.error(ErrorKind::NonFinite { grid: self.name.clone(), ijk }));
         }
         Ok(DenseBox { origin: lo, dims: dims.map(|d| d as usize) })
     }
@@ -445,7 +319,7 @@ impl VdbGrid {
     /// outside any leaf take the background, inactive leaf voxels keep their
     /// stored value, as OpenVDB's `copyToDense`). Fails on an empty grid, a
     /// box over [`MAX_DENSE_VOXELS`], a non-finite active value or a vec3 grid.
-    pub fn to_dense(&self) -> Result<(DenseBox, Grid3), VdbError> {
+    pub fn to_dense(&self) -> Result<(DenseBox, Grid3), Error> {
         let GridValues::Float(g) = &self.values else {
             return Err(self.wrong_type("float"));
         };
@@ -458,7 +332,7 @@ impl VdbGrid {
     /// the same rules as [`VdbGrid::to_dense`]. Staggered (MAC) grids are
     /// returned as stored: component `c` of voxel `ijk` lives on its lower
     /// face along axis `c`.
-    pub fn to_dense_vec3(&self) -> Result<(DenseBox, [Grid3; 3]), VdbError> {
+    pub fn to_dense_vec3(&self) -> Result<(DenseBox, [Grid3; 3]), Error> {
         let GridValues::Vec3(g) = &self.values else {
             return Err(self.wrong_type("vec3s"));
         };
@@ -466,20 +340,14 @@ impl VdbGrid {
         Ok((bx, densify(g, &bx, |v| v)))
     }
 
-    fn wrong_type(&self, expected: &'static str) -> VdbError {
-        if let GridValues::Unsupported { tree_type } = &self.values {
-            return VdbError::UnsupportedValueType {
-                path: self.source_path.clone().unwrap_or_else(|| PathBuf::from("<memory>")),
-                grid: self.name.clone(),
-                tree_type: tree_type.clone(),
-            };
-        }
-        VdbError::WrongValueType {
-            file: self.source_name(),
-            grid: self.name.clone(),
-            found: self.values.type_name(),
-            expected,
-        }
+    fn wrong_type(&self, expected: &'static str) -> Error {
+        let grid = self.name.clone();
+        self.error(match &self.values {
+            GridValues::Unsupported { tree_type } => {
+                ErrorKind::UnsupportedValueType { grid, tree_type: tree_type.clone() }
+            }
+            values => ErrorKind::WrongValueType { grid, found: values.type_name(), expected },
+        })
     }
 
     /// A fog-volume float grid from a dense block whose voxel `(0,0,0)` is at

@@ -1,6 +1,6 @@
 //! Groom readers and writers on the shared Bangs groom (the same 100-strand,
 //! 1165-point groom stored five ways) and OpenUSD's BasisCurves example,
-//! plus the robustness rule: bad bytes are one-line `GroomError`s, never
+//! plus the robustness rule: bad bytes are one-line `Error`s, never
 //! panics.
 
 use std::path::{Path, PathBuf};

@@ -1,10 +1,11 @@
 //! OpenVDB reader on the real files in shared/data/volumes, plus the
-//! robustness rules: every bad input is a one-line `VdbError`, never a panic.
+//! robustness rules: every bad input is a one-line `Error`, never a panic.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use nst3d_io::vdb::*;
+use nst3d_io::ErrorKind;
 
 fn volumes() -> PathBuf {
     let dir = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/volumes"));
@@ -45,7 +46,7 @@ fn smoke_000001_has_empty_grids_and_an_int_grid() {
     assert_eq!(density.active_voxel_count(), 0);
     assert_eq!(density.active_bbox(), None);
     let err = density.to_dense().unwrap_err();
-    assert!(matches!(err, VdbError::EmptyGrid { .. }), "{err}");
+    assert!(matches!(err.kind(), ErrorKind::EmptyGrid { .. }), "{err}");
     let msg = err.to_string();
     assert!(msg.contains("smoke_000001.vdb") && msg.contains("'density'") && msg.contains("empty"), "{msg}");
     // Houdini/Blender obstacle grid of int32: listed, but unusable with a clear error.
@@ -99,13 +100,13 @@ fn all_plume48_frames_read() {
 #[test]
 fn missing_file_and_bad_magic_are_named_errors() {
     let err = read_vdb(Path::new("/nonexistent/dir/x.vdb")).unwrap_err();
-    assert!(matches!(err, VdbError::Open { .. }));
+    assert!(matches!(err.kind(), ErrorKind::Open { .. }));
     assert!(err.to_string().starts_with("/nonexistent/dir/x.vdb: cannot read"), "{err}");
     let err = read_vdb_bytes(Path::new("a.png"), b"\x89PNG\r\n\x1a\n........").unwrap_err();
-    assert!(matches!(err, VdbError::NotVdb { .. }), "{err}");
+    assert!(matches!(err.kind(), ErrorKind::NotVdb { .. }), "{err}");
     assert_eq!(err.to_string(), "a.png: not an OpenVDB file (bad magic number)");
     let err = read_vdb_bytes(Path::new("e.vdb"), b"").unwrap_err();
-    assert!(matches!(err, VdbError::NotVdb { .. }), "{err}");
+    assert!(matches!(err.kind(), ErrorKind::NotVdb { .. }), "{err}");
 }
 
 /// Truncating real files anywhere yields `Truncated` (or `Corrupt`), never a
@@ -124,7 +125,10 @@ fn truncated_files_fail_cleanly() {
             let msg = err.to_string();
             assert!(msg.contains(name) && !msg.contains('\n'), "cut {cut}: {msg}");
             assert!(
-                matches!(err, VdbError::Truncated { .. } | VdbError::Corrupt { .. } | VdbError::NotVdb { .. }),
+                matches!(
+                    err.kind(),
+                    ErrorKind::Truncated { .. } | ErrorKind::Corrupt { .. } | ErrorKind::NotVdb { .. }
+                ),
                 "cut {cut}: {msg}"
             );
         }
@@ -181,7 +185,7 @@ fn non_finite_values_are_reported() {
     let v = VdbGrid::from_dense("density", Transform::uniform(0.1), [-2, 0, 5], &g, 0.0);
     assert!(v.has_non_finite());
     let err = v.to_dense().unwrap_err();
-    assert!(matches!(err, VdbError::NonFinite { ijk: [1, 1, 5], .. }), "{err}");
+    assert!(matches!(err.kind(), ErrorKind::NonFinite { ijk: [1, 1, 5], .. }), "{err}");
     assert!(err.to_string().contains("'density'"));
 }
 
@@ -192,7 +196,7 @@ fn absurd_bbox_is_refused_before_allocating() {
     s.set_active([1_000_000, 1_000_000, 1_000_000], 1.0);
     let g = VdbGrid::new("huge", "fog volume", Transform::uniform(1.0), GridValues::Float(s));
     let err = g.to_dense().unwrap_err();
-    assert!(matches!(err, VdbError::TooLarge { .. }), "{err}");
+    assert!(matches!(err.kind(), ErrorKind::TooLarge { .. }), "{err}");
     assert!(err.to_string().contains("'huge'"));
 }
 
@@ -229,7 +233,7 @@ fn dense_round_trip_keeps_index_space() {
         }
     }
     let err = v.to_dense_vec3().unwrap_err();
-    assert!(matches!(err, VdbError::WrongValueType { .. }), "{err}");
+    assert!(matches!(err.kind(), ErrorKind::WrongValueType { .. }), "{err}");
     let comps = [g.clone(), g.clone(), g.clone()];
     let vv = VdbGrid::from_dense_vec3(
         "v",

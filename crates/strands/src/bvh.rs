@@ -15,7 +15,7 @@
 
 use std::collections::HashMap;
 
-use nst3d_io::mesh::TriMesh;
+use nst3d_core::mesh::TriMesh;
 
 use crate::math::{add, cross, dist2, dot, normalize, scale, sub, V3};
 use crate::StrandError;

@@ -10,7 +10,7 @@
 //! of its nearest guides' root-relative offsets, all guides resampled to a
 //! common point count by arc length.
 
-use nst3d_io::mesh::TriMesh;
+use nst3d_core::mesh::TriMesh;
 
 use crate::kdtree::KdTree;
 use crate::math::{add, cross, dist2, norm, scale, sub, Rng, V3};

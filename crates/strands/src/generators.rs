@@ -3,7 +3,7 @@
 //! time-varying wind to animate them (Fig. 8's fur ball is "subjected to
 //! wind with varying direction"). Y is up, like the Bangs groom.
 
-use nst3d_io::mesh::TriMesh;
+use nst3d_core::mesh::TriMesh;
 
 use crate::constraints::preserve_lengths;
 use crate::math::{add, cross, dot, normalize, scale, Rng, V3};

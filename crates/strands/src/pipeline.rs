@@ -77,10 +77,10 @@
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
+use nst3d_core::groom::{Groom, GroomError, StrandSpline};
+use nst3d_core::mesh::TriMesh;
 use nst3d_core::Image;
 use nst3d_features::{Vgg19, VggLayer};
-use nst3d_io::groom::{Groom, GroomError, StrandSpline};
-use nst3d_io::mesh::TriMesh;
 use nst3d_loss::nnst::{nnst_loss, nnst_loss_matched, NnstError, NnstParams};
 use nst3d_splat::{render, render_backward, SplatError, SplatOutput, StrandStyle, Strands};
 

@@ -57,10 +57,10 @@
 //! A stylization that does nothing also scores 0, so flicker is only
 //! meaningful next to the NNST loss the frames reach.
 
+use nst3d_core::groom::Groom;
+use nst3d_core::mesh::TriMesh;
 use nst3d_core::Image;
 use nst3d_features::Vgg19;
-use nst3d_io::groom::Groom;
-use nst3d_io::mesh::TriMesh;
 use nst3d_loss::nnst::{nnst_loss, nnst_loss_matched};
 use nst3d_splat::StrandStyle;
 

@@ -3,7 +3,7 @@
 //! boundaries kept as offsets. The deformation field only sees points; the
 //! constraints need the strand structure to walk root to tip.
 
-use nst3d_io::groom::{Groom, Strand};
+use nst3d_core::groom::{Groom, Strand};
 
 use crate::math::{norm, sub, V3};
 use crate::StrandError;

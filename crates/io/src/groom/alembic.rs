@@ -28,22 +28,21 @@
 
 use std::path::Path;
 
-use super::bytes::{corrupt, FormatError, Reader};
-use super::{read_file, Groom, GroomError, Strand};
+use super::{checked, Groom, Strand};
+use crate::bytes::{corrupt, read_file, unsupported, Reader};
+use crate::{Error, ErrorKind};
 
 /// Reads every curves object of an Alembic (Ogawa) archive into one groom,
 /// in hierarchy order (see the module notes for what is read).
-pub fn read_alembic_curves(path: &Path) -> Result<Groom, GroomError> {
+pub fn read_alembic_curves(path: &Path) -> Result<Groom, Error> {
     let bytes = read_file(path)?;
     read_alembic_curves_bytes(path, &bytes)
 }
 
 /// [`read_alembic_curves`] on bytes in memory; `path` only names them in
 /// errors.
-pub fn read_alembic_curves_bytes(path: &Path, bytes: &[u8]) -> Result<Groom, GroomError> {
-    let groom = parse(bytes).map_err(|e| GroomError::from_format(path, e))?;
-    groom.validate_for(path)?;
-    Ok(groom)
+pub fn read_alembic_curves_bytes(path: &Path, bytes: &[u8]) -> Result<Groom, Error> {
+    checked(path, parse(bytes))
 }
 
 const DATA_BIT: u64 = 1 << 63;
@@ -72,7 +71,7 @@ const POD_FLOAT32: u32 = 10;
 
 impl<'a> Ogawa<'a> {
     /// Child words of the group at child word `word` (empty for 0).
-    fn group(&mut self, word: u64) -> Result<Vec<u64>, FormatError> {
+    fn group(&mut self, word: u64) -> Result<Vec<u64>, ErrorKind> {
         if word & DATA_BIT != 0 {
             return Err(corrupt("Ogawa data chunk where a group was expected"));
         }
@@ -92,7 +91,7 @@ impl<'a> Ogawa<'a> {
     }
 
     /// Bytes of the data chunk at child word `word`.
-    fn data(&self, word: u64) -> Result<&'a [u8], FormatError> {
+    fn data(&self, word: u64) -> Result<&'a [u8], ErrorKind> {
         if word & DATA_BIT == 0 {
             return Err(corrupt("Ogawa group where a data chunk was expected"));
         }
@@ -111,7 +110,7 @@ impl<'a> Ogawa<'a> {
     }
 
     /// A compound property: its sub-property headers and child words.
-    fn compound(&mut self, word: u64) -> Result<Vec<(PropHeader, u64)>, FormatError> {
+    fn compound(&mut self, word: u64) -> Result<Vec<(PropHeader, u64)>, ErrorKind> {
         let children = self.group(word)?;
         let Some((&last, props)) = children.split_last() else {
             return Ok(Vec::new());
@@ -129,7 +128,7 @@ impl<'a> Ogawa<'a> {
 
     /// First sample of an array property, as raw little-endian bytes
     /// (the 16-byte digest stripped).
-    fn first_array_sample(&mut self, word: u64) -> Result<&'a [u8], FormatError> {
+    fn first_array_sample(&mut self, word: u64) -> Result<&'a [u8], ErrorKind> {
         let children = self.group(word)?;
         let Some(&first) = children.first() else {
             return Ok(&[]);
@@ -141,7 +140,7 @@ impl<'a> Ogawa<'a> {
         d.get(16..).ok_or_else(|| corrupt("Alembic array sample shorter than its digest"))
     }
 
-    fn object(&mut self, word: u64, depth: usize, under_xform: bool, out: &mut Vec<Strand>) -> Result<(), FormatError> {
+    fn object(&mut self, word: u64, depth: usize, under_xform: bool, out: &mut Vec<Strand>) -> Result<(), ErrorKind> {
         if depth > MAX_DEPTH {
             return Err(corrupt("Alembic object hierarchy too deep"));
         }
@@ -170,7 +169,7 @@ impl<'a> Ogawa<'a> {
         Ok(())
     }
 
-    fn curves(&mut self, geom: u64, under_xform: bool, out: &mut Vec<Strand>) -> Result<(), FormatError> {
+    fn curves(&mut self, geom: u64, under_xform: bool, out: &mut Vec<Strand>) -> Result<(), ErrorKind> {
         let props = self.compound(geom)?;
         let find = |name: &str, pod: u32, extent: u32| {
             props
@@ -182,9 +181,7 @@ impl<'a> Ogawa<'a> {
             return Ok(()); // Not a curves object (a mesh, points, ...).
         };
         if under_xform {
-            return Err(FormatError::Unsupported(
-                "curves under an Xform with authored values (transforms are not applied)".into(),
-            ));
+            return Err(unsupported("curves under an Xform with authored values (transforms are not applied)"));
         }
         let width = find("width", POD_FLOAT32, 1);
         let floats = |b: &[u8]| -> Vec<f32> {
@@ -237,7 +234,7 @@ impl<'a> Ogawa<'a> {
 }
 
 /// Decodes a packed property header list (Alembic `ReadPropertyHeaders`).
-fn parse_property_headers(b: &[u8]) -> Result<Vec<PropHeader>, FormatError> {
+fn parse_property_headers(b: &[u8]) -> Result<Vec<PropHeader>, ErrorKind> {
     let mut r = Reader::new(b, 0);
     let mut out = Vec::new();
     while r.remaining() > 0 {
@@ -248,9 +245,9 @@ fn parse_property_headers(b: &[u8]) -> Result<Vec<PropHeader>, FormatError> {
             _ => 2,
         };
         let hint = (info >> 2) & 3;
-        let varint = |r: &mut Reader| -> Result<u32, FormatError> {
+        let varint = |r: &mut Reader| -> Result<u32, ErrorKind> {
             match hint {
-                0 => r.take(1, "Alembic property header").map(|s| s[0] as u32),
+                0 => r.u8("Alembic property header").map(u32::from),
                 1 => r.u16("Alembic property header").map(u32::from),
                 2 => r.u32("Alembic property header"),
                 _ => Err(corrupt("bad size hint in Alembic property header")),
@@ -280,7 +277,7 @@ fn parse_property_headers(b: &[u8]) -> Result<Vec<PropHeader>, FormatError> {
     Ok(out)
 }
 
-fn parse(bytes: &[u8]) -> Result<Groom, FormatError> {
+fn parse(bytes: &[u8]) -> Result<Groom, ErrorKind> {
     let mut r = Reader::new(bytes, 0);
     if r.array::<5>("Ogawa magic")? != *b"Ogawa" {
         return Err(corrupt("not an Alembic Ogawa archive (magic is not 'Ogawa')"));

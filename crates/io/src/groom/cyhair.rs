@@ -11,8 +11,9 @@
 
 use std::path::Path;
 
-use super::bytes::{corrupt, FormatError, Reader};
-use super::{read_file, Groom, GroomError, Strand};
+use super::{checked, Groom, Strand};
+use crate::bytes::{corrupt, read_file, Reader};
+use crate::{Error, ErrorKind};
 
 const HAS_SEGMENTS: u32 = 1;
 const HAS_POINTS: u32 = 2;
@@ -25,19 +26,17 @@ const HEADER_SIZE: usize = 128;
 /// [`Strand::widths`] and per-point colour [`Strand::colors`] when the file
 /// stores those arrays (header defaults alone are not copied per point);
 /// transparency is not kept.
-pub fn read_cyhair(path: &Path) -> Result<Groom, GroomError> {
+pub fn read_cyhair(path: &Path) -> Result<Groom, Error> {
     let bytes = read_file(path)?;
     read_cyhair_bytes(path, &bytes)
 }
 
 /// [`read_cyhair`] on bytes in memory; `path` only names them in errors.
-pub fn read_cyhair_bytes(path: &Path, bytes: &[u8]) -> Result<Groom, GroomError> {
-    let groom = parse(bytes).map_err(|e| GroomError::from_format(path, e))?;
-    groom.validate_for(path)?;
-    Ok(groom)
+pub fn read_cyhair_bytes(path: &Path, bytes: &[u8]) -> Result<Groom, Error> {
+    checked(path, parse(bytes))
 }
 
-fn parse(bytes: &[u8]) -> Result<Groom, FormatError> {
+fn parse(bytes: &[u8]) -> Result<Groom, ErrorKind> {
     let mut r = Reader::new(bytes, 0);
     if r.array::<4>("cyHair magic")? != *b"HAIR" {
         return Err(corrupt("not a cyHair file (magic is not HAIR)"));

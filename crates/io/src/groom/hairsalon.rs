@@ -7,21 +7,20 @@
 
 use std::path::Path;
 
-use super::bytes::{corrupt, FormatError, Reader};
-use super::{read_file, Groom, GroomError, Strand};
+use super::{checked, Groom, Strand};
+use crate::bytes::{corrupt, read_file, Reader};
+use crate::{Error, ErrorKind};
 
 /// Reads a USC-HairSalon `.data` file (placeholder strands of fewer than
 /// two points are skipped, see the module notes).
-pub fn read_hairsalon(path: &Path) -> Result<Groom, GroomError> {
+pub fn read_hairsalon(path: &Path) -> Result<Groom, Error> {
     let bytes = read_file(path)?;
     read_hairsalon_bytes(path, &bytes)
 }
 
 /// [`read_hairsalon`] on bytes in memory; `path` only names them in errors.
-pub fn read_hairsalon_bytes(path: &Path, bytes: &[u8]) -> Result<Groom, GroomError> {
-    let groom = parse(bytes).map_err(|e| GroomError::from_format(path, e))?;
-    groom.validate_for(path)?;
-    Ok(groom)
+pub fn read_hairsalon_bytes(path: &Path, bytes: &[u8]) -> Result<Groom, Error> {
+    checked(path, parse(bytes))
 }
 
 /// True when `bytes` parse as HairSalon and end exactly where the counts
@@ -31,7 +30,7 @@ pub(crate) fn looks_like_hairsalon(bytes: &[u8]) -> bool {
     bytes.len() >= 4 && parse(bytes).is_ok()
 }
 
-fn parse(bytes: &[u8]) -> Result<Groom, FormatError> {
+fn parse(bytes: &[u8]) -> Result<Groom, ErrorKind> {
     let mut r = Reader::new(bytes, 0);
     let count = r.i32("HairSalon strand count")?;
     if count < 0 {

@@ -18,8 +18,9 @@
 use std::io::Write;
 use std::path::Path;
 
-use super::bytes::{corrupt, FormatError};
-use super::{read_file, Groom, GroomError, Strand};
+use super::{checked, validate_for, Groom, Strand};
+use crate::bytes::{corrupt, read_file, unsupported, Reader};
+use crate::{Error, ErrorKind};
 
 /// How the PLY body is encoded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -178,7 +179,7 @@ impl PlyData {
     }
 }
 
-fn parse_header(bytes: &[u8]) -> Result<(Encoding, Vec<ElementDef>, usize), FormatError> {
+fn parse_header(bytes: &[u8]) -> Result<(Encoding, Vec<ElementDef>, usize), ErrorKind> {
     if !bytes.starts_with(b"ply\n") && !bytes.starts_with(b"ply\r\n") {
         return Err(corrupt("not a PLY file (no 'ply' magic line)"));
     }
@@ -188,7 +189,7 @@ fn parse_header(bytes: &[u8]) -> Result<(Encoding, Vec<ElementDef>, usize), Form
     loop {
         let rest = &bytes[pos..];
         let Some(nl) = rest.iter().position(|&b| b == b'\n') else {
-            return Err(FormatError::Truncated { what: "PLY header (no end_header line)", offset: pos, needed: 1 });
+            return Err(ErrorKind::Truncated { what: "PLY header (no end_header line)", offset: pos, needed: 1 });
         };
         let line_bytes = &rest[..nl];
         let line_no = pos;
@@ -244,7 +245,7 @@ fn parse_header(bytes: &[u8]) -> Result<(Encoding, Vec<ElementDef>, usize), Form
 
 /// Parses a PLY file, decoding only the properties for which
 /// `wanted(element, property)` is true; the rest are skipped by type size.
-pub(crate) fn parse_ply(bytes: &[u8], wanted: &dyn Fn(&str, &str) -> bool) -> Result<PlyData, FormatError> {
+pub(crate) fn parse_ply(bytes: &[u8], wanted: &dyn Fn(&str, &str) -> bool) -> Result<PlyData, ErrorKind> {
     let (encoding, defs, body) = parse_header(bytes)?;
     let mut elements = Vec::with_capacity(defs.len());
     match encoding {
@@ -296,7 +297,7 @@ fn read_binary_element(
     def: ElementDef,
     big: bool,
     wanted: &dyn Fn(&str, &str) -> bool,
-) -> Result<Element, FormatError> {
+) -> Result<Element, ErrorKind> {
     // Lower bound of one record, to refuse absurd counts before allocating.
     let min_record: usize = def
         .props
@@ -308,7 +309,7 @@ fn read_binary_element(
         .sum();
     let remaining = bytes.len().saturating_sub(*pos);
     if (def.count as u128) * (min_record as u128) > remaining as u128 {
-        return Err(FormatError::Truncated {
+        return Err(ErrorKind::Truncated {
             what: "PLY element data",
             offset: *pos,
             needed: (def.count as u128 * min_record as u128 - remaining as u128).min(usize::MAX as u128) as usize,
@@ -316,31 +317,21 @@ fn read_binary_element(
     }
     let count = if min_record == 0 { 0 } else { def.count };
     let mut columns = new_columns(&def, wanted, count);
-    let take = |pos: &mut usize, n: usize| -> Result<&[u8], FormatError> {
-        if n > bytes.len().saturating_sub(*pos) {
-            return Err(FormatError::Truncated {
-                what: "PLY element data",
-                offset: *pos,
-                needed: n - bytes.len().saturating_sub(*pos),
-            });
-        }
-        let s = &bytes[*pos..*pos + n];
-        *pos += n;
-        Ok(s)
-    };
+    const WHAT: &str = "PLY element data";
+    let mut r = Reader::new(bytes, *pos);
     for _ in 0..count {
         for (p, col) in def.props.iter().zip(columns.iter_mut()) {
             match (&p.kind, col) {
-                (PropKind::Scalar(t), Column::Scalar(v)) => v.push(t.decode(take(pos, t.size())?, big)),
+                (PropKind::Scalar(t), Column::Scalar(v)) => v.push(t.decode(r.take(t.size(), WHAT)?, big)),
                 (PropKind::Scalar(t), _) => {
-                    take(pos, t.size())?;
+                    r.take(t.size(), WHAT)?;
                 }
                 (PropKind::List { count, item }, col) => {
-                    let n = count.decode(take(pos, count.size())?, big);
+                    let n = count.decode(r.take(count.size(), WHAT)?, big);
                     if !(0.0..=u32::MAX as f64).contains(&n) {
                         return Err(corrupt(format!("PLY list length {n} in element '{}'", def.name)));
                     }
-                    let raw = take(pos, n as usize * item.size())?;
+                    let raw = r.take(n as usize * item.size(), WHAT)?;
                     if let Column::List { offsets, values } = col {
                         values.extend(raw.chunks_exact(item.size()).map(|b| item.decode(b, big)));
                         offsets.push(values.len());
@@ -349,6 +340,7 @@ fn read_binary_element(
             }
         }
     }
+    *pos = r.pos();
     Ok(Element { def, columns })
 }
 
@@ -359,7 +351,7 @@ struct AsciiTokens<'a> {
 }
 
 impl AsciiTokens<'_> {
-    fn next_number(&mut self, element: &str) -> Result<f64, FormatError> {
+    fn next_number(&mut self, element: &str) -> Result<f64, ErrorKind> {
         let b = self.bytes;
         while self.pos < b.len() && b[self.pos].is_ascii_whitespace() {
             self.pos += 1;
@@ -369,7 +361,7 @@ impl AsciiTokens<'_> {
             self.pos += 1;
         }
         if start == self.pos {
-            return Err(FormatError::Truncated { what: "ASCII PLY element data", offset: start, needed: 1 });
+            return Err(ErrorKind::Truncated { what: "ASCII PLY element data", offset: start, needed: 1 });
         }
         std::str::from_utf8(&b[start..self.pos])
             .ok()
@@ -382,11 +374,11 @@ fn read_ascii_element(
     t: &mut AsciiTokens,
     def: ElementDef,
     wanted: &dyn Fn(&str, &str) -> bool,
-) -> Result<Element, FormatError> {
+) -> Result<Element, ErrorKind> {
     // Every value takes at least two bytes (digit + separator).
     let remaining = t.bytes.len().saturating_sub(t.pos);
     if !def.props.is_empty() && (def.count as u128) * (def.props.len() as u128) > remaining as u128 / 2 + 1 {
-        return Err(FormatError::Truncated {
+        return Err(ErrorKind::Truncated {
             what: "ASCII PLY element data",
             offset: t.pos,
             needed: def.count.saturating_mul(def.props.len()).saturating_mul(2) - remaining,
@@ -427,16 +419,14 @@ fn read_ascii_element(
 /// Reads strands from a PLY file (ascii or binary, either endianness);
 /// `red`/`green`/`blue` vertex properties become [`Strand::colors`]
 /// (divided by 255 when stored as `uchar`).
-pub fn read_ply_strands(path: &Path) -> Result<Groom, GroomError> {
+pub fn read_ply_strands(path: &Path) -> Result<Groom, Error> {
     let bytes = read_file(path)?;
     read_ply_strands_bytes(path, &bytes)
 }
 
 /// [`read_ply_strands`] on bytes in memory; `path` only names them in errors.
-pub fn read_ply_strands_bytes(path: &Path, bytes: &[u8]) -> Result<Groom, GroomError> {
-    let groom = parse_strands(bytes).map_err(|e| GroomError::from_format(path, e))?;
-    groom.validate_for(path)?;
-    Ok(groom)
+pub fn read_ply_strands_bytes(path: &Path, bytes: &[u8]) -> Result<Groom, Error> {
+    checked(path, parse_strands(bytes))
 }
 
 const STRAND_ELEMENTS: [&str; 3] = ["strand", "strands", "curve"];
@@ -444,7 +434,7 @@ const SEGMENT_COUNTS: [&str; 1] = ["nsegs"];
 const POINT_COUNTS: [&str; 5] = ["nverts", "nvertices", "npoints", "vertex_count", "count"];
 const STRAND_IDS: [&str; 4] = ["strand_id", "strand", "hair_id", "curve_id"];
 
-fn parse_strands(bytes: &[u8]) -> Result<Groom, FormatError> {
+fn parse_strands(bytes: &[u8]) -> Result<Groom, ErrorKind> {
     let ply = parse_ply(bytes, &|el, prop| match el {
         "vertex" => matches!(prop, "x" | "y" | "z" | "red" | "green" | "blue") || STRAND_IDS.contains(&prop),
         "edge" => matches!(prop, "vertex1" | "vertex2"),
@@ -482,7 +472,7 @@ fn parse_strands(bytes: &[u8]) -> Result<Groom, FormatError> {
 }
 
 /// Points per strand, from whichever delimiter the file has (module notes).
-fn strand_lengths(ply: &PlyData, vertex: &Element, n: usize) -> Result<Vec<usize>, FormatError> {
+fn strand_lengths(ply: &PlyData, vertex: &Element, n: usize) -> Result<Vec<usize>, ErrorKind> {
     let strand_el = STRAND_ELEMENTS.iter().find_map(|name| ply.element(name));
     if let Some(el) = strand_el {
         let (counts, extra) = if let Some(c) = el.scalar_any(&SEGMENT_COUNTS) {
@@ -490,7 +480,7 @@ fn strand_lengths(ply: &PlyData, vertex: &Element, n: usize) -> Result<Vec<usize
         } else if let Some(c) = el.scalar_any(&POINT_COUNTS) {
             (c, 0)
         } else {
-            return Err(FormatError::Unsupported(format!(
+            return Err(unsupported(format!(
                 "PLY element '{}' has no per-strand count (nsegs, nverts, npoints, vertex_count, count)",
                 el.def.name
             )));
@@ -525,9 +515,7 @@ fn strand_lengths(ply: &PlyData, vertex: &Element, n: usize) -> Result<Vec<usize
             return Ok(runs(n, |i| !linked[i]));
         }
     }
-    Err(FormatError::Unsupported(
-        "cannot tell how strands are delimited (no strand element, strand id or edge element)".into(),
-    ))
+    Err(unsupported("cannot tell how strands are delimited (no strand element, strand id or edge element)"))
 }
 
 /// Lengths of consecutive runs of `0..n`, a new run starting at `i > 0`
@@ -549,12 +537,11 @@ fn runs(n: usize, starts: impl Fn(usize) -> bool) -> Vec<usize> {
 /// Colours are written from [`Strand::colors`] (white where a strand has
 /// none); widths are not part of that layout and are not written. Fails if
 /// a strand has more than 65536 points (`nsegs` is a `ushort`).
-pub fn write_ply_strands(path: &Path, groom: &Groom) -> Result<(), GroomError> {
-    let werr = |reason: String| GroomError::Write {
-        path: path.into(),
-        source: std::io::Error::new(std::io::ErrorKind::InvalidInput, reason),
+pub fn write_ply_strands(path: &Path, groom: &Groom) -> Result<(), Error> {
+    let werr = |reason: String| {
+        Error::new(path, ErrorKind::Write(std::io::Error::new(std::io::ErrorKind::InvalidInput, reason)))
     };
-    groom.validate_for(path)?;
+    validate_for(groom, path)?;
     if let Some(i) = groom.strands.iter().position(|s| s.points.len() - 1 > u16::MAX as usize) {
         return Err(werr(format!(
             "strand {i} has {} points; the PLY strand layout stores nsegs as ushort (max 65536 points)",
@@ -598,6 +585,5 @@ pub fn write_ply_strands(path: &Path, groom: &Groom) -> Result<(), GroomError> {
         }
         start += s.points.len() as i32;
     }
-    crate::atomic::write_atomic(path, |w| w.write_all(&body))
-        .map_err(|source| GroomError::Write { path: path.into(), source })
+    crate::atomic::write_atomic(path, |w| w.write_all(&body)).map_err(|e| Error::new(path, ErrorKind::Write(e)))
 }

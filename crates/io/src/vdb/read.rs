@@ -1,16 +1,19 @@
 //! Decoding of the OpenVDB stream (`io::Archive`, `GridDescriptor`,
 //! `RootNode`/`InternalNode`/`LeafNode` topology and buffers).
 //!
-//! Every read goes through [`Cursor`], which checks bounds and turns a short
-//! file into [`VdbError::Truncated`]; counts from the file are never used to
-//! pre-allocate, so no byte sequence can make the reader panic or balloon.
+//! Every read goes through the crate's bounds-checked [`Reader`], which turns
+//! a short file into [`ErrorKind::Truncated`]; counts from the file are never
+//! used to pre-allocate, so no byte sequence can make the reader panic or
+//! balloon.
 
 use std::path::Path;
 
 use super::{
-    blosc, GridValues, Leaf, MetaValue, Metadata, SparseGrid, Transform, VdbError, VdbFile, VdbGrid, LEAF_VOXELS,
+    blosc, GridValues, Leaf, MetaValue, Metadata, SparseGrid, Transform, VdbFile, VdbGrid, LEAF_VOXELS,
     MAX_DENSE_VOXELS,
 };
+use crate::bytes::Reader;
+use crate::{Error, ErrorKind};
 
 /// `OPENVDB_MAGIC` as stored (little-endian i64 0x56444220).
 pub(super) const MAGIC: [u8; 8] = [0x20, 0x42, 0x44, 0x56, 0, 0, 0, 0];
@@ -33,71 +36,29 @@ pub(super) const NAME_SEP: char = '\u{1e}';
 /// Suffix of the tree type of grids saved as half floats.
 pub(super) const HALF_SUFFIX: &str = "_HalfFloat";
 
-/// Bounds-checked little-endian reader over the whole file.
-struct Cursor<'a> {
-    data: &'a [u8],
-    pos: usize,
-    path: &'a Path,
+/// What OpenVDB's stream adds to the plain byte reads.
+trait VdbReads {
+    /// `u32` length + bytes (OpenVDB `readString`).
+    fn string(&mut self, what: &'static str) -> Result<String, ErrorKind>;
+    /// A node mask of `words` 64-bit words.
+    fn mask(&mut self, words: usize, what: &'static str) -> Result<Vec<u64>, ErrorKind>;
+    /// Corrupt data at the current offset (OpenVDB messages name one).
+    fn corrupt(&self, reason: impl Into<String>) -> ErrorKind;
 }
 
-impl<'a> Cursor<'a> {
-    fn take(&mut self, n: usize, what: &'static str) -> Result<&'a [u8], VdbError> {
-        match self.pos.checked_add(n).filter(|&e| e <= self.data.len()) {
-            Some(end) => {
-                let s = &self.data[self.pos..end];
-                self.pos = end;
-                Ok(s)
-            }
-            None => Err(VdbError::Truncated { path: self.path.to_path_buf(), what, offset: self.pos, needed: n }),
-        }
-    }
-
-    fn array<const N: usize>(&mut self, what: &'static str) -> Result<[u8; N], VdbError> {
-        Ok(self.take(N, what)?.try_into().unwrap())
-    }
-
-    fn u8(&mut self, what: &'static str) -> Result<u8, VdbError> {
-        Ok(self.take(1, what)?[0])
-    }
-
-    fn u32(&mut self, what: &'static str) -> Result<u32, VdbError> {
-        Ok(u32::from_le_bytes(self.array(what)?))
-    }
-
-    fn i32(&mut self, what: &'static str) -> Result<i32, VdbError> {
-        Ok(i32::from_le_bytes(self.array(what)?))
-    }
-
-    fn i64(&mut self, what: &'static str) -> Result<i64, VdbError> {
-        Ok(i64::from_le_bytes(self.array(what)?))
-    }
-
-    fn f64(&mut self, what: &'static str) -> Result<f64, VdbError> {
-        Ok(f64::from_le_bytes(self.array(what)?))
-    }
-
-    fn coord(&mut self, what: &'static str) -> Result<[i32; 3], VdbError> {
-        Ok([self.i32(what)?, self.i32(what)?, self.i32(what)?])
-    }
-
-    fn vec3d(&mut self, what: &'static str) -> Result<[f64; 3], VdbError> {
-        Ok([self.f64(what)?, self.f64(what)?, self.f64(what)?])
-    }
-
-    /// `u32` length + bytes (OpenVDB `readString`).
-    fn string(&mut self, what: &'static str) -> Result<String, VdbError> {
+impl VdbReads for Reader<'_> {
+    fn string(&mut self, what: &'static str) -> Result<String, ErrorKind> {
         let n = self.u32(what)? as usize;
         Ok(String::from_utf8_lossy(self.take(n, what)?).into_owned())
     }
 
-    /// A node mask of `words` 64-bit words.
-    fn mask(&mut self, words: usize, what: &'static str) -> Result<Vec<u64>, VdbError> {
+    fn mask(&mut self, words: usize, what: &'static str) -> Result<Vec<u64>, ErrorKind> {
         let raw = self.take(words * 8, what)?;
         Ok(raw.chunks_exact(8).map(|c| u64::from_le_bytes(c.try_into().unwrap())).collect())
     }
 
-    fn corrupt(&self, reason: impl Into<String>) -> VdbError {
-        VdbError::Corrupt { path: self.path.to_path_buf(), offset: self.pos, reason: reason.into() }
+    fn corrupt(&self, reason: impl Into<String>) -> ErrorKind {
+        ErrorKind::Corrupt { offset: Some(self.pos()), reason: reason.into() }
     }
 }
 
@@ -177,15 +138,31 @@ impl Voxel for [f32; 3] {
 }
 
 /// Decodes a whole file.
-pub(super) fn parse(path: &Path, data: &[u8]) -> Result<VdbFile, VdbError> {
-    let mut c = Cursor { data, pos: 0, path };
+pub(super) fn parse(path: &Path, data: &[u8]) -> Result<VdbFile, Error> {
+    decode(path, data).map_err(|kind| {
+        // OpenVDB messages have always given the whole read that failed as
+        // "needed", where the shared reader gives the bytes missing; the read
+        // started at `offset`, which never lies past the end.
+        let kind = match kind {
+            ErrorKind::Truncated { what, offset, needed } => {
+                ErrorKind::Truncated { what, offset, needed: needed + (data.len() - offset) }
+            }
+            kind => kind,
+        };
+        Error::new(path, kind)
+    })
+}
+
+/// [`parse`] before the file is named in the error.
+fn decode(path: &Path, data: &[u8]) -> Result<VdbFile, ErrorKind> {
+    let mut c = Reader::new(data, 0);
     if data.len() < 8 || data[..8] != MAGIC {
-        return Err(VdbError::NotVdb { path: path.to_path_buf() });
+        return Err(ErrorKind::NotVdb);
     }
-    c.pos = 8;
+    c.seek(8);
     let version = c.u32("header")?;
     if version < VERSION_NODE_MASK_COMPRESSION {
-        return Err(VdbError::UnsupportedVersion { path: path.to_path_buf(), version });
+        return Err(ErrorKind::UnsupportedVersion { version });
     }
     let library_version = (c.u32("header")?, c.u32("header")?);
     let has_offsets = c.u8("header")? != 0;
@@ -197,7 +174,7 @@ pub(super) fn parse(path: &Path, data: &[u8]) -> Result<VdbFile, VdbError> {
     }
     let mut grids: Vec<(String, VdbGrid)> = Vec::new();
     for _ in 0..count {
-        let grid = read_grid(&mut c, has_offsets, &grids)?;
+        let grid = read_grid(&mut c, path, has_offsets, &grids)?;
         grids.push(grid);
     }
     Ok(VdbFile {
@@ -209,7 +186,7 @@ pub(super) fn parse(path: &Path, data: &[u8]) -> Result<VdbFile, VdbError> {
 }
 
 /// `MetaMap::readMeta`: count, then name, type name, `u32` size, value.
-fn read_metadata(c: &mut Cursor) -> Result<Metadata, VdbError> {
+fn read_metadata(c: &mut Reader) -> Result<Metadata, ErrorKind> {
     let n = c.u32("metadata count")?;
     let mut meta = Metadata::default();
     for _ in 0..n {
@@ -241,7 +218,7 @@ fn read_metadata(c: &mut Cursor) -> Result<Metadata, VdbError> {
 }
 
 /// `Transform::read`: map type name, then the map's fields.
-fn read_transform(c: &mut Cursor, grid: &str) -> Result<Transform, VdbError> {
+fn read_transform(c: &mut Reader, grid: &str) -> Result<Transform, ErrorKind> {
     let map = c.string("transform type")?;
     let mut m = [[0.0; 4]; 4];
     m[3][3] = 1.0;
@@ -273,14 +250,19 @@ fn read_transform(c: &mut Cursor, grid: &str) -> Result<Transform, VdbError> {
                 }
             }
         }
-        _ => return Err(VdbError::UnsupportedTransform { path: c.path.to_path_buf(), grid: grid.to_string(), map }),
+        _ => return Err(ErrorKind::UnsupportedTransform { grid: grid.to_string(), map }),
     }
     Ok(Transform::from_matrix(&map, m))
 }
 
 /// Grid descriptor plus grid body. Returns the unique name (for instance
 /// lookups) and the grid.
-fn read_grid(c: &mut Cursor, has_offsets: bool, done: &[(String, VdbGrid)]) -> Result<(String, VdbGrid), VdbError> {
+fn read_grid(
+    c: &mut Reader,
+    path: &Path,
+    has_offsets: bool,
+    done: &[(String, VdbGrid)],
+) -> Result<(String, VdbGrid), ErrorKind> {
     let unique = c.string("grid name")?;
     let name = unique.split(NAME_SEP).next().unwrap_or("").to_string();
     let mut tree_type = c.string("grid type")?;
@@ -301,15 +283,15 @@ fn read_grid(c: &mut Cursor, has_offsets: bool, done: &[(String, VdbGrid)]) -> R
     // Without the descriptor's end offset there is no way past a tree we
     // cannot decode.
     if !supported && end_pos.is_none() {
-        return Err(VdbError::UnsupportedValueType { path: c.path.to_path_buf(), grid: name, tree_type });
+        return Err(ErrorKind::UnsupportedValueType { grid: name, tree_type });
     }
     let compression = c.u32("grid compression")?;
     let metadata = read_metadata(c)?;
     let transform = read_transform(c, &name)?;
     let values = if !supported {
-        let end = end_pos.and_then(|e| usize::try_from(e).ok()).filter(|&e| e >= c.pos && e <= c.data.len());
+        let end = end_pos.and_then(|e| usize::try_from(e).ok()).filter(|&e| e >= c.pos() && e <= c.len());
         match end {
-            Some(e) => c.pos = e,
+            Some(e) => c.seek(e),
             None => return Err(c.corrupt(format!("grid '{name}' has a bad end offset"))),
         }
         GridValues::Unsupported { tree_type: tree_type.clone() }
@@ -332,14 +314,14 @@ fn read_grid(c: &mut Cursor, has_offsets: bool, done: &[(String, VdbGrid)]) -> R
         // Trust the descriptor's end offset when it is sane, so trailing
         // data we do not interpret cannot desynchronise the next grid.
         if let Ok(end) = usize::try_from(end) {
-            if end >= c.pos && end <= c.data.len() {
-                c.pos = end;
+            if end >= c.pos() && end <= c.len() {
+                c.seek(end);
             }
         }
     }
     let class = metadata.get_str("class").unwrap_or("unknown").to_string();
     let grid =
-        VdbGrid { name, class, transform, values, metadata, saved_as_half, source_path: Some(c.path.to_path_buf()) };
+        VdbGrid { name, class, transform, values, metadata, saved_as_half, source_path: Some(path.to_path_buf()) };
     Ok((unique, grid))
 }
 
@@ -362,7 +344,7 @@ struct Node5<T> {
 }
 
 struct TreeDecoder<'c, 'a> {
-    c: &'c mut Cursor<'a>,
+    c: &'c mut Reader<'a>,
     compression: u32,
     half: bool,
     grid: &'c str,
@@ -371,7 +353,7 @@ struct TreeDecoder<'c, 'a> {
 }
 
 impl TreeDecoder<'_, '_> {
-    fn tree<T: Voxel>(&mut self) -> Result<SparseGrid<T>, VdbError> {
+    fn tree<T: Voxel>(&mut self) -> Result<SparseGrid<T>, ErrorKind> {
         let buffers = self.c.i32("tree buffer count")?;
         if buffers != 1 {
             return Err(self.c.corrupt(format!("tree has {buffers} buffers, expected 1")));
@@ -382,7 +364,7 @@ impl TreeDecoder<'_, '_> {
         let children = self.c.u32("root child count")?;
         let mut root_tiles = Vec::new();
         for _ in 0..tiles {
-            let o = self.c.coord("root tile")?;
+            let o = self.c.vec3i("root tile")?;
             let v = T::from_le(self.c.take(T::SIZE, "root tile")?);
             let active = self.c.u8("root tile")? != 0;
             if active {
@@ -391,7 +373,7 @@ impl TreeDecoder<'_, '_> {
         }
         let mut nodes = Vec::new();
         for _ in 0..children {
-            let key = self.c.coord("root child origin")?;
+            let key = self.c.vec3i("root child origin")?;
             let origin = key.map(|v| v & !4095);
             nodes.push((key, self.node5::<T>(origin, background)?));
         }
@@ -438,7 +420,7 @@ impl TreeDecoder<'_, '_> {
         values: &[T],
         log2: u32,
         child_total: u32,
-    ) -> Result<(), VdbError> {
+    ) -> Result<(), ErrorKind> {
         for (w, (&on, &child)) in value_mask.iter().zip(child_mask).enumerate() {
             let mut tiles = on & !child;
             while tiles != 0 {
@@ -452,11 +434,10 @@ impl TreeDecoder<'_, '_> {
     }
 
     /// Sets every voxel of the cube at `o` with edge `edge` active to `v`.
-    fn fill<T: Voxel>(&mut self, grid: &mut SparseGrid<T>, o: [i32; 3], edge: i32, v: T) -> Result<(), VdbError> {
+    fn fill<T: Voxel>(&mut self, grid: &mut SparseGrid<T>, o: [i32; 3], edge: i32, v: T) -> Result<(), ErrorKind> {
         let voxels = (edge as u64).pow(3);
         if voxels > self.budget {
-            return Err(VdbError::TooLarge {
-                file: self.c.path.display().to_string(),
+            return Err(ErrorKind::TooLarge {
                 grid: self.grid.to_string(),
                 voxels: u128::from(voxels) + u128::from(MAX_DENSE_VOXELS - self.budget),
                 limit: MAX_DENSE_VOXELS,
@@ -474,7 +455,7 @@ impl TreeDecoder<'_, '_> {
         Ok(())
     }
 
-    fn node5<T: Voxel>(&mut self, origin: [i32; 3], bg: T) -> Result<Node5<T>, VdbError> {
+    fn node5<T: Voxel>(&mut self, origin: [i32; 3], bg: T) -> Result<Node5<T>, ErrorKind> {
         let child_mask = self.c.mask(512, "node mask")?;
         let value_mask = self.c.mask(512, "node mask")?;
         let mut values = vec![bg; 32768];
@@ -488,7 +469,7 @@ impl TreeDecoder<'_, '_> {
         Ok(Node5 { origin, child_mask, value_mask, values, children })
     }
 
-    fn node4<T: Voxel>(&mut self, origin: [i32; 3], bg: T) -> Result<Node4<T>, VdbError> {
+    fn node4<T: Voxel>(&mut self, origin: [i32; 3], bg: T) -> Result<Node4<T>, ErrorKind> {
         let child_mask = self.c.mask(64, "node mask")?;
         let value_mask = self.c.mask(64, "node mask")?;
         let mut values = vec![bg; 4096];
@@ -505,7 +486,7 @@ impl TreeDecoder<'_, '_> {
     /// `io::readCompressedValues`: fills `dest` (a node's full value table)
     /// from the per-node metadata byte, inactive values, selection mask and
     /// the (possibly mask-compressed, half, zlib or Blosc) value buffer.
-    fn values<T: Voxel>(&mut self, dest: &mut [T], value_mask: &[u64], bg: T) -> Result<(), VdbError> {
+    fn values<T: Voxel>(&mut self, dest: &mut [T], value_mask: &[u64], bg: T) -> Result<(), ErrorKind> {
         let meta = self.c.u8("node compression metadata")?;
         if meta > NO_MASK_AND_ALL_VALS {
             return Err(self.c.corrupt(format!("unknown node compression metadata {meta}")));
@@ -562,11 +543,11 @@ impl TreeDecoder<'_, '_> {
 
     /// `io::readData`: a value buffer of exactly `bytes` bytes, raw or as an
     /// `i64` size (negative = stored uncompressed) + zlib/Blosc frame.
-    fn data(&mut self, bytes: usize) -> Result<Vec<u8>, VdbError> {
+    fn data(&mut self, bytes: usize) -> Result<Vec<u8>, ErrorKind> {
         if self.compression & (COMPRESS_BLOSC | COMPRESS_ZIP) == 0 {
             return Ok(self.c.take(bytes, "node values")?.to_vec());
         }
-        let start = self.c.pos;
+        let start = self.c.pos();
         let n = self.c.i64("compressed size")?;
         if n <= 0 {
             if n.unsigned_abs() != bytes as u64 {
@@ -580,7 +561,7 @@ impl TreeDecoder<'_, '_> {
         let frame = self.c.take(n, "compressed node values")?;
         let out =
             if self.compression & COMPRESS_BLOSC != 0 { blosc::decompress(frame, bytes) } else { unzip(frame, bytes) };
-        out.map_err(|reason| VdbError::Corrupt { path: self.c.path.to_path_buf(), offset: start, reason })
+        out.map_err(|reason| ErrorKind::Corrupt { offset: Some(start), reason })
     }
 }
 

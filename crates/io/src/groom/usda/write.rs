@@ -1,0 +1,77 @@
+//! The writer: one clean `BasisCurves` layer.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use crate::groom::{validate_for, Groom};
+use crate::{Error, ErrorKind};
+
+/// Writes `groom` as a text USD layer (`upAxis = "Y"`, `defaultPrim =
+/// "Groom"`) holding one `BasisCurves` prim `/Groom`.
+///
+/// `type = "linear"`: our strands are sampled hair polylines (as every
+/// supported input format stores them), and linear curves draw exactly those
+/// points in any USD renderer, whereas cubic Catmull-Rom would drop the
+/// first and last segment unless phantom points were added (`wrap =
+/// "pinned"` is not read by every DCC). `widths` (vertex interpolation)
+/// are written when every strand has widths, `primvars:displayColor`
+/// likewise for colours; `extent` bounds points padded by half the widest
+/// width. Floats are printed in shortest round-trip form, so reading the
+/// layer back gives the same `f32`s.
+pub fn write_usda_curves(path: &Path, groom: &Groom) -> Result<(), Error> {
+    validate_for(groom, path)?;
+    let mut s = String::with_capacity(64 + groom.point_count() * 40);
+    let f3 = |s: &mut String, p: &[f32; 3]| {
+        let _ = write!(s, "({}, {}, {})", p[0], p[1], p[2]);
+    };
+    s.push_str("#usda 1.0\n(\n    defaultPrim = \"Groom\"\n    doc = \"Written by nst3d\"\n    upAxis = \"Y\"\n)\n\n");
+    s.push_str(
+        "def BasisCurves \"Groom\"\n{\n    uniform token type = \"linear\"\n    uniform token wrap = \"nonperiodic\"\n",
+    );
+    s.push_str("    int[] curveVertexCounts = [");
+    for (i, st) in groom.strands.iter().enumerate() {
+        let _ = write!(s, "{}{}", if i > 0 { ", " } else { "" }, st.points.len());
+    }
+    s.push_str("]\n");
+    let all_widths = groom.strands.iter().all(|st| st.widths.is_some());
+    let max_width = if all_widths {
+        groom.strands.iter().flat_map(|st| st.widths.iter().flatten()).fold(0f32, |a, &w| a.max(w))
+    } else {
+        0.0
+    };
+    if let Some((lo, hi)) = groom.bbox() {
+        let pad = max_width * 0.5;
+        s.push_str("    float3[] extent = [");
+        f3(&mut s, &lo.map(|c| c - pad));
+        s.push_str(", ");
+        f3(&mut s, &hi.map(|c| c + pad));
+        s.push_str("]\n");
+    }
+    s.push_str("    point3f[] points = [");
+    for (i, p) in groom.strands.iter().flat_map(|st| st.points.iter()).enumerate() {
+        if i > 0 {
+            s.push_str(", ");
+        }
+        f3(&mut s, p);
+    }
+    s.push_str("]\n");
+    if all_widths {
+        s.push_str("    float[] widths = [");
+        for (i, w) in groom.strands.iter().flat_map(|st| st.widths.iter().flatten()).enumerate() {
+            let _ = write!(s, "{}{}", if i > 0 { ", " } else { "" }, w);
+        }
+        s.push_str("] (\n        interpolation = \"vertex\"\n    )\n");
+    }
+    if groom.strands.iter().all(|st| st.colors.is_some()) {
+        s.push_str("    color3f[] primvars:displayColor = [");
+        for (i, c) in groom.strands.iter().flat_map(|st| st.colors.iter().flatten()).enumerate() {
+            if i > 0 {
+                s.push_str(", ");
+            }
+            f3(&mut s, c);
+        }
+        s.push_str("] (\n        interpolation = \"vertex\"\n    )\n");
+    }
+    s.push_str("}\n");
+    crate::atomic::write_atomic(path, |w| w.write_all(s.as_bytes())).map_err(|e| Error::new(path, ErrorKind::Write(e)))
+}
