@@ -6,6 +6,7 @@ pub mod fixture;
 pub mod gradcheck;
 pub mod grid;
 pub mod image;
+pub mod math;
 
 pub use grid::Grid3;
 pub use image::Image;

@@ -30,6 +30,7 @@
 //! back to a default.
 
 use crate::camera::{Camera, Projection};
+use nst3d_core::math::{add, cross, dot, norm, sub, unit, SplitMix64};
 use serde_json::{Map, Value};
 use std::path::Path;
 
@@ -519,55 +520,18 @@ fn mat3_mat3(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
 fn mat3_mul(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
     std::array::from_fn(|r| (0..3).map(|c| m[r][c] * v[c]).sum())
 }
-fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    std::array::from_fn(|i| a[i] + b[i])
-}
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    std::array::from_fn(|i| a[i] - b[i])
-}
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-fn norm(a: [f64; 3]) -> f64 {
-    dot(a, a).sqrt()
-}
-fn unit(a: [f64; 3]) -> [f64; 3] {
-    let n = norm(a);
-    a.map(|x| x / n)
-}
 
 // ---------------------------------------------------------------------------
 // Omniview and turntable camera sets.
 
-/// SplitMix64: a tiny, well-mixed generator, so camera sets are reproducible
-/// from a seed without pulling in an RNG crate.
-struct SplitMix(u64);
-
-impl SplitMix {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [0, 1) from the top 53 bits.
-    fn unit(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-    }
-}
-
 /// `count` independent uniform directions on the unit sphere (Archimedes:
 /// uniform height and azimuth give uniform area), deterministic for a seed.
 pub fn sphere_uniform(count: usize, seed: u64) -> Vec<[f64; 3]> {
-    let mut rng = SplitMix(seed);
+    let mut rng = SplitMix64::new(seed);
     (0..count)
         .map(|_| {
-            let z = 1.0 - 2.0 * rng.unit();
-            let phi = std::f64::consts::TAU * rng.unit();
+            let z = 1.0 - 2.0 * rng.uniform_f64();
+            let phi = std::f64::consts::TAU * rng.uniform_f64();
             let s = (1.0 - z * z).max(0.0).sqrt();
             [s * phi.cos(), s * phi.sin(), z]
         })

@@ -17,9 +17,9 @@
 use rayon::prelude::*;
 
 use crate::bvh::MeshBvh;
-use crate::math::{add, norm, normalize, scale, sub, V3};
 use crate::strands::FlatStrands;
 use crate::StrandError;
+use nst3d_core::math::{add, norm, normalize, scale, sub, V3};
 
 /// Mutable per-strand slices of a flat point array.
 fn strands_mut<'a>(points: &'a mut [V3], offsets: &[usize]) -> Vec<&'a mut [V3]> {

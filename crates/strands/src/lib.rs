@@ -34,7 +34,6 @@ mod densify;
 mod field;
 mod generators;
 mod kdtree;
-mod math;
 pub mod pipeline;
 mod preset;
 pub mod sequence;
@@ -60,6 +59,14 @@ pub use temporal::{
     ema_blend, ema_blend_factor, smoothing_factor, transport_velocities, DerivativeSmoothing, OneEuroFilter,
     OneEuroHistory, OneEuroParams,
 };
+
+/// The generator of the strand stages' samplers (densification roots,
+/// procedural grooms, camera angles): SplitMix64 started at `seed` xor a
+/// fixed salt. The salt only keeps the streams of grooms saved so far; it has
+/// no statistical purpose.
+pub(crate) fn strand_rng(seed: u64) -> nst3d_core::math::SplitMix64 {
+    nst3d_core::math::SplitMix64::new(seed ^ 0x5DEE_CE66_D1CE_4E5B)
+}
 
 /// Everything that can go wrong in the groom stages; one line naming the
 /// problem.

@@ -94,10 +94,11 @@ use crate::bvh::MeshBvh;
 use crate::constraints::{CollisionParams, CollisionStats, ConstraintTape, Constraints};
 use crate::densify::{densify, DensifyParams};
 use crate::field::DeformationField;
-use crate::math::{add, cross, dot, norm, normalize, scale, sub, Rng, V3};
 use crate::preset::PresetParams;
+use crate::strand_rng;
 use crate::strands::FlatStrands;
 use crate::StrandError;
+use nst3d_core::math::{add, cross, dot, norm, normalize, scale, sub, V3};
 
 /// VGG-19 taps of the NNST hyper-columns.
 pub const NNST_LAYERS: [VggLayer; 4] = [VggLayer::Relu1_1, VggLayer::Relu2_1, VggLayer::Relu3_1, VggLayer::Relu4_1];
@@ -639,7 +640,7 @@ pub fn poisson_view_angles(
     seed: u64,
 ) -> Vec<(f32, f32)> {
     const CANDIDATES: usize = 16;
-    let mut rng = Rng::new(seed ^ 0x5EED_CA3E_0000_0001);
+    let mut rng = strand_rng(seed ^ 0x5EED_CA3E_0000_0001);
     let mut out: Vec<(f32, f32)> = Vec::with_capacity(n);
     let mut dirs: Vec<V3> = Vec::with_capacity(n);
     let lerp = |r: (f32, f32), u: f32| r.0 + (r.1 - r.0) * u;
@@ -648,8 +649,8 @@ pub fn poisson_view_angles(
         for _ in 0..if out.is_empty() { 1 } else { CANDIDATES } {
             // Uniform in solid angle over the polar band: sin ψ uniform.
             let (s0, s1) = (polar_deg.0.to_radians().sin(), polar_deg.1.to_radians().sin());
-            let psi = (s0 + (s1 - s0) * rng.uniform()).clamp(-1.0, 1.0).asin().to_degrees();
-            let delta = lerp(azimuth_deg, rng.uniform());
+            let psi = (s0 + (s1 - s0) * rng.uniform_f32()).clamp(-1.0, 1.0).asin().to_degrees();
+            let delta = lerp(azimuth_deg, rng.uniform_f32());
             let d = frame.direction(psi, delta);
             let gap = dirs.iter().map(|&e| dot(d, e).clamp(-1.0, 1.0).acos()).fold(f32::INFINITY, f32::min);
             if gap > best.0 {
