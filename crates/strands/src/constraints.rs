@@ -8,10 +8,9 @@
 //! pipeline autograd does this). Passing them through as identity is not
 //! enough: length preservation rebuilds each strand root to tip, so moving
 //! one control point sideways swings every point after it, and an identity
-//! backward points the optimizer the wrong way (measured on the Bangs
-//! groom: the loss stalls at −7 % with identity, and falls like the
-//! unconstrained one with the exact backward). Each projection therefore has
-//! its vector-Jacobian product next to it, and [`ConstraintTape`] records a
+//! backward points the optimizer the wrong way (the Bangs measurements are
+//! in `docs/STRANDS.md`). Each projection therefore has its
+//! vector-Jacobian product next to it, and [`ConstraintTape`] records a
 //! sequence of projections so they can be undone in reverse.
 
 use rayon::prelude::*;

@@ -14,8 +14,10 @@
 //!
 //! Per optimisation step (Alg. 1): EMA on `v` → `DeformationField::forward`
 //! → `preserve_lengths` → `project_collisions` → render; the render's
-//! gradient on the points goes back through `DeformationField::backward`
-//! (the two projections are not differentiated, as in the paper).
+//! gradient on the points goes back through both projections
+//! ([`ConstraintTape`] records them and back-propagates in reverse, as
+//! autograd does in the paper's PyTorch pipeline), then through
+//! `DeformationField::backward`.
 //!
 //! [`sequence`] runs it over the frames of an animated groom with the EMA
 //! and 1€ filter of Sec. 3.3, and measures the flicker.

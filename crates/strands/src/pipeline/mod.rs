@@ -47,25 +47,17 @@
 //! per scale. Views are *cached*: each scale draws
 //! [`StylizeParams::views_per_scale`] cameras, matches each once on `x₀`
 //! and cycles its iterations through them; `views_per_scale = 0` restores
-//! the paper's new camera every iteration. Measured on the Bangs groom (100
-//! guides × 100 points + 565 proxies, 256² render, styles 68–128 px as the
-//! preset's sizes scaled to 256, 2 cores): 12 iterations take 16.0 s with 3
-//! matches and 18.0 s with 12, so a match costs ~0.2 s against ~1.1 s for
-//! an iteration (render, VGG forward/backward, splat backward, constraints).
-//! At these sizes per-iteration matching is affordable (+20 %); the cache
-//! matters at the preset's full 600² render against 300² styles, where a
-//! match approaches the cost of an iteration. The default stays at 8 cached
-//! views per scale.
+//! the paper's new camera every iteration. A match is cheap next to an
+//! iteration at small renders, but approaches the cost of an iteration at
+//! the preset's full 600² render against 300² styles, which is where the
+//! cache pays; the default is 8 cached views per scale.
 //!
 //! Step size: the preset's `η` read as `η·R` (see Units) times
-//! [`StylizeParams::lr_scale`], 0.3 by default. Measured on the Bangs groom
-//! at a 160² render with the preset's 100 iterations (NNST loss from the
-//! optimized views, targets matched on the rest groom): lr-scale 0.1 →
-//! −10.0 %, 0.3 → −12.6 %, 1.0 → −7.5 % (re-matched −16 %: large steps
-//! find another stylization rather than the one matched on `x₀`). Before the
-//! constraints' backward existed (they were passed through as identity) the
-//! loss *rose* at any step size above ~0.1 px; a single view at the finest
-//! scale now falls 29 % in 30 steps at lr-scale 1, against 7 % before.
+//! [`StylizeParams::lr_scale`], 0.3 by default: larger steps find another
+//! stylization rather than the one the targets were matched for on `x₀`.
+//!
+//! The measurements behind both defaults are in `docs/STRANDS.md`
+//! ("Measurements behind the pipeline's defaults").
 //!
 //! Evaluation: the optimized views — the finest scale's cached cameras (or,
 //! with a new camera per iteration, [`StylizeParams::eval_views`] fixed
