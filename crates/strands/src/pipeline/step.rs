@@ -76,7 +76,7 @@ pub struct StepReport {
 /// matched: deform by `v` (flat `3 × samples`), render through `cam`, VGG-19,
 /// NNST loss against `matched`, the chain backward to `v`, and one `adam`
 /// step. A non-finite loss leaves `v` untouched and is an error.
-/// [`stylize`] runs exactly this per iteration; the `strands-iter`
+/// [`stylize`](super::stylize) runs exactly this per iteration; the `strands-iter`
 /// benchmark times it.
 pub fn iteration(
     scene: &StrandScene,
