@@ -13,6 +13,7 @@
 //! `D` is the voxel count along the view.
 
 use crate::RenderError;
+use nst3d_core::math::{cross, dot, sub, try_unit};
 
 /// How the camera projects the volume onto the image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -162,19 +163,8 @@ const MAX_LATTICE: usize = 1 << 30;
 /// Below this depth a bounding-box corner counts as at or behind the eye.
 const MIN_DEPTH: f32 = 1e-3;
 
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    std::array::from_fn(|i| a[i] - b[i])
-}
-fn dot3(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-fn normalize(a: [f32; 3]) -> Option<[f32; 3]> {
-    let n = dot3(a, a).sqrt();
-    (n > 1e-6 && n.is_finite()).then(|| a.map(|x| x / n))
-}
+/// Below this length an eye-to-target or right vector counts as no direction.
+const MIN_AXIS_NORM: f32 = 1e-6;
 
 /// The grid axis and sign of a unit vector that is (numerically) a coordinate axis.
 fn as_axis(v: [f32; 3]) -> Option<(usize, isize)> {
@@ -197,8 +187,8 @@ impl View {
         if !finite(cam.eye) || !finite(cam.target) || !finite(cam.up) {
             return Err(RenderError::NonFiniteCamera);
         }
-        let forward = normalize(sub(cam.target, cam.eye)).ok_or(RenderError::EyeAtTarget)?;
-        let right = normalize(cross(forward, cam.up)).ok_or(RenderError::DegenerateUp)?;
+        let forward = try_unit(sub(cam.target, cam.eye), MIN_AXIS_NORM).ok_or(RenderError::EyeAtTarget)?;
+        let right = try_unit(cross(forward, cam.up), MIN_AXIS_NORM).ok_or(RenderError::DegenerateUp)?;
         let up = cross(right, forward);
 
         // Bounding box of the voxel cells (centres at integers, so faces at -0.5 and n - 0.5).
@@ -209,7 +199,7 @@ impl View {
             .iter()
             .map(|&q| {
                 let p = sub(q, cam.eye);
-                [dot3(p, right), dot3(p, up), dot3(p, forward)]
+                [dot(p, right), dot(p, up), dot(p, forward)]
             })
             .collect();
         let range = |f: &dyn Fn(&[f32; 3]) -> f32| {

@@ -8,6 +8,7 @@
 //! the principal point at the image centre.
 
 use crate::SplatError;
+use nst3d_core::math::{cross, sub, try_unit};
 
 /// Camera-space depths below this are behind (or too close to) the eye to
 /// splat: EWA's local affine approximation of the projection breaks down there.
@@ -41,18 +42,8 @@ pub struct SplatCamera {
     pub near: f32,
 }
 
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-
-fn normalized(a: [f32; 3]) -> Option<[f32; 3]> {
-    let n = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
-    (n > 1e-12 && n.is_finite()).then(|| a.map(|v| v / n))
-}
+/// Below this length a view or right vector counts as no direction.
+const MIN_AXIS_NORM: f32 = 1e-12;
 
 impl SplatCamera {
     /// A camera at `eye` looking at `target`, rolled so that `up` points up in
@@ -76,8 +67,8 @@ impl SplatCamera {
         if width == 0 || height == 0 {
             return Err(SplatError::EmptyImage { width, height });
         }
-        let forward = normalized(sub(target, eye)).ok_or(SplatError::EyeAtTarget)?;
-        let right = normalized(cross(forward, up)).ok_or(SplatError::DegenerateUp)?;
+        let forward = try_unit(sub(target, eye), MIN_AXIS_NORM).ok_or(SplatError::EyeAtTarget)?;
+        let right = try_unit(cross(forward, up), MIN_AXIS_NORM).ok_or(SplatError::DegenerateUp)?;
         // Image rows grow downwards, so the camera y axis is "down", not "up".
         let down = cross(forward, right);
         let fy = 0.5 * height as f32 / (0.5 * fov_y_deg.to_radians()).tan();

@@ -17,8 +17,8 @@ use std::collections::HashMap;
 
 use nst3d_core::mesh::TriMesh;
 
-use crate::math::{add, cross, dist2, dot, normalize, scale, sub, V3};
 use crate::StrandError;
+use nst3d_core::math::{add, cross, dist2, dot, normalize, scale, sub, V3};
 
 const LEAF: usize = 4;
 

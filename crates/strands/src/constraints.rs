@@ -8,18 +8,17 @@
 //! pipeline autograd does this). Passing them through as identity is not
 //! enough: length preservation rebuilds each strand root to tip, so moving
 //! one control point sideways swings every point after it, and an identity
-//! backward points the optimizer the wrong way (measured on the Bangs
-//! groom: the loss stalls at −7 % with identity, and falls like the
-//! unconstrained one with the exact backward). Each projection therefore has
-//! its vector-Jacobian product next to it, and [`ConstraintTape`] records a
+//! backward points the optimizer the wrong way (the Bangs measurements are
+//! in `docs/STRANDS.md`). Each projection therefore has its
+//! vector-Jacobian product next to it, and [`ConstraintTape`] records a
 //! sequence of projections so they can be undone in reverse.
 
 use rayon::prelude::*;
 
 use crate::bvh::MeshBvh;
-use crate::math::{add, norm, normalize, scale, sub, V3};
 use crate::strands::FlatStrands;
 use crate::StrandError;
+use nst3d_core::math::{add, norm, normalize, scale, sub, V3};
 
 /// Mutable per-strand slices of a flat point array.
 fn strands_mut<'a>(points: &'a mut [V3], offsets: &[usize]) -> Vec<&'a mut [V3]> {
@@ -464,7 +463,7 @@ mod tests {
         use nst3d_core::gradcheck::{check_gradient, dot};
         // A large box: points near its top face see a flat surface, where the
         // neglected turning of the normal is zero.
-        let cube = nst3d_io::mesh::TriMesh {
+        let cube = nst3d_core::mesh::TriMesh {
             vertices: vec![
                 [-5.0, -5.0, -5.0],
                 [5.0, -5.0, -5.0],

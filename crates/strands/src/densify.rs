@@ -13,9 +13,10 @@
 use nst3d_core::mesh::TriMesh;
 
 use crate::kdtree::KdTree;
-use crate::math::{add, cross, dist2, norm, scale, sub, Rng, V3};
+use crate::strand_rng;
 use crate::strands::{resample_polyline, FlatStrands};
 use crate::StrandError;
+use nst3d_core::math::{add, cross, dist2, norm, scale, sub, V3};
 
 /// Densification settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -97,7 +98,7 @@ pub fn densify(guides: &FlatStrands, scalp: &TriMesh, params: &DensifyParams) ->
             g.iter().map(|&q| sub(q, g[0])).collect()
         })
         .collect();
-    let mut rng = Rng::new(params.seed);
+    let mut rng = strand_rng(params.seed);
     let max_attempts = 1000 * params.count.max(1);
     let mut attempts = 0;
     let mut strands = Vec::with_capacity(params.count);
@@ -114,7 +115,7 @@ pub fn densify(guides: &FlatStrands, scalp: &TriMesh, params: &DensifyParams) ->
         let ti = cdf.partition_point(|&c| c <= u).min(cand.len() - 1);
         let [a, b, c] = cand[ti].0;
         // Uniform point in a triangle (square-root warp).
-        let (r1, r2) = (rng.uniform().sqrt(), rng.uniform());
+        let (r1, r2) = (rng.uniform_f32().sqrt(), rng.uniform_f32());
         let root = add(add(scale(a, 1.0 - r1), scale(b, r1 * (1.0 - r2))), scale(c, r1 * r2));
         let nn = root_tree.knn(root, params.neighbors);
         if nn[0].0.sqrt() > radius {

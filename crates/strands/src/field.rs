@@ -20,9 +20,9 @@
 use rayon::prelude::*;
 
 use crate::kdtree::KdTree;
-use crate::math::add;
 use crate::strands::FlatStrands;
 use crate::StrandError;
+use nst3d_core::math::add;
 
 /// Radial basis function `φ` of eq. 5 (the paper allows "cubic or inverse
 /// distance").
@@ -338,8 +338,8 @@ impl DeformationField {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::math::V3;
     use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
+    use nst3d_core::math::V3;
 
     fn pts(n: usize, seed: u64) -> Vec<V3> {
         pseudo_random(3 * n, seed).chunks(3).map(|c| [c[0], c[1], c[2]]).collect()
@@ -401,7 +401,8 @@ mod tests {
         let line: Vec<V3> = (0..2001).map(|i| [-1.0 + i as f32 * 1e-3, 0.1, -0.05]).collect();
         let field = DeformationField::new(s, &line, Kernel::Cubic, 6).unwrap();
         let d = field.displacement(&v).unwrap();
-        let max_jump = d.windows(2).map(|w| crate::math::norm(crate::math::sub(w[1], w[0]))).fold(0.0, f32::max);
+        let max_jump =
+            d.windows(2).map(|w| nst3d_core::math::norm(nst3d_core::math::sub(w[1], w[0]))).fold(0.0, f32::max);
         assert!(max_jump < 0.05, "max jump {max_jump}");
     }
 

@@ -6,9 +6,10 @@
 use nst3d_core::mesh::TriMesh;
 
 use crate::constraints::preserve_lengths;
-use crate::math::{add, cross, dot, normalize, scale, Rng, V3};
+use crate::strand_rng;
 use crate::strands::FlatStrands;
 use crate::StrandError;
+use nst3d_core::math::{add, cross, dot, normalize, scale, V3};
 
 /// A closed UV sphere of `radius` centred at the origin, `rings ≥ 2`
 /// latitude bands and `segments ≥ 3` longitude slices, counter-clockwise
@@ -88,7 +89,7 @@ pub fn fur_ball(p: &FurBallParams) -> Result<(FlatStrands, TriMesh), StrandError
     if !(p.radius > 0.0 && p.radius.is_finite()) {
         return Err(StrandError::Parameter(format!("fur ball radius {} must be > 0", p.radius)));
     }
-    let mut rng = Rng::new(p.seed);
+    let mut rng = strand_rng(p.seed);
     let strands = (0..p.strands).map(|_| {
         let n = rng.unit_vector();
         straight_strand(scale(n, p.radius), n, p.length, p.points)
@@ -135,11 +136,11 @@ pub fn grass_patch(p: &GrassParams) -> Result<(FlatStrands, TriMesh), StrandErro
             p.width, p.depth, p.max_tilt_deg
         )));
     }
-    let mut rng = Rng::new(p.seed);
+    let mut rng = strand_rng(p.seed);
     let strands = (0..p.strands).map(|_| {
-        let root = [(rng.uniform() - 0.5) * p.width, 0.0, (rng.uniform() - 0.5) * p.depth];
-        let tilt = p.max_tilt_deg.to_radians() * rng.uniform();
-        let az = std::f32::consts::TAU * rng.uniform();
+        let root = [(rng.uniform_f32() - 0.5) * p.width, 0.0, (rng.uniform_f32() - 0.5) * p.depth];
+        let tilt = p.max_tilt_deg.to_radians() * rng.uniform_f32();
+        let az = std::f32::consts::TAU * rng.uniform_f32();
         let dir = [tilt.sin() * az.cos(), tilt.cos(), tilt.sin() * az.sin()];
         straight_strand(root, dir, p.length, p.points)
     });
@@ -200,7 +201,7 @@ impl Wind {
                 + 0.15 * (1.7 * k * dot(root, across) + 0.6 * k * along - 1.9 * om * time_s + 1.3).sin();
             let mut acc = vec![0.0f32; pts.len()];
             for i in 1..pts.len() {
-                acc[i] = acc[i - 1] + crate::math::norm(crate::math::sub(pts[i], pts[i - 1]));
+                acc[i] = acc[i - 1] + nst3d_core::math::norm(nst3d_core::math::sub(pts[i], pts[i - 1]));
             }
             let len = acc[pts.len() - 1].max(1e-20);
             let range = rest.range(s);
@@ -226,7 +227,7 @@ impl Wind {
 mod tests {
     use super::*;
     use crate::bvh::MeshBvh;
-    use crate::math::{dist2, norm, sub};
+    use nst3d_core::math::{dist2, norm, sub};
 
     #[test]
     fn sphere_is_closed_and_outward() {

@@ -3,7 +3,7 @@
 //! array. Exact (not approximate), so the interpolation weights do not
 //! depend on the index and match a brute-force search.
 
-use crate::math::{dist2, V3};
+use nst3d_core::math::{dist2, V3};
 
 const LEAF: usize = 8;
 

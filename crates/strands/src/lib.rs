@@ -14,8 +14,10 @@
 //!
 //! Per optimisation step (Alg. 1): EMA on `v` → `DeformationField::forward`
 //! → `preserve_lengths` → `project_collisions` → render; the render's
-//! gradient on the points goes back through `DeformationField::backward`
-//! (the two projections are not differentiated, as in the paper).
+//! gradient on the points goes back through both projections
+//! ([`ConstraintTape`] records them and back-propagates in reverse, as
+//! autograd does in the paper's PyTorch pipeline), then through
+//! `DeformationField::backward`.
 //!
 //! [`sequence`] runs it over the frames of an animated groom with the EMA
 //! and 1€ filter of Sec. 3.3, and measures the flicker.
@@ -34,7 +36,6 @@ mod densify;
 mod field;
 mod generators;
 mod kdtree;
-mod math;
 pub mod pipeline;
 mod preset;
 pub mod sequence;
@@ -60,6 +61,14 @@ pub use temporal::{
     ema_blend, ema_blend_factor, smoothing_factor, transport_velocities, DerivativeSmoothing, OneEuroFilter,
     OneEuroHistory, OneEuroParams,
 };
+
+/// The generator of the strand stages' samplers (densification roots,
+/// procedural grooms, camera angles): SplitMix64 started at `seed` xor a
+/// fixed salt. The salt only keeps the streams of grooms saved so far; it has
+/// no statistical purpose.
+pub(crate) fn strand_rng(seed: u64) -> nst3d_core::math::SplitMix64 {
+    nst3d_core::math::SplitMix64::new(seed ^ 0x5DEE_CE66_D1CE_4E5B)
+}
 
 /// Everything that can go wrong in the groom stages; one line naming the
 /// problem.

@@ -65,7 +65,6 @@ use nst3d_loss::nnst::{nnst_loss, nnst_loss_matched};
 use nst3d_splat::StrandStyle;
 
 use crate::field::Kernel;
-use crate::math::{add, scale, sub, V3};
 use crate::pipeline::{
     match_view, style_target, stylize_with, FrameHooks, IterationClock, IterationReport, NnstTarget, PipelineError,
     StrandScene, StylizeParams, StylizeResult, ViewFrame, NNST_LAYERS,
@@ -73,6 +72,7 @@ use crate::pipeline::{
 use crate::preset::TemporalParams;
 use crate::strands::FlatStrands;
 use crate::temporal::{ema_blend, ema_blend_factor, transport_velocities, OneEuroFilter};
+use nst3d_core::math::{add, scale, sub, V3};
 
 mod state;
 

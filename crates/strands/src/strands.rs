@@ -5,8 +5,8 @@
 
 use nst3d_core::groom::{Groom, Strand};
 
-use crate::math::{norm, sub, V3};
 use crate::StrandError;
+use nst3d_core::math::{norm, sub, V3};
 
 /// Control points of a set of strands, stored contiguously.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -119,7 +119,7 @@ pub(crate) fn resample_polyline(pts: &[V3], n: usize) -> Vec<V3> {
             let j = acc.partition_point(|&a| a < target).clamp(1, pts.len() - 1);
             let span = acc[j] - acc[j - 1];
             let f = if span > 0.0 { ((target - acc[j - 1]) / span).clamp(0.0, 1.0) } else { 0.0 };
-            crate::math::lerp(pts[j - 1], pts[j], f as f32)
+            nst3d_core::math::lerp(pts[j - 1], pts[j], f as f32)
         })
         .collect()
 }

@@ -30,8 +30,8 @@
 use std::f32::consts::TAU;
 
 use crate::field::{Kernel, RbfWeights};
-use crate::math::{add, norm, scale, V3};
 use crate::StrandError;
+use nst3d_core::math::{add, norm, scale, V3};
 
 /// EMA blending weight `f(ν, σ) = (1 − min(1, m/ν)) σ` of eq. 8 (see the
 /// module notes for the meaning of `m`).

@@ -19,9 +19,9 @@ use nst3d_core::Image;
 use nst3d_splat::{SplatOutput, StrandStyle};
 
 use super::{LockedView, Previous, SequenceError, SequenceStylizer};
-use crate::math::V3;
 use crate::pipeline::ViewFrame;
 use crate::strands::FlatStrands;
+use nst3d_core::math::V3;
 
 /// First bytes of a saved state (format version 1).
 const MAGIC: &[u8; 8] = b"NST3DSQ1";

@@ -1,0 +1,133 @@
+//! One stylization of a static groom (Alg. 1 without its temporal lines):
+//! guides → proxies → deformation field → per iteration a camera, transport,
+//! constraints, splat render, VGG-19, NNST loss, and the whole chain backward
+//! to the velocities `v`, stepped with AdamW over the preset's three scales.
+//!
+//! Setup ([`StrandScene::new`]):
+//! - guides are the groom's strands, each re-sampled as a natural cubic
+//!   spline ([`StrandSpline`]) to the preset's points per strand at even arc
+//!   length; proxies come from [`densify`] on the head mesh with the same
+//!   point count; both are the `p` of eq. 5 and the field's samples `o` sit
+//!   on the guides at the preset's density `ρ`.
+//! - The view frame: centre and radius `R` of the rest strands' bounding
+//!   box (centre) and enclosing sphere (radius). *Front* is the direction the
+//!   groom faces, the mean of the head's pseudo-normals at the guide roots
+//!   (falling back to the mesh-centre → groom-centre direction, then +Z, when
+//!   the normals cancel, as on a fur ball). *Up* is +Y (the groom formats we
+//!   read are Y-up), or +Z when the front is nearly vertical.
+//! - Units: the paper's assets are about one unit across, ours can be
+//!   hundreds (the Bangs head is ~240 units). The preset's camera distance
+//!   `r` and learning rates `η` are therefore read in units of `R`: the eye
+//!   sits `r·R` from the centre, a step of AdamW moves a velocity by about
+//!   `η·R`. The field of view is fitted so the enclosing sphere fills the
+//!   frame; strands are drawn [`StylizeParams::strand_width_px`] pixels wide
+//!   (σ of the cross-section at the centre's depth).
+//! - Rendering: grey strands on black (root dark, tip bright, opaque roots,
+//!   translucent tips: [`StrandStyle::default`]'s heuristics), culled by the
+//!   head normal at the root with the preset's threshold `ϵ`; the grey image
+//!   is fed to VGG-19 as three equal channels, and the painting is matched by
+//!   its luminance (a grey render cannot reach colour statistics).
+//!
+//! Cameras: directions on the shell within the polar `ψ` / azimuth `δ`
+//! ranges around the front, spread by best-candidate sampling (Mitchell's
+//! Poisson-disk approximation: each new direction is the farthest, in angle,
+//! of 16 seeded random candidates from those already taken), so every prefix
+//! of the sequence covers the ranges evenly and a seed fixes it.
+//!
+//! Loss: eq. 2–3 as the paper states them. The targets `T` of a view are
+//! matched on the *undeformed* render `R_θ(x₀)` against the style image
+//! resized for the scale; the loss is `‖Φ(R_θ(x)) − T‖²` averaged over
+//! hyper-columns (relu1_1, relu2_1, relu3_1, relu4_1, NNST's grid of a
+//! quarter resolution). Gradients flow NNST → VGG backward → splat backward →
+//! back through every constraint projection of the iterate (the recorded
+//! [`ConstraintTape`], as autograd would in the paper's PyTorch pipeline) →
+//! `Wᵀ` of the field.
+//!
+//! Matching cost: each view's targets need one match (`N_c × N_s × D`)
+//! per scale. Views are *cached*: each scale draws
+//! [`StylizeParams::views_per_scale`] cameras, matches each once on `x₀`
+//! and cycles its iterations through them; `views_per_scale = 0` restores
+//! the paper's new camera every iteration. A match is cheap next to an
+//! iteration at small renders, but approaches the cost of an iteration at
+//! the preset's full 600² render against 300² styles, which is where the
+//! cache pays; the default is 8 cached views per scale.
+//!
+//! Step size: the preset's `η` read as `η·R` (see Units) times
+//! [`StylizeParams::lr_scale`], 0.3 by default: larger steps find another
+//! stylization rather than the one the targets were matched for on `x₀`.
+//!
+//! The measurements behind both defaults are in `docs/STRANDS.md`
+//! ("Measurements behind the pipeline's defaults").
+//!
+//! Evaluation: the optimized views — the finest scale's cached cameras (or,
+//! with a new camera per iteration, [`StylizeParams::eval_views`] fixed
+//! cameras from the same distribution, separately seeded) — matched on the
+//! undeformed groom against the finest scale's style. The initial loss is the NNST loss
+//! of the rest groom, the final one the same objective on the stylized
+//! groom; the loss re-matched on the final render is reported too.
+//!
+//! The code, one job per file: `params.rs` ([`StylizeParams`]), `scene.rs`
+//! ([`StrandScene`]: setup and the deformation `v ↦ x` with its backward),
+//! `views.rs` (view frame, camera angles, style targets and matching),
+//! `step.rs` (one [`iteration`]) and `multiscale.rs` (the loop over scales,
+//! [`stylize_with`], and the evaluation).
+//!
+//! [`ConstraintTape`]: crate::ConstraintTape
+//! [`StrandSpline`]: nst3d_core::groom::StrandSpline
+//! [`StrandStyle::default`]: nst3d_splat::StrandStyle::default
+//! [`densify`]: fn@crate::densify
+
+mod multiscale;
+mod params;
+mod scene;
+mod step;
+mod views;
+
+use nst3d_core::groom::GroomError;
+use nst3d_features::VggLayer;
+use nst3d_loss::nnst::NnstError;
+use nst3d_splat::SplatError;
+
+// Re-exported so callers of [`iteration`] (the `strands-iter` benchmark)
+// can hold its inputs without depending on every stage crate.
+pub use nst3d_loss::nnst::{NnstMatch, NnstTarget};
+pub use nst3d_optim::Adam;
+pub use nst3d_splat::SplatCamera;
+
+pub use multiscale::{
+    scale_learning_rate, stylize, stylize_with, FrameHooks, IterationClock, IterationReport, StylizeResult,
+};
+pub use params::StylizeParams;
+pub use scene::{
+    max_length_change, polyline_length, StrandScene, CONSTRAINT_PASSES, HARD_TAU_FRACTION, SEGMENT_TOLERANCE,
+};
+pub use step::{iteration, loss_and_gradient, StageTimes, StepReport};
+pub use views::{match_view, poisson_view_angles, style_target, ViewFrame};
+
+use crate::StrandError;
+
+/// VGG-19 taps of the NNST hyper-columns.
+pub const NNST_LAYERS: [VggLayer; 4] = [VggLayer::Relu1_1, VggLayer::Relu2_1, VggLayer::Relu3_1, VggLayer::Relu4_1];
+
+/// Why a stylization could not run; one line naming the problem.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    /// A groom stage failed (bad geometry or parameter).
+    #[error(transparent)]
+    Strands(#[from] StrandError),
+    /// A strand could not be re-sampled as a spline.
+    #[error("groom: {0}")]
+    Groom(#[from] GroomError),
+    /// The renderer refused its input.
+    #[error("render: {0}")]
+    Render(#[from] SplatError),
+    /// The style loss refused its input.
+    #[error(transparent)]
+    Loss(#[from] NnstError),
+    /// A setting outside its valid range.
+    #[error("bad parameter: {0}")]
+    Parameter(String),
+    /// The optimization diverged.
+    #[error("stylization diverged: {0}")]
+    Diverged(String),
+}

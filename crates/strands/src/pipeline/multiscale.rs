@@ -1,0 +1,234 @@
+//! The multi-scale loop of one stylization (cached views per scale, the
+//! scale's style size and learning rate) and the evaluation of its result;
+//! see the module notes of [`crate::pipeline`].
+
+use std::collections::HashMap;
+
+use nst3d_core::Image;
+use nst3d_features::{Vgg19, VggLayer};
+use nst3d_loss::nnst::{nnst_loss, nnst_loss_matched, NnstMatch};
+use nst3d_optim::Adam;
+use nst3d_splat::SplatCamera;
+
+use crate::strands::FlatStrands;
+use crate::StrandError;
+
+use super::step::{flatten, iteration, unflatten};
+use super::views::{match_view, poisson_view_angles, style_target};
+use super::{PipelineError, StrandScene, StylizeParams, NNST_LAYERS};
+
+/// What one optimization iteration reports.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IterationReport {
+    /// Scale index (0-based).
+    pub scale: usize,
+    /// Iteration within the scale (1-based).
+    pub iteration: u32,
+    /// Iterations of this scale.
+    pub iterations: u32,
+    /// NNST loss of this iteration's view.
+    pub loss: f32,
+    /// Control points the collision pass found inside the mesh.
+    pub inside: usize,
+}
+
+/// Result of [`stylize`].
+#[derive(Clone, Debug)]
+pub struct StylizeResult {
+    /// Stylized guides (the groom to write), same layout as the rest guides.
+    pub guides: FlatStrands,
+    /// Stylized proxies (empty when none were grown).
+    pub proxies: FlatStrands,
+    /// Final strands, guides then proxies (layout of [`StrandScene::rest`]).
+    pub strands: FlatStrands,
+    /// Optimized velocities at the field's samples.
+    pub velocities: Vec<[f32; 3]>,
+    /// Loss of every iteration, in order.
+    pub loss_history: Vec<f32>,
+    /// Mean NNST loss of the rest groom over the evaluation views.
+    pub eval_before: f32,
+    /// Mean loss of the stylized groom against the same targets (the
+    /// optimized objective).
+    pub eval_after: f32,
+    /// Mean NNST loss of the stylized groom re-matched on its own renders.
+    pub eval_after_rematched: f32,
+    /// Evaluation view angles `(ψ, δ)`, degrees.
+    pub eval_angles: Vec<(f32, f32)>,
+}
+
+impl StylizeResult {
+    /// Relative drop of the evaluation loss, `1 − after / before`.
+    pub fn loss_drop(&self) -> f32 {
+        1.0 - self.eval_after / self.eval_before
+    }
+}
+
+/// AdamW's learning rate at scale `l`: the preset's `η` times
+/// [`StylizeParams::lr_scale`], in units of the groom radius (module notes).
+pub fn scale_learning_rate(scene: &StrandScene, params: &StylizeParams, l: usize) -> f32 {
+    params.preset.learning_rates[l] * params.lr_scale * scene.frame.radius
+}
+
+/// Stylizes the scene's groom with `style` (RGB in `[0, 1]`; its luminance
+/// is matched) through `vgg`, reporting every iteration to `progress`.
+pub fn stylize(
+    scene: &StrandScene,
+    style: &Image,
+    vgg: &Vgg19,
+    params: &StylizeParams,
+    progress: &mut dyn FnMut(&IterationReport),
+) -> Result<StylizeResult, PipelineError> {
+    stylize_with(scene, style, vgg, params, FrameHooks::default(), progress)
+}
+
+/// Where an iteration of [`stylize_with`] stands, before it runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct IterationClock {
+    /// Scale index (0-based).
+    pub scale: usize,
+    /// Iteration within the scale (0-based).
+    pub iteration: u32,
+    /// Iterations of this scale.
+    pub iterations: u32,
+    /// Iterations of the whole frame already run (0-based index of this one).
+    pub done: u32,
+    /// Iterations of the whole frame.
+    pub total: u32,
+}
+
+/// What an animated sequence adds to one frame's optimization (Alg. 1 lines
+/// 5 and 7); the default is the static case.
+#[derive(Default)]
+pub struct FrameHooks<'a> {
+    /// Velocities `v_t` at the field's samples to start from instead of
+    /// zero (Alg. 1 line 5 starts from zero).
+    pub initial: Option<&'a [[f32; 3]]>,
+    /// Called before every iteration's transport with `v_t`, which it may
+    /// change in place: the EMA of eq. 8 towards the previous frame's field.
+    #[allow(clippy::type_complexity)]
+    pub before_iteration: Option<&'a mut dyn FnMut(IterationClock, &mut [[f32; 3]]) -> Result<(), PipelineError>>,
+}
+
+/// [`stylize`] with a sequence's per-frame [`FrameHooks`].
+pub fn stylize_with(
+    scene: &StrandScene,
+    style: &Image,
+    vgg: &Vgg19,
+    params: &StylizeParams,
+    mut hooks: FrameHooks<'_>,
+    progress: &mut dyn FnMut(&IterationReport),
+) -> Result<StylizeResult, PipelineError> {
+    params.validate()?;
+    if style.channels != 3 || style.height < 16 || style.width < 16 {
+        return Err(PipelineError::Parameter(format!(
+            "style image is {}x{}x{}, need 3 channels and at least 16x16",
+            style.channels, style.height, style.width
+        )));
+    }
+    let p = params.preset;
+    vgg.prepare(VggLayer::Relu4_1);
+
+    let n = scene.field.sample_count();
+    let mut v = match hooks.initial {
+        Some(v0) if v0.len() != n => {
+            return Err(StrandError::Mismatch { what: "initial velocities", expected: n, got: v0.len() }.into())
+        }
+        Some(v0) => flatten(v0),
+        None => vec![0.0f32; 3 * n],
+    };
+    let (mut done, total) = (0u32, params.iterations.iter().sum::<u32>());
+    let mut adam = Adam::adamw(3 * n, 0.0, params.weight_decay);
+    let mut history = Vec::new();
+
+    // Camera angles for all scales from one Poisson sequence, so the
+    // scales see different views.
+    let per_scale: Vec<usize> = params
+        .iterations
+        .iter()
+        .map(|&it| if params.views_per_scale == 0 { it as usize } else { params.views_per_scale.min(it as usize) })
+        .collect();
+    let angles = poisson_view_angles(&scene.frame, p.polar_deg, p.azimuth_deg, per_scale.iter().sum(), params.seed);
+    let mut first = 0;
+    let mut finest = None;
+    for (l, &iters) in params.iterations.iter().enumerate() {
+        let views = &angles[first..first + per_scale[l]];
+        first += per_scale[l];
+        let sstyle = style_target(vgg, style, params.style_height(l))?;
+        if iters > 0 {
+            adam.lr = scale_learning_rate(scene, params, l);
+            let mut cache: HashMap<usize, (SplatCamera, NnstMatch)> = HashMap::new();
+            for m in 0..iters {
+                let k = m as usize % views.len();
+                if !cache.contains_key(&k) {
+                    let cam = scene.camera(views[k].0, views[k].1)?;
+                    let (matched, _) = match_view(scene, vgg, &sstyle, &cam)?;
+                    cache.insert(k, (cam, matched));
+                }
+                let (cam, matched) = &cache[&k];
+                if let Some(hook) = hooks.before_iteration.as_mut() {
+                    let mut vv = unflatten(&v);
+                    hook(IterationClock { scale: l, iteration: m, iterations: iters, done, total }, &mut vv)?;
+                    v = flatten(&vv);
+                }
+                done += 1;
+                let step = iteration(scene, vgg, cam, matched, &mut v, &mut adam).map_err(|e| match e {
+                    PipelineError::Diverged(why) => {
+                        PipelineError::Diverged(format!("{why} at scale {} iteration {}", l + 1, m + 1))
+                    }
+                    e => e,
+                })?;
+                history.push(step.loss);
+                progress(&IterationReport {
+                    scale: l,
+                    iteration: m + 1,
+                    iterations: iters,
+                    loss: step.loss,
+                    inside: step.stats.inside,
+                });
+            }
+        }
+        finest = Some(sstyle);
+    }
+    let finest = finest.expect("three scales");
+
+    let (strands, _) = scene.deform(&unflatten(&v))?;
+    if strands.points.iter().any(|p| p.iter().any(|c| !c.is_finite())) {
+        return Err(PipelineError::Diverged("non-finite control points".into()));
+    }
+    // The finest scale's cached views are the optimized views; with a fresh
+    // camera per iteration, a fixed set drawn from the same distribution.
+    let eval_angles = if params.views_per_scale > 0 && params.iterations[2] > 0 {
+        angles[angles.len() - per_scale[2]..].to_vec()
+    } else {
+        poisson_view_angles(&scene.frame, p.polar_deg, p.azimuth_deg, params.eval_views, params.seed ^ 0xE7A1)
+    };
+    let (mut before, mut after, mut rematched) = (0.0f64, 0.0f64, 0.0f64);
+    for &(psi, delta) in &eval_angles {
+        let cam = scene.camera(psi, delta)?;
+        let (matched, l0) = match_view(scene, vgg, &finest, &cam)?;
+        let img = scene.render(&strands, &cam)?;
+        let feats = vgg.forward(&img, &NNST_LAYERS, false);
+        before += l0 as f64;
+        after += nnst_loss_matched(feats.taps(), &matched)?.0 as f64;
+        rematched += nnst_loss(feats.taps(), &finest)?.0 as f64;
+    }
+    let k = eval_angles.len() as f64;
+    let g = scene.guide_count;
+    let split = strands.offsets[g];
+    let guides = FlatStrands { points: strands.points[..split].to_vec(), offsets: strands.offsets[..=g].to_vec() };
+    let proxies = FlatStrands {
+        points: strands.points[split..].to_vec(),
+        offsets: strands.offsets[g..].iter().map(|o| o - split).collect(),
+    };
+    Ok(StylizeResult {
+        guides,
+        proxies,
+        strands,
+        velocities: unflatten(&v),
+        loss_history: history,
+        eval_before: (before / k) as f32,
+        eval_after: (after / k) as f32,
+        eval_after_rematched: (rematched / k) as f32,
+        eval_angles,
+    })
+}

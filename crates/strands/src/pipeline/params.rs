@@ -1,0 +1,95 @@
+//! The settings of one stylization: the Table 1 preset plus the knobs the
+//! command line exposes, checked once before any work starts.
+
+use crate::preset::PresetParams;
+
+use super::PipelineError;
+
+/// Settings of one stylization: the Table 1 preset plus the knobs the
+/// command line exposes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StylizeParams {
+    /// The preset (Table 1).
+    pub preset: PresetParams,
+    /// Square render size `w_c = h_c`; the preset's style sizes are scaled
+    /// by `render_size / preset render width` so patterns keep their size
+    /// relative to the picture.
+    pub render_size: usize,
+    /// Iterations per scale (the preset's, or scaled by the caller).
+    pub iterations: [u32; 3],
+    /// Proxy strands `M` to grow.
+    pub proxies: usize,
+    /// Seed of densification and camera sampling.
+    pub seed: u64,
+    /// Multiplier on the preset's learning rates.
+    pub lr_scale: f32,
+    /// AdamW decoupled weight decay (PyTorch's default 0.01): pulls unused
+    /// velocities back towards the rest groom.
+    pub weight_decay: f32,
+    /// Cameras (cached matches) per scale; 0 draws a new camera for every
+    /// iteration as the paper does (see the module notes).
+    pub views_per_scale: usize,
+    /// Evaluation cameras when `views_per_scale` is 0 (otherwise the finest
+    /// scale's views are the evaluation views).
+    pub eval_views: usize,
+    /// Strand cross-section σ in pixels at the groom centre's depth.
+    pub strand_width_px: f32,
+}
+
+impl StylizeParams {
+    /// The preset's settings at its own render size, with proxies scaled to
+    /// keep Table 1's proxy/guide ratio for `guides` guide strands.
+    pub fn from_preset(preset: PresetParams, guides: usize) -> Self {
+        let ratio = preset.densified_strands as f64 / preset.guide_strands.max(1) as f64;
+        StylizeParams {
+            preset,
+            render_size: preset.render_size.0 as usize,
+            iterations: preset.iterations,
+            proxies: (ratio * guides as f64).round() as usize,
+            seed: 0,
+            lr_scale: 0.3,
+            weight_decay: 0.01,
+            views_per_scale: 8,
+            eval_views: 4,
+            strand_width_px: 0.5,
+        }
+    }
+
+    /// Iterations per scale rescaled to about `total` in all, keeping the
+    /// preset's proportions (each scale at least one).
+    pub fn with_total_iterations(mut self, total: u32) -> Self {
+        let sum: u32 = self.preset.iterations.iter().sum::<u32>().max(1);
+        self.iterations =
+            self.preset.iterations.map(|n| ((n as f64 * total as f64 / sum as f64).round() as u32).max(1));
+        self
+    }
+
+    /// Style image height of scale `l` at this render size.
+    pub fn style_height(&self, l: usize) -> usize {
+        let s = self.render_size as f64 / self.preset.render_size.1.max(1) as f64;
+        ((self.preset.style_sizes[l].1 as f64 * s).round() as usize).max(16)
+    }
+
+    pub(super) fn validate(&self) -> Result<(), PipelineError> {
+        let bad = |m: String| Err(PipelineError::Parameter(m));
+        if self.render_size < 32 || self.render_size > 4096 {
+            return bad(format!("render size {} must be 32..=4096 pixels", self.render_size));
+        }
+        if self.iterations.iter().all(|&n| n == 0) {
+            return bad("no iterations".into());
+        }
+        if !(self.lr_scale.is_finite() && self.lr_scale > 0.0) {
+            return bad(format!("learning-rate scale {} must be positive", self.lr_scale));
+        }
+        if !(self.strand_width_px.is_finite() && self.strand_width_px > 0.0) {
+            return bad(format!("strand width {} px must be positive", self.strand_width_px));
+        }
+        if !(self.preset.camera_distance > 1.0) {
+            return bad(format!("camera distance r = {} must exceed 1 groom radius", self.preset.camera_distance));
+        }
+        if self.eval_views == 0 {
+            return bad("need at least one evaluation view".into());
+        }
+        Ok(())
+    }
+}
