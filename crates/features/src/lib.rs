@@ -8,6 +8,8 @@
 //! F(4x4, 3x3) with precomputed kernel transforms (forward and the flipped
 //! kernel for backward) and an AVX-512 product kernel when the CPU has one.
 
+#![warn(missing_docs)]
+
 mod conv;
 mod gemm;
 pub mod ops;

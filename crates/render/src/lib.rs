@@ -5,6 +5,8 @@
 //! network, and the differentiable histogram equalisation. Every op has its
 //! backward next to it.
 
+#![warn(missing_docs)]
+
 mod camera;
 mod camera_file;
 mod equalize;
