@@ -26,29 +26,10 @@ impl std::str::FromStr for Mode {
     }
 }
 
-/// The velocity the density is moved by, `v = S w`, from the optimised
-/// parameters `w` (velocity mode). `S` is one pass of the separable tent
-/// `[1, 2, 1] / 4` ([`transport::tent_smooth`]).
-///
-/// Optimised voxel by voxel, `v` turns into voxel-scale noise: its gradient
-/// is the image gradient times the slope of the piecewise-linear density
-/// along `g + v`, which flips sign from voxel to voxel, and Adam's first
-/// steps are `±lr` per component whatever the gradient's size. Neighbouring
-/// velocities then differed by more than their length (docs/VOLUME_LOOK.md,
-/// section 2), which scrambles dense smoke into blocks and turns edges into
-/// staircases. Optimising `w` and transporting by `S w` keeps every
-/// velocity smooth over at least three voxels. Because `S` averages with
-/// non-negative weights that sum to at most 1, `‖w‖ ≤ vmax` everywhere
-/// implies `‖S w‖ ≤ vmax`, so the limiter still bounds the displacement.
-fn smooth(w: &[[f32; 3]], dims: [usize; 3]) -> Vec<[f32; 3]> {
-    transport::tent_smooth(w, dims)
-}
-
 /// The optimised field on a grid of `dims` voxels.
 #[derive(Clone, Debug)]
 pub enum Field {
-    /// Per-voxel velocity parameters `w` in voxel units of its grid; the
-    /// density moves by their smoothed version `S w` (see [`Field::velocity`]).
+    /// Per-voxel velocity in voxel units of its grid.
     Velocity(Vec<[f32; 3]>),
     /// Per-voxel density scale.
     Scale(Vec<f32>),
@@ -100,22 +81,10 @@ impl Field {
         }
     }
 
-    /// The velocity `S w` that moves the density, for a field on a grid of
-    /// `dims` voxels (velocity mode; `None` for a scale field).
-    ///
-    /// # Panics
-    /// If the field does not have one vector per voxel of `dims`.
-    pub fn velocity(&self, dims: [usize; 3]) -> Option<Vec<[f32; 3]>> {
-        match self {
-            Field::Velocity(w) => Some(smooth(w, dims)),
-            Field::Scale(_) => None,
-        }
-    }
-
-    /// `d* = T(d, field)`; in velocity mode `T(d, S w)`.
+    /// `d* = T(d, field)`.
     pub fn transport(&self, d: &Grid3) -> Grid3 {
         match self {
-            Field::Velocity(v) => transport::advect_linear(d, &smooth(v, d.dims)),
+            Field::Velocity(v) => transport::advect_linear(d, v),
             Field::Scale(s) => transport::modulate(d, s),
         }
     }
@@ -125,9 +94,8 @@ impl Field {
         match self {
             Field::Velocity(v) => {
                 let mut g = vec![[0.0f32; 3]; v.len()];
-                transport::advect_linear_backward(d, &smooth(v, d.dims), grad_out, &mut g);
-                // `S` is symmetric, so it is its own adjoint: dL/dw = S dL/dv.
-                smooth(&g, d.dims).into_flattened()
+                transport::advect_linear_backward(d, v, grad_out, &mut g);
+                g.into_flattened()
             }
             Field::Scale(s) => {
                 let mut g = vec![0.0f32; s.len()];

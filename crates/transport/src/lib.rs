@@ -15,6 +15,4 @@ mod transport;
 
 pub use resample::{downsample2, resize_grid, resize_velocity};
 pub use sample::{sample_trilinear, sample_trilinear_backward, sample_trilinear_rows, sample_trilinear_rows_backward};
-pub use transport::{
-    advect_linear, advect_linear_backward, clamp_scale, limit_velocity, modulate, modulate_backward, tent_smooth,
-};
+pub use transport::{advect_linear, advect_linear_backward, clamp_scale, limit_velocity, modulate, modulate_backward};

@@ -143,23 +143,6 @@ fn sample_taps<const WANT_GRAD: bool>(data: &[f32], dims: [usize; 3], p: [f32; 3
             }
         }
     }
-    if WANT_GRAD {
-        // On an exact voxel-centre coordinate the sample has a kink along that
-        // axis, and `taps`' floor convention picks the slope of the cell above
-        // (the forward difference, as `grid_sample` does). Every velocity
-        // starts at 0, on a voxel centre, so the first gradient of every voxel
-        // was biased half a voxel towards +x, +y, +z. Take the mean of the two
-        // one-sided slopes, the central difference, there instead; off
-        // integers nothing changes.
-        for a in 0..3 {
-            if p[a] > -1.0 && p[a] < dims[a] as f32 && p[a] == ((p[a] + 1.0) as i64 - 1) as f32 {
-                let (mut hi, mut lo) = (p, p);
-                hi[a] += 1.0;
-                lo[a] -= 1.0;
-                grad[a] = 0.5 * (sample_taps::<false>(data, dims, hi).0 - sample_taps::<false>(data, dims, lo).0);
-            }
-        }
-    }
     (value, grad)
 }
 

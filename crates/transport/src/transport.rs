@@ -42,42 +42,6 @@ pub fn advect_linear_backward(d: &Grid3, v: &[[f32; 3]], grad_out: &[f32], grad_
     sample_trilinear_rows_backward(d, d.len(), nx.max(1), mapped_positions(v, nx, ny), grad_out, None, Some(grad_v));
 }
 
-/// One pass of the separable tent filter `[1, 2, 1] / 4` along every axis of
-/// a per-voxel vector field on a grid of `dims`, zero outside the grid. It is
-/// symmetric (its own adjoint), so it serves as forward and backward of the
-/// smooth velocity parametrisation `v = S w`.
-///
-/// # Panics
-/// If `w.len()` is not the voxel count of `dims`.
-pub fn tent_smooth(w: &[[f32; 3]], dims: [usize; 3]) -> Vec<[f32; 3]> {
-    assert_eq!(w.len(), dims.iter().product::<usize>(), "field length must match dims");
-    let [nx, ny, nz] = dims;
-    let strides = [1, nx, nx * ny];
-    let mut cur = w.to_vec();
-    for (a, &n) in [nx, ny, nz].iter().enumerate() {
-        let st = strides[a];
-        let src = cur.clone();
-        cur.par_chunks_mut(nx.max(1)).enumerate().for_each(|(r, row)| {
-            let (y, z) = (r % ny, r / ny);
-            for (x, o) in row.iter_mut().enumerate() {
-                let i = r * nx + x;
-                let c = [x, y, z][a];
-                let mut acc = src[i].map(|t| 0.5 * t);
-                if c > 0 {
-                    let q = src[i - st];
-                    (0..3).for_each(|k| acc[k] += 0.25 * q[k]);
-                }
-                if c + 1 < n {
-                    let q = src[i + st];
-                    (0..3).for_each(|k| acc[k] += 0.25 * q[k]);
-                }
-                *o = acc;
-            }
-        });
-    }
-    cur
-}
-
 /// Per-voxel magnitude limiter `‖v‖ ≤ vmax` (paper Sec. 3.3): vectors longer
 /// than `vmax` are shortened to it, keeping their direction, so the artist's
 /// single parameter bounds how far the stylisation can move smoke. Applied as
@@ -196,52 +160,6 @@ mod tests {
         modulate_backward(&d, &w, &mut gs);
         let r = check_gradient(&s, &gs, |x| dot(&w, &modulate(&d, x).data), 1e-2, 60, 1e-3);
         assert!(r.max_rel_err < 1e-3, "{r:?}");
-    }
-
-    /// Every velocity starts at 0, on voxel centres, where the trilinear
-    /// sample has a kink. The gradient there must be the central difference:
-    /// on a bump symmetric about x = 3 the x-gradients of x = 2 and x = 4 are
-    /// opposite and the one at the peak is 0. The forward difference gave
-    /// (d3 - d2, 0 - d3 ... ): a peak voxel pulled towards -x and both
-    /// flanks' gradients shifted half a voxel towards +x.
-    #[test]
-    fn gradient_at_voxel_centres_is_the_central_difference() {
-        let dims = [7, 3, 3];
-        let bump = [0.0, 0.2, 0.6, 1.0, 0.6, 0.2, 0.0];
-        let d = Grid3::from_vec(dims, (0..63).map(|i| bump[i % 7]).collect());
-        let mut gv = vec![[0f32; 3]; 63];
-        advect_linear_backward(&d, &vec![[0.0; 3]; 63], &vec![1.0; 63], &mut gv);
-        let at = |x: usize| gv[(3 + 1) * 7 + x]; // the middle row y = 1, z = 1
-        assert_eq!(at(3)[0], 0.0, "peak: no slope to either side");
-        assert!((at(2)[0] - 0.4).abs() < 1e-6 && (at(4)[0] + 0.4).abs() < 1e-6, "{:?} {:?}", at(2), at(4));
-        for x in 1..6 {
-            assert!((at(x)[0] + at(6 - x)[0]).abs() < 1e-6, "asymmetric at x = {x}: {:?}", gv);
-        }
-        // The border voxel's slope sees the zero padding beyond it.
-        assert!((at(0)[0] - 0.1).abs() < 1e-6);
-        // Uniform along y and z: the central difference is 0 inside, and
-        // half the drop to the padding on the faces.
-        assert_eq!(at(3)[1], 0.0);
-        assert!((gv[3][1] - 0.5).abs() < 1e-6, "face y = 0: {:?}", gv[3]);
-    }
-
-    #[test]
-    fn tent_is_self_adjoint_and_keeps_the_interior_of_a_constant() {
-        let dims = [6, 5, 4];
-        let r = pseudo_random(360, 11);
-        let a: Vec<[f32; 3]> = r.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let r = pseudo_random(360, 12);
-        let b: Vec<[f32; 3]> = r.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-        let dot3 = |x: &[[f32; 3]], y: &[[f32; 3]]| -> f64 {
-            x.iter().zip(y).map(|(p, q)| (0..3).map(|k| (p[k] * q[k]) as f64).sum::<f64>()).sum()
-        };
-        let (sa, sb) = (tent_smooth(&a, dims), tent_smooth(&b, dims));
-        assert!((dot3(&sa, &b) - dot3(&a, &sb)).abs() < 1e-4);
-        let c = tent_smooth(&vec![[1.0, -2.0, 0.5]; 120], dims);
-        assert_eq!(c[(2 * 5 + 2) * 6 + 2], [1.0, -2.0, 0.5]);
-        // A corner keeps (3/4)^3 of it: zero outside the grid.
-        assert!((c[0][0] - 0.421875).abs() < 1e-6);
-        assert!(c.iter().all(|u| (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt() <= 2.3 + 1e-5));
     }
 
     #[test]
