@@ -14,8 +14,7 @@ use nst3d_strands::{FlatStrands, MeshBvh};
 
 use crate::settings::OutFormat;
 
-/// Height of the preview sheets in pixels.
-pub const PREVIEW_HEIGHT: usize = 384;
+pub use nst3d_io::image::PREVIEW_HEIGHT;
 
 /// Writes `strands` to `path` in `format`, atomically.
 pub fn write_groom(path: &Path, format: OutFormat, strands: &FlatStrands) -> Result<()> {

@@ -102,6 +102,10 @@ pub fn side_by_side(images: &[&Image]) -> Image {
     out
 }
 
+/// Height in pixels of nst3d's preview sheets (volumes and grooms alike),
+/// tall enough to judge strokes, small enough to open anywhere.
+pub const PREVIEW_HEIGHT: usize = 384;
+
 /// Resizes to `height` rows keeping the aspect ratio (triangle filter), for
 /// previews of small grids that would otherwise be a few dozen pixels tall.
 pub fn resize_to_height(img: &Image, height: usize) -> Image {

@@ -7,8 +7,7 @@ use nst3d_core::{Grid3, Image};
 use nst3d_render::Camera;
 use nst3d_stylize::{ViewLoss, ViewSpec};
 
-/// Height of the preview sheets in pixels.
-pub const PREVIEW_HEIGHT: usize = 384;
+pub use nst3d_io::image::PREVIEW_HEIGHT;
 
 /// Absorption giving the densest ray an optical depth of 3: dense enough to
 /// show shape, thin enough that the image does not flatten to white.
