@@ -9,6 +9,13 @@ mod console;
 mod strands;
 mod volume;
 
+/// mimalloc keeps freed pages for reuse. With the system allocator every
+/// iteration's large buffers (feature maps, gradients, fields) went back to
+/// the kernel and were faulted in again: about 13,000 page faults per
+/// `volume-iter` iteration at N = 128, 10 % of its time (docs/PERFORMANCE.md).
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use clap::{Parser, Subcommand};
 
 /// Neural style transfer for smoke volumes (OpenVDB) on the CPU.

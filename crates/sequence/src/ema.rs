@@ -264,16 +264,16 @@ pub fn stylize_sequence_with(
                     st.field.blend(c, params.alpha);
                     st.field.constrain(&fp.limits, vmax_here);
                 }
-                let dstar = st.field.transport(&d);
-                let mut grad = vec![0.0f32; st.field.len()];
+                let (dstar, tape) = st.field.forward(&d);
+                let mut grad_dstar = vec![0.0f32; d.len()];
                 let mut total = 0.0;
                 for view in &level_views(t) {
                     let (l, g) = loss.loss_and_grad(&dstar, view)?;
                     total += l;
-                    for (a, b) in grad.iter_mut().zip(st.field.transport_backward(&d, &g.data)) {
-                        *a += b;
-                    }
+                    grad_dstar.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
                 }
+                // The transport's backward is linear in ∂L/∂d*: one pass for all views.
+                let grad = st.field.backward(&d, &tape, &grad_dstar);
                 let mut adam = Adam::new(st.field.len(), fp.learning_rate);
                 adam.set_state(&st.m, &st.v, st.step)
                     .map_err(|e| SequenceError::Frame { frame: t, message: e.to_string() })?;

@@ -31,7 +31,7 @@ fn main() {
                 }
                 t = Instant::now();
             };
-            let ds = field.transport(&d);
+            let (ds, tape) = field.forward(&d);
             lap("transport");
             let img = render::march(&ds, 8.0 / n as f32);
             let rgb = grey_to_rgb(&render::upsample2x(&img));
@@ -45,7 +45,7 @@ fn main() {
             let gi = render::upsample2x_backward(&nst3d_stylize::view::rgb_to_grey_backward(&grgb));
             let gd = render::march_backward(&ds, 8.0 / n as f32, &gi);
             lap("render backward");
-            let gp = field.transport_backward(&d, &gd.data);
+            let gp = field.backward(&d, &tape, &gd.data);
             lap("transport backward");
             adam.step(field.params_mut(), &gp);
             lap("adam");

@@ -71,9 +71,9 @@ pub fn volume_iter(n: usize, mode: Mode, iters: usize) -> BenchReport {
     let mut last_loss = 0.0;
     for it in 0..=iters {
         let t0 = Instant::now();
-        let dstar = field.transport(&d);
+        let (dstar, tape) = field.forward(&d);
         let (l, grad_dstar) = loss.loss_and_grad(&dstar, &view).expect("the benchmark view renders");
-        let grad = field.transport_backward(&d, &grad_dstar.data);
+        let grad = field.backward(&d, &tape, &grad_dstar.data);
         adam.step(field.params_mut(), &grad);
         if let Field::Scale(s) = &mut field {
             transport::clamp_scale(s, 0.0, 2.0);

@@ -29,10 +29,19 @@ impl std::str::FromStr for Mode {
 /// The optimised field on a grid of `dims` voxels.
 #[derive(Clone, Debug)]
 pub enum Field {
-    /// Per-voxel velocity in voxel units of its grid.
+    /// Velocity parameters `w`, one vector per voxel in voxel units of its
+    /// grid. The density moves by their smooth version `v = S w`
+    /// ([`Field::velocity`]; docs/VOLUME_LOOK.md section 2 says why).
     Velocity(Vec<[f32; 3]>),
     /// Per-voxel density scale.
     Scale(Vec<f32>),
+}
+
+/// What [`Field::backward`] needs from [`Field::forward`]: the smoothed
+/// velocity `S w` the density was moved by (velocity mode).
+#[derive(Clone, Debug)]
+pub struct Tape {
+    velocity: Option<Vec<[f32; 3]>>,
 }
 
 /// The hard limits of Sec. 3.3: `‖v‖ ≤ vmax` or `s ∈ [smin, smax]`.
@@ -81,21 +90,63 @@ impl Field {
         }
     }
 
-    /// `d* = T(d, field)`.
-    pub fn transport(&self, d: &Grid3) -> Grid3 {
+    /// The velocity `v = S w` that moves the density (velocity mode), for a
+    /// field on a grid of `dims` voxels; `None` for a scale field.
+    ///
+    /// Optimised voxel by voxel, a velocity turns into voxel-scale noise: its
+    /// gradient is the image gradient times the slope of the piecewise-linear
+    /// density at `g + v`, which flips sign from voxel to voxel, and Adam's
+    /// steps are about `±lr` per component whatever the gradient's size. Such
+    /// a field scrambles dense smoke into blocks and gives edges staircases
+    /// along the grid axes. Moving the density by `S w`, one tent pass of the
+    /// optimised parameters ([`transport::tent_smooth`]), keeps every velocity
+    /// smooth over at least three voxels, and `‖w‖ ≤ vmax` still bounds `‖v‖`.
+    ///
+    /// # Panics
+    /// If the field does not have one vector per voxel of `dims`.
+    pub fn velocity(&self, dims: [usize; 3]) -> Option<Vec<[f32; 3]>> {
         match self {
-            Field::Velocity(v) => transport::advect_linear(d, v),
-            Field::Scale(s) => transport::modulate(d, s),
+            Field::Velocity(w) => Some(transport::tent_smooth(w, dims)),
+            Field::Scale(_) => None,
+        }
+    }
+
+    /// `d* = T(d, field)`: `I(d, g + S w)` or `d · s`.
+    pub fn transport(&self, d: &Grid3) -> Grid3 {
+        self.forward(d).0
+    }
+
+    /// [`Field::transport`], keeping in a [`Tape`] what
+    /// [`Field::backward`] needs, so that an iteration smooths `w` once.
+    pub fn forward(&self, d: &Grid3) -> (Grid3, Tape) {
+        match self {
+            Field::Velocity(_) => {
+                let v = self.velocity(d.dims).expect("velocity field");
+                (transport::advect_linear(d, &v), Tape { velocity: Some(v) })
+            }
+            Field::Scale(s) => (transport::modulate(d, s), Tape { velocity: None }),
         }
     }
 
     /// Gradient w.r.t. the flat parameters from the gradient w.r.t. `d*`.
     pub fn transport_backward(&self, d: &Grid3, grad_out: &[f32]) -> Vec<f32> {
+        let tape = Tape { velocity: self.velocity(d.dims) };
+        self.backward(d, &tape, grad_out)
+    }
+
+    /// Backward of [`Field::forward`]: the gradient w.r.t. the flat
+    /// parameters from the gradient w.r.t. `d*` and the forward's tape.
+    ///
+    /// # Panics
+    /// If `tape` is not from this field's forward on a grid of `d`'s size.
+    pub fn backward(&self, d: &Grid3, tape: &Tape, grad_out: &[f32]) -> Vec<f32> {
         match self {
-            Field::Velocity(v) => {
-                let mut g = vec![[0.0f32; 3]; v.len()];
+            Field::Velocity(w) => {
+                let v = tape.velocity.as_deref().expect("the tape of a velocity field");
+                let mut g = vec![[0.0f32; 3]; w.len()];
                 transport::advect_linear_backward(d, v, grad_out, &mut g);
-                g.into_flattened()
+                // `S` is symmetric, so it is its own adjoint: ∂L/∂w = S ∂L/∂v.
+                transport::tent_smooth(&g, d.dims).into_flattened()
             }
             Field::Scale(s) => {
                 let mut g = vec![0.0f32; s.len()];

@@ -150,7 +150,7 @@ pub fn stylize_frame_views(
         // onto the finer one, and the paper restarts the optimiser per level.
         let mut adam = Adam::new(f.len(), params.learning_rate);
         for it in 0..params.iterations {
-            let dstar = f.transport(level);
+            let (dstar, tape) = f.forward(level);
             let mut l = 0.0;
             let mut grad_dstar = Grid3::zeros(level.dims);
             for view in &level_views {
@@ -158,7 +158,7 @@ pub fn stylize_frame_views(
                 l += lv;
                 grad_dstar.data.iter_mut().zip(&gv.data).for_each(|(a, b)| *a += b);
             }
-            let grad = f.transport_backward(level, &grad_dstar.data);
+            let grad = f.backward(level, &tape, &grad_dstar.data);
             adam.step(f.params_mut(), &grad);
             f.constrain(&params.limits, vmax_here);
             progress(&Progress { octave: k, octaves, iteration: it + 1, iterations: params.iterations, loss: l });

@@ -14,6 +14,6 @@ pub mod field;
 pub mod frame;
 pub mod view;
 
-pub use field::{Field, Limits, Mode};
+pub use field::{Field, Limits, Mode, Tape};
 pub use frame::{stylize_frame, stylize_frame_views, FrameParams, FrameResult, Progress};
 pub use view::{StyleSpec, ViewError, ViewLoss, ViewSpec};
