@@ -183,6 +183,69 @@ fn other_shared_frames_run() {
     }
 }
 
+/// World-space bounds of a grid's active voxels (their outer faces).
+fn world_bounds(g: &nst3d_io::vdb::VdbGrid) -> ([f64; 3], [f64; 3]) {
+    let (bx, _) = g.to_dense().unwrap();
+    let m = g.transform.index_to_world;
+    let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
+    for corner in 0..8 {
+        let p: [f64; 3] = std::array::from_fn(|a| {
+            let o = f64::from(bx.origin[a]) - 0.5;
+            if corner >> a & 1 == 1 {
+                o + bx.dims[a] as f64
+            } else {
+                o
+            }
+        });
+        for r in 0..3 {
+            let w = m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3];
+            lo[r] = lo[r].min(w);
+            hi[r] = hi[r].max(w);
+        }
+    }
+    (lo, hi)
+}
+
+/// plume48's frame 20 is 18x18x20 voxels, too few for strokes: by default
+/// it is stylized and written 4x finer, in the same place in world space,
+/// and the other grids keep the file's resolution. `--upsample 1` keeps it.
+#[test]
+fn small_grids_are_stylized_finer_in_the_same_place() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = shared("volumes/plume48/fluid_data_0020.vdb");
+    let (o, out) = volume(&input, &shared("styles/starry_night.jpg"), dir.path(), &["--iters", "2", "--octaves", "1"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("4x finer (72x72x80"), "{err}");
+    let (a, b) = (nst3d_io::vdb::read_vdb(&input).unwrap(), nst3d_io::vdb::read_vdb(&out).unwrap());
+    let (da, db) = (a.grid("density").unwrap(), b.grid("density").unwrap());
+    for k in 0..3 {
+        assert!((db.transform.voxel_size[k] * 4.0 - da.transform.voxel_size[k]).abs() < 1e-9);
+    }
+    // The smoke may move by vmax (4 % of 80 fine voxels, under one coarse voxel).
+    let ((alo, ahi), (blo, bhi)) = (world_bounds(da), world_bounds(db));
+    for k in 0..3 {
+        let slack = da.transform.voxel_size[k] * 1.01;
+        assert!(
+            (alo[k] - blo[k]).abs() <= slack && (ahi[k] - bhi[k]).abs() <= slack,
+            "{alo:?} {ahi:?} vs {blo:?} {bhi:?}"
+        );
+    }
+    assert_eq!(b.grid("velocity").unwrap().transform.voxel_size, a.grid("velocity").unwrap().transform.voxel_size);
+    let summary = openvdb_summary(&out, "density");
+    assert!(summary.contains(" True "), "{summary}");
+
+    let (o, out) = volume(
+        &input,
+        &shared("styles/starry_night.jpg"),
+        dir.path(),
+        &["--iters", "1", "--octaves", "1", "--upsample", "1"],
+    );
+    assert!(o.status.success() && !String::from_utf8_lossy(&o.stderr).contains("finer"));
+    let b = nst3d_io::vdb::read_vdb(&out).unwrap();
+    assert_eq!(b.grid("density").unwrap().transform.voxel_size, da.transform.voxel_size);
+}
+
 #[test]
 fn bench_prints_the_median_last() {
     let o = nst3d(&["--threads", "2", "bench", "volume-iter", "--n", "32", "--iters", "2", "--mode", "density"]);

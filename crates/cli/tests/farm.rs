@@ -23,12 +23,14 @@ fn plume() -> PathBuf {
     shared("volumes/plume48").join("fluid_data_####.vdb")
 }
 
-/// `nst3d volume` over plume frames with fast settings (1 octave, 4 sweeps).
+/// `nst3d volume` over plume frames with fast settings (1 octave, 4 sweeps)
+/// at the files' resolution: these frames' common box is small enough for
+/// `--upsample auto` to refine it, which the farm behaviour does not need.
 fn sequence_cmd(frames: &str, out: &Path, extra: &[&str]) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_nst3d"));
     c.args(["--threads", "2", "volume", "--input", s(&plume()), "--frames", frames])
         .args(["--style", s(&shared("styles/starry_night.jpg")), "--out", s(out)])
-        .args(["--iters", "4", "--octaves", "1"])
+        .args(["--iters", "4", "--octaves", "1", "--upsample", "1"])
         .args(extra);
     c
 }

@@ -2,8 +2,9 @@
 //! over its active box plus a margin (a velocity may carry smoke a little
 //! outside its original shape, Sec. 3.3), stylized by
 //! [`nst3d_stylize::stylize_frame_views`], and written back sparse into the
-//! same index space with the same transform. A before | after | painting
-//! preview is rendered from the first camera of the set.
+//! same index space with the same transform; a grid too small for strokes
+//! is refined first and written `k` times finer ([`crate::upsample`]). A
+//! before | after | painting preview is rendered from the first camera.
 
 use std::path::PathBuf;
 
@@ -19,6 +20,7 @@ use crate::look::{absorption_for, display, mean_loss, views_of, PREVIEW_HEIGHT};
 use crate::output::write_stylized;
 use crate::settings::VolumeSettings;
 use crate::style::load_style_and_vgg;
+use crate::upsample::{refine_density, refine_origin, refine_transform};
 
 /// What a single-frame job did.
 #[derive(Clone, Debug)]
@@ -27,8 +29,10 @@ pub struct FrameReport {
     pub input: PathBuf,
     /// The stylized grid's name.
     pub grid: String,
-    /// Its active box, in voxels.
+    /// The active box stylized, in voxels (after any refinement).
     pub dims: [usize; 3],
+    /// How many times finer than the file it was stylized and written.
+    pub upsample: usize,
     /// The optimised quantity.
     pub mode: Mode,
     /// Cameras in Θ.
@@ -63,14 +67,28 @@ pub fn stylize_frame_file(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Re
         let names: Vec<&str> = file.grids.iter().map(|g| g.name.as_str()).collect();
         format!("{}: no grid named '{}' (grids: {})", s.input.display(), s.grid, names.join(", "))
     })?;
-    let (bx, dense) = grid.to_dense()?;
+    let (mut bx, dense) = grid.to_dense()?;
+    let k = s.upsample.factor(bx.dims);
+    let (dense, transform) = match k {
+        1 => (dense, grid.transform.clone()),
+        _ => {
+            let refined = (refine_density(&dense, k), refine_transform(&grid.transform, k));
+            reporter.note(&format!(
+                "grid '{}' is {}x{}x{} voxels, too few for strokes; it is stylized and written {k}x finer ({}x{}x{}; --upsample 1 keeps the file's resolution)",
+                grid.name, bx.dims[0], bx.dims[1], bx.dims[2], refined.0.dims[0], refined.0.dims[1], refined.0.dims[2]
+            ));
+            bx.origin = refine_origin(bx.origin, k)?;
+            bx.dims = refined.0.dims;
+            refined
+        }
+    };
     let (style, vgg) = load_style_and_vgg(s)?;
 
     let vmax = s.vmax_for(*bx.dims.iter().max().unwrap_or(&1));
     let margin = s.margin(vmax);
     let padded = pad(&dense, margin);
     let origin = bx.origin.map(|o| o - margin as i32);
-    let cameras = Cameras::of(s)?.at(0.0, padded.dims, &grid.transform, origin);
+    let cameras = Cameras::of(s)?.at(0.0, padded.dims, &transform, origin);
     let gamma = absorption_for(s.absorption, cameras.iter().map(|c| (&padded, c)))?;
     let views = views_of(&cameras, gamma, s.equalize);
     let view = views[0].clone();
@@ -102,7 +120,7 @@ pub fn stylize_frame_file(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Re
         bail!("stylization produced non-finite densities (try a smaller --lr)");
     }
 
-    for dropped in write_stylized(&s.out, &file, &grid.name, &grid.transform, origin, &result.density)? {
+    for dropped in write_stylized(&s.out, &file, &grid.name, &transform, origin, &result.density)? {
         reporter.note(&format!("{dropped} is not copied to the output"));
     }
     if let Some(preview) = &s.preview {
@@ -121,6 +139,7 @@ pub fn stylize_frame_file(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Re
         input: s.input.clone(),
         grid: grid.name.clone(),
         dims: bx.dims,
+        upsample: k,
         mode: s.mode,
         cameras: views.len(),
         loss_before: result.loss_before,

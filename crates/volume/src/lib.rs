@@ -25,6 +25,7 @@ pub mod sequence;
 pub mod settings;
 pub mod simulation;
 pub mod style;
+pub mod upsample;
 
 pub use cameras::{front_camera, turntable, CameraSet, Cameras, Lens};
 pub use frame::{stylize_frame_file, FrameReport};
@@ -33,6 +34,7 @@ pub use nst3d_core::{Reporter, Silent};
 pub use preview::{preview, PreviewReport, PreviewSettings};
 pub use sequence::{stylize_sequence_files, SequenceReport, SequenceSummary};
 pub use settings::{SequenceSettings, UpAxis, VolumeSettings};
+pub use upsample::Upsample;
 
 /// What a volume job did: one frame, or a sequence.
 #[derive(Clone, Debug)]

@@ -30,6 +30,7 @@ use crate::output::write_stylized;
 use crate::settings::{SequenceSettings, UpAxis, VolumeSettings};
 use crate::simulation::{VdbSimulation, VELOCITY_NAMES};
 use crate::style::load_style_and_vgg;
+use crate::upsample::{refine_origin, refine_transform, Refined};
 
 /// What a sequence job did.
 #[derive(Clone, Debug)]
@@ -232,7 +233,7 @@ fn velocity_grid(
 /// contents, and each input frame's size and modification time.
 fn job_hash(s: &VolumeSettings, seq: &SequenceSettings, run_paths: &[PathBuf]) -> Result<u64> {
     let settings = format!(
-        "{:?}|{:?}|{:?}|{}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{}|{:?}|{}|{:?}",
+        "{:?}|{:?}|{:?}|{}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{}|{:?}|{}|{:?}|{:?}",
         s.input,
         Some(&seq.frames),
         seq.chunk,
@@ -261,6 +262,7 @@ fn job_hash(s: &VolumeSettings, seq: &SequenceSettings, run_paths: &[PathBuf]) -
         s.cameras,
         s.camera_seed,
         s.weights,
+        s.upsample,
     );
     let mut read = vec![s.style.clone()];
     read.extend(s.camera_file.clone());
@@ -293,21 +295,33 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         ));
     }
     let (lo, hi) = (sv.lo, sv.hi);
-    let extent = (0..3).map(|k| (hi[k] - lo[k] + 1) as usize).max().unwrap_or(1);
-    let vmax = s.vmax_for(extent);
-    let margin = s.margin(vmax) as i32;
-    let origin = lo.map(|v| v - margin);
-    let dims: [usize; 3] = std::array::from_fn(|k| (hi[k] - lo[k] + 1 + 2 * margin) as usize);
+    let active: [usize; 3] = std::array::from_fn(|a| (hi[a] - lo[a] + 1) as usize);
+    // One refinement for the whole shot, from the common box (crate::upsample).
+    let k = s.upsample.factor(active);
+    let vmax = s.vmax_for(active.iter().max().unwrap_or(&1) * k);
+    // The margin is counted in the file's voxels, enough for vmax fine voxels.
+    let margin = s.margin(vmax).div_ceil(k) as i32;
+    let coarse_origin = lo.map(|v| v - margin);
+    let coarse_dims: [usize; 3] = std::array::from_fn(|a| active[a] + 2 * margin as usize);
+    let dims = coarse_dims.map(|n| n * k);
     if dims.iter().product::<usize>() > (1 << 28) {
         bail!("the frames' common box {dims:?} is too large to stylize densely");
+    }
+    let origin = refine_origin(coarse_origin, k)?;
+    let transform = refine_transform(&sv.transform, k);
+    if k > 1 {
+        reporter.note(&format!(
+            "the frames' common box is {}x{}x{} voxels, too few for strokes; they are stylized and written {k}x finer ({}x{}x{}; --upsample 1 keeps the files' resolution)",
+            active[0], active[1], active[2], active[0] * k, active[1] * k, active[2] * k
+        ));
     }
     let mut full = VdbSimulation {
         paths: paths.clone(),
         grid: s.grid.clone(),
         velocity_grid,
         velocity_scale: 1.0,
-        origin,
-        dims,
+        origin: coarse_origin,
+        dims: coarse_dims,
         linked: Vec::new(),
     };
     if full.velocity_grid.is_some() {
@@ -328,6 +342,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         linked: (0..run_index.len()).map(|k| k == 0 || run_index[k] == run_index[k - 1] + 1).collect(),
         ..full.clone()
     };
+    let (full, sim) = (Refined { inner: full, k }, Refined { inner: sim, k });
     reporter.status(&format!(
         "{} frames ({} to write, {} warm-up, {} empty), common box {}x{}x{} at {:?}, velocity grid {} (x{:.4} voxels/frame)",
         run_frames.len(),
@@ -338,13 +353,13 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         dims[1],
         dims[2],
         origin,
-        sim.velocity_grid.as_deref().unwrap_or("none"),
-        sim.velocity_scale
+        sim.inner.velocity_grid.as_deref().unwrap_or("none"),
+        sim.inner.velocity_scale
     ));
 
     let (style, vgg) = load_style_and_vgg(s)?;
     let cameras = Cameras::of(s)?;
-    let cams_at = |f: i64| cameras.at(f as f64, dims, &sv.transform, origin);
+    let cams_at = |f: i64| cameras.at(f as f64, dims, &transform, origin);
     let live_all: Vec<usize> = (0..all.len()).filter(|&i| !sv.empty[i]).collect();
     // The densest frame and view of the whole sequence set the absorption
     // for all, so brightness does not pump and chunks agree.
@@ -377,7 +392,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
 
     let work = match &seq.work_dir {
         Some(w) => w.clone(),
-        None => default_work_dir(&s.out, job_hash(s, seq, &sim.paths)?),
+        None => default_work_dir(&s.out, job_hash(s, seq, &sim.inner.paths)?),
     };
     if seq.force {
         DiskStore::remove(&work).with_context(|| format!("cannot clear the work folder {}", work.display()))?;
@@ -449,9 +464,9 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
             if d.data.iter().any(|v| !v.is_finite()) {
                 bail!("stylization produced non-finite densities (try a smaller --lr)");
             }
-            let file = read_vdb(&sim.paths[t])?;
+            let file = read_vdb(&sim.inner.paths[t])?;
             file.grid(&s.grid).context("the grid vanished")?;
-            let dropped = write_stylized(&outs[i], &file, &s.grid, &sv.transform, origin, &d)?;
+            let dropped = write_stylized(&outs[i], &file, &s.grid, &transform, origin, &d)?;
             Ok((d, dropped))
         })();
         match result {

@@ -9,6 +9,8 @@ use nst3d_features::VggLayer;
 use nst3d_render::Projection;
 use nst3d_stylize::{FrameParams, Limits, Mode, StyleSpec, ViewSpec};
 
+use crate::upsample::Upsample;
+
 /// Which index axis of a file points up: Blender caches are z-up, Houdini's y-up.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum UpAxis {
@@ -73,6 +75,9 @@ pub struct VolumeSettings {
     /// A camera set whose style loss is also reported before and after:
     /// views the optimiser never saw (single frames).
     pub eval_cameras: Option<String>,
+    /// How much finer than the file the grid is stylized and written
+    /// (small grids have no room for strokes; see [`crate::upsample`]).
+    pub upsample: Upsample,
     /// Frames and temporal coherence when the input is a simulation.
     pub sequence: Option<SequenceSettings>,
 }
@@ -148,6 +153,7 @@ impl VolumeSettings {
             camera_file: None,
             camera_seed: 0,
             eval_cameras: None,
+            upsample: Upsample::Auto,
             sequence: None,
         }
     }

@@ -10,7 +10,7 @@ use clap::{Args, ValueEnum};
 use nst3d_features::VggLayer;
 use nst3d_render::Projection;
 use nst3d_stylize::Mode;
-use nst3d_volume::{SequenceReport, SequenceSettings, UpAxis, VolumeReport, VolumeSettings};
+use nst3d_volume::{SequenceReport, SequenceSettings, UpAxis, Upsample, VolumeReport, VolumeSettings};
 
 use crate::console::{plural, Console};
 
@@ -117,6 +117,11 @@ pub struct VolumeArgs {
     /// --cameras), before and after: views the optimiser never saw.
     #[arg(long)]
     pub eval_cameras: Option<String>,
+    /// Stylize (and write) the grid this many times finer than the file:
+    /// `auto` refines grids under 32 voxels along their largest side until it
+    /// reaches 64 (at most 4x), `1` keeps the file's resolution.
+    #[arg(long, default_value = "auto")]
+    pub upsample: Upsample,
     /// Farm chunk: stylize and write only frames START-END of --frames.
     #[arg(long, requires = "frames")]
     pub chunk: Option<String>,
@@ -205,6 +210,7 @@ impl VolumeArgs {
             camera_file: self.camera_file,
             camera_seed: self.camera_seed,
             eval_cameras: self.eval_cameras,
+            upsample: self.upsample,
             sequence,
         }
     }
