@@ -162,19 +162,14 @@ pub fn gram(f: &Image) -> Vec<f32> {
     let chunks = (p / c.max(256)).clamp(1, MAX_GRAM_CHUNKS);
     let scale = 1.0 / p as f32;
     let mut g = if chunks == 1 {
-        let mut g = vec![0.0; c * c];
-        matmul(c, c, p, &mut g, &f.data, (p, 1), &f.data, (1, p), scale, parallelism(c, c, p));
-        g
+        upper_gram(c, p, &f.data, p, scale, parallelism(c, c, p))
     } else {
         let width = p.div_ceil(chunks);
         (0..chunks)
             .into_par_iter()
             .map(|i| {
                 let (k0, k1) = (i * width, ((i + 1) * width).min(p));
-                let mut part = vec![0.0; c * c];
-                let cols = &f.data[k0..];
-                matmul(c, c, k1 - k0, &mut part, cols, (p, 1), cols, (1, p), scale, Parallelism::None);
-                part
+                upper_gram(c, k1 - k0, &f.data[k0..], p, scale, Parallelism::None)
             })
             .collect::<Vec<_>>()
             .into_iter()
@@ -186,13 +181,32 @@ pub fn gram(f: &Image) -> Vec<f32> {
             })
             .expect("at least one chunk")
     };
-    // The blocked product may sum G[i][j] and G[j][i] in different orders;
-    // averaging makes the result exactly symmetric, which the loss relies on.
+    // Mirror the upper triangle: G is exactly symmetric, which the loss relies on.
     for i in 0..c {
         for j in i + 1..c {
-            let s = 0.5 * (g[i * c + j] + g[j * c + i]);
-            g[i * c + j] = s;
-            g[j * c + i] = s;
+            g[j * c + i] = g[i * c + j];
+        }
+    }
+    g
+}
+
+/// The upper triangle (and diagonal blocks) of `scale · F Fᵀ` for the
+/// `c x k` matrix `F` whose row `i` starts at `cols[i * stride]`; the
+/// strictly lower part of whole blocks below the diagonal is left 0.
+///
+/// A Gram matrix is symmetric, so only the row bands' right parts are
+/// multiplied: with 8 bands that is 36/64 of the full product.
+fn upper_gram(c: usize, k: usize, cols: &[f32], stride: usize, scale: f32, par: Parallelism) -> Vec<f32> {
+    let band = (c / 8).max(32);
+    let mut g = vec![0.0; c * c];
+    let mut tmp = Vec::new();
+    for r0 in (0..c).step_by(band) {
+        let (m, n) = ((c - r0).min(band), c - r0);
+        tmp.resize(m * n, 0.0);
+        let rows = &cols[r0 * stride..];
+        matmul(m, n, k, &mut tmp, rows, (stride, 1), rows, (1, stride), scale, par);
+        for (i, row) in tmp.chunks_exact(n).enumerate() {
+            g[(r0 + i) * c + r0..][..n].copy_from_slice(row);
         }
     }
     g
