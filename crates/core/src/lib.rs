@@ -11,6 +11,7 @@ pub mod gradcheck;
 pub mod grid;
 pub mod groom;
 pub mod image;
+pub mod linalg;
 pub mod math;
 pub mod mesh;
 pub mod report;

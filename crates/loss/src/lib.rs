@@ -12,7 +12,7 @@
 
 pub mod nnst;
 
-use gemm::{gemm, Parallelism};
+use nst3d_core::linalg::{matmul, parallelism, Parallelism};
 use nst3d_core::Image;
 use rayon::prelude::*;
 
@@ -67,81 +67,9 @@ pub enum LossError {
     },
 }
 
-/// Below this many multiply-adds a product runs on the calling thread: waking
-/// the rayon pool costs more than it saves on the small Grams of tests and of
-/// deep layers of tiny renders.
-const PARALLEL_MIN_FLOPS: usize = 1 << 20;
-
 /// Upper bound on the pixel chunks of [`gram`]; enough to keep two to eight
 /// threads busy without many partial Grams to sum.
 const MAX_GRAM_CHUNKS: usize = 8;
-
-fn parallelism(m: usize, n: usize, k: usize) -> Parallelism {
-    if m * n * k < PARALLEL_MIN_FLOPS {
-        Parallelism::None
-    } else {
-        // 0 = the size of the current rayon pool, so callers control threads
-        // with `ThreadPool::install`.
-        Parallelism::Rayon(0)
-    }
-}
-
-/// `dst (m x n) = beta · lhs (m x k) · rhs (k x n)`, all described by
-/// (row stride, column stride) pairs so transposes cost nothing.
-///
-/// Accumulation is in `f32`, as PyTorch's CPU `matmul` (a BLAS `sgemm`) does,
-/// so results agree with the reference to float rounding.
-#[allow(clippy::too_many_arguments)]
-fn matmul(
-    m: usize,
-    n: usize,
-    k: usize,
-    dst: &mut [f32],
-    lhs: &[f32],
-    lhs_strides: (usize, usize),
-    rhs: &[f32],
-    rhs_strides: (usize, usize),
-    beta: f32,
-    parallelism: Parallelism,
-) {
-    assert_eq!(dst.len(), m * n, "matmul destination size");
-    if m == 0 || n == 0 {
-        return;
-    }
-    if k == 0 {
-        dst.fill(0.0);
-        return;
-    }
-    // The last element each operand's strides reach must be in bounds; this
-    // is what makes the raw-pointer call below sound.
-    assert!((m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1 < lhs.len(), "matmul lhs bounds");
-    assert!((k - 1) * rhs_strides.0 + (n - 1) * rhs_strides.1 < rhs.len(), "matmul rhs bounds");
-    // SAFETY: the bounds were checked above, dst is exclusively borrowed and
-    // row-major m x n, and read_dst = false so its old contents are ignored.
-    unsafe {
-        gemm(
-            m,
-            n,
-            k,
-            dst.as_mut_ptr(),
-            1,
-            n as isize,
-            false,
-            lhs.as_ptr(),
-            lhs_strides.1 as isize,
-            lhs_strides.0 as isize,
-            rhs.as_ptr(),
-            rhs_strides.1 as isize,
-            rhs_strides.0 as isize,
-            0.0,
-            beta,
-            false,
-            false,
-            false,
-            parallelism,
-        );
-    }
-}
 
 /// Gram matrix `G = F Fᵀ / (h·w)` of a feature map, with `F` the
 /// `C x (h·w)` matrix of its planar data: symmetric `C x C`, row-major.
