@@ -2,8 +2,8 @@
 //! convolutions as im2col products), on the `gemm` crate's runtime-dispatched
 //! AVX-512 / AVX2 kernels.
 
-pub use gemm::Parallelism;
 use gemm::gemm;
+pub use gemm::Parallelism;
 
 /// Below this many multiply-adds a product runs on the calling thread: waking
 /// the rayon pool costs more than it saves on the small Grams of tests and of

@@ -1,0 +1,55 @@
+//! LeakyReLU, the network's activation after every convolution but the
+//! last (Fig. 9).
+
+/// The negative slope the paper's network uses.
+pub const LEAKY_SLOPE: f32 = 0.01;
+
+/// `max(x, 0) + slope · min(x, 0)`, in place.
+pub fn leaky_relu(x: &mut [f32]) {
+    x.iter_mut().for_each(|v| {
+        if *v < 0.0 {
+            *v *= LEAKY_SLOPE
+        }
+    });
+}
+
+/// Backward of [`leaky_relu`]: scales `grad` in place where the activation's
+/// output `y` (or its input: the sign is the same) is negative.
+pub fn leaky_relu_backward(y: &[f32], grad: &mut [f32]) {
+    assert_eq!(y.len(), grad.len(), "leaky_relu_backward lengths");
+    grad.iter_mut().zip(y).for_each(|(g, y)| {
+        if *y < 0.0 {
+            *g *= LEAKY_SLOPE
+        }
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
+
+    #[test]
+    fn leaky_relu_gradient_matches_finite_differences() {
+        // Away from the kink at 0.
+        let x: Vec<f32> = pseudo_random(200, 1).iter().map(|v| if v.abs() < 0.05 { v + 0.1 } else { *v }).collect();
+        let w = pseudo_random(200, 2);
+        let mut y = x.clone();
+        leaky_relu(&mut y);
+        let mut g = w.clone();
+        leaky_relu_backward(&y, &mut g);
+        let r = check_gradient(
+            &x,
+            &g,
+            |p| {
+                let mut q = p.to_vec();
+                leaky_relu(&mut q);
+                dot(&w, &q)
+            },
+            1e-3,
+            200,
+            1e-3,
+        );
+        assert!(r.max_rel_err < 1e-3, "{r:?}");
+    }
+}
