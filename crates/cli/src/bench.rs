@@ -25,6 +25,9 @@ pub struct BenchArgs {
     /// Timed iterations after one warm-up (the peer's default is 6).
     #[arg(long, default_value_t = 6)]
     iters: usize,
+    /// infer: the network's width C (2C at the low resolution), as the peer's --channels.
+    #[arg(long, default_value_t = 16)]
+    channels: usize,
     #[command(flatten)]
     strands: StrandInputs,
 }
@@ -36,6 +39,9 @@ enum Which {
     /// One iteration of strand stylization (transport, constraints, splat
     /// render, VGG-19, NNST, backward, AdamW) on the Bangs groom.
     StrandsIter,
+    /// One forward pass of the feed-forward network (Fig. 9) on an N^3 grid,
+    /// as `torch_ff_ref.py --infer N` times it.
+    Infer,
 }
 
 /// Runs the benchmark; the last line is `ms_per_iter <median>`.
@@ -43,6 +49,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     match args.which {
         Which::VolumeIter => volume_iter(&args),
         Which::StrandsIter => strands_iter(&args),
+        Which::Infer => infer(&args),
     }
 }
 
@@ -61,6 +68,23 @@ fn volume_iter(args: &BenchArgs) -> Result<()> {
     println!("iteration_ms {}", times.join(" "));
     println!("peak_rss_mb {:.0}", peak_rss_mb());
     println!("ms_per_iter {:.1}", report.median_ms);
+    Ok(())
+}
+
+/// `infer`: the feed-forward network's forward pass; the last line is `ms_infer`.
+fn infer(args: &BenchArgs) -> Result<()> {
+    if !(16..=512).contains(&args.n) || args.n % 4 != 0 {
+        bail!("--n must be a multiple of 4 between 16 and 512, got {}", args.n);
+    }
+    if !(1..=256).contains(&args.channels) {
+        bail!("--channels must be between 1 and 256, got {}", args.channels);
+    }
+    eprintln!("infer: N={} channels={} threads={}", args.n, args.channels, rayon::current_num_threads());
+    let times = nst3d_network::bench::infer(args.n, args.channels, args.iters.max(1));
+    let shown: Vec<String> = times.iter().map(|t| format!("{t:.1}")).collect();
+    println!("iteration_ms {}", shown.join(" "));
+    println!("peak_rss_mb {:.0}", peak_rss_mb());
+    println!("ms_infer {:.1}", bench::median(&times));
     Ok(())
 }
 

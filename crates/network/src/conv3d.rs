@@ -4,13 +4,16 @@
 //! trained, so the backward gives the weight and bias gradients as well as
 //! the input gradient.
 //!
-//! All three products run as matrix products over an im2col matrix, built
-//! for a slab of output z-planes at a time so its memory stays bounded
-//! whatever the volume's size:
+//! The products run as matrix products over an im2col matrix, built for a
+//! slab of output rows (an `(z, y)` pair is a row of `x` voxels) at a time,
+//! small enough to stay in cache whatever the volume's size:
 //!
 //! - forward: `out[co, v] = Σ_r W[co, r] · col[r, v] + b[co]`,
-//! - weight gradient: `dW = Σ_slabs grad_out · colᵀ`,
-//! - input gradient: `col' = Wᵀ · grad_out`, scattered back (col2im).
+//! - weight gradient: `dW = Σ_slabs grad_out · colᵀ`, summed in a fixed
+//!   grouping so the result does not depend on the thread count,
+//! - input gradient: for stride 1, the forward of the transposed layer
+//!   (flipped taps, channels swapped, padding `k − 1 − p`) on `grad_out`; for
+//!   stride 2, `col' = Wᵀ · grad_out` scattered back (col2im).
 //!
 //! `r = (ci, kz, ky, kx)` runs in the weight tensor's own order, so `W` is
 //! the `cout x (cin·k³)` row-major matrix PyTorch stores.
@@ -20,9 +23,13 @@ use rayon::prelude::*;
 
 use crate::volume::Volume;
 
-/// im2col matrices are built for slabs of output planes holding about this
-/// many floats (8 MB), so memory does not grow with the volume.
-const COL_FLOATS: usize = 1 << 21;
+/// im2col matrices are built for slabs of output rows holding about this
+/// many floats (1 MB), so they stay in cache.
+const COL_FLOATS: usize = 1 << 18;
+
+/// The weight gradient's partial sums are grouped into this many fixed
+/// groups of slabs, so its summation order does not depend on threads.
+const WEIGHT_GROUPS: usize = 16;
 
 /// A 3D convolution layer with a `k³` kernel.
 #[derive(Clone, Debug, PartialEq)]
@@ -52,11 +59,12 @@ pub struct Conv3dGrads {
     pub bias: Vec<f32>,
 }
 
-/// The output planes `[z0, z1)` one im2col matrix covers.
-#[derive(Clone, Copy)]
+/// Output rows `[r0, r1)` (row `r` is `z = r / oy`, `y = r % oy`) one im2col
+/// matrix covers.
+#[derive(Clone, Copy, Debug)]
 struct Slab {
-    z0: usize,
-    z1: usize,
+    r0: usize,
+    r1: usize,
 }
 
 impl Conv3d {
@@ -84,14 +92,12 @@ impl Conv3d {
         );
     }
 
-    /// Splits the output's z-planes into slabs whose im2col matrix holds
-    /// about [`COL_FLOATS`] values, and at least one slab per thread.
-    fn slabs(&self, out: [usize; 3]) -> Vec<Slab> {
-        let plane = out[0] * out[1];
-        let by_memory = (COL_FLOATS / (self.taps() * plane).max(1)).max(1);
-        let by_threads = out[2].div_ceil(2 * rayon::current_num_threads()).max(1);
-        let t = by_memory.min(by_threads);
-        (0..out[2]).step_by(t).map(|z0| Slab { z0, z1: (z0 + t).min(out[2]) }).collect()
+    /// Splits the output rows into slabs whose im2col matrix holds about
+    /// [`COL_FLOATS`] values. Depends on the shapes only.
+    fn slabs(&self, out: [usize; 3], rows_per_slab_max: usize) -> Vec<Slab> {
+        let rows = out[1] * out[2];
+        let t = (COL_FLOATS / (self.taps() * out[0]).max(1)).clamp(1, rows_per_slab_max.max(1));
+        (0..rows).step_by(t).map(|r0| Slab { r0, r1: (r0 + t).min(rows) }).collect()
     }
 
     /// The input coordinate tap `kk` of output coordinate `o` reads, if inside `0..n`.
@@ -100,37 +106,52 @@ impl Conv3d {
         (i >= 0 && (i as usize) < n).then_some(i as usize)
     }
 
-    /// The `taps() x voxels` im2col matrix of `x` for the output planes of `slab`.
-    fn im2col(&self, x: &Volume, out: [usize; 3], slab: Slab) -> Vec<f32> {
+    /// The outputs `o` in `0..len` whose tap `kk` reads inside `0..n`: a range.
+    fn valid(&self, kk: usize, n: usize, len: usize) -> std::ops::Range<usize> {
+        let (s, p) = (self.stride as isize, self.pad as isize);
+        // o·s + kk − p ≥ 0 and ≤ n − 1.
+        let lo = ((p - kk as isize).max(0) + s - 1) / s;
+        let hi = ((n as isize - 1 + p - kk as isize).div_euclid(s) + 1).clamp(0, len as isize);
+        (lo as usize).min(hi as usize)..hi as usize
+    }
+
+    /// Fills `col` (resized to `taps() x voxels`) with the im2col matrix of
+    /// `x` for the output rows of `slab`; every entry is written, so the
+    /// buffer can be reused without clearing.
+    fn im2col(&self, x: &Volume, out: [usize; 3], slab: Slab, col: &mut Vec<f32>) {
         let [nx, ny, nz] = x.dims;
         let [ox, oy, _] = out;
-        let cols = (slab.z1 - slab.z0) * oy * ox;
+        let cols = (slab.r1 - slab.r0) * ox;
         let k = self.k;
-        let mut col = vec![0.0f32; self.taps() * cols];
+        col.resize(self.taps() * cols, 0.0);
         for (r, row) in col.chunks_mut(cols).enumerate() {
             let (ci, kz, ky, kx) = (r / (k * k * k), r / (k * k) % k, r / k % k, r % k);
             let src = x.channel(ci);
-            for z in slab.z0..slab.z1 {
-                let Some(iz) = self.source(z, kz, nz) else { continue };
-                for y in 0..oy {
-                    let Some(iy) = self.source(y, ky, ny) else { continue };
-                    let line = &src[(iz * ny + iy) * nx..][..nx];
-                    let dst = &mut row[((z - slab.z0) * oy + y) * ox..][..ox];
-                    for (xo, d) in dst.iter_mut().enumerate() {
-                        if let Some(ix) = self.source(xo, kx, nx) {
-                            *d = line[ix];
-                        }
+            let xs = self.valid(kx, nx, ox);
+            for (j, dst) in row.chunks_mut(ox).enumerate() {
+                let (z, y) = ((slab.r0 + j) / oy, (slab.r0 + j) % oy);
+                let (Some(iz), Some(iy)) = (self.source(z, kz, nz), self.source(y, ky, ny)) else {
+                    dst.fill(0.0);
+                    continue;
+                };
+                let line = &src[(iz * ny + iy) * nx..][..nx];
+                dst[..xs.start].fill(0.0);
+                dst[xs.end..].fill(0.0);
+                let first = xs.start * self.stride + kx - self.pad;
+                if self.stride == 1 {
+                    dst[xs.clone()].copy_from_slice(&line[first..][..xs.len()]);
+                } else {
+                    for (d, i) in dst[xs.clone()].iter_mut().zip((first..).step_by(self.stride)) {
+                        *d = line[i];
                     }
                 }
             }
         }
-        col
     }
 
-    /// Adds the `taps() x voxels` matrix `col` of `slab` back onto the
-    /// input positions it was read from: the transpose of [`Conv3d::im2col`],
-    /// into `dst`, which holds input planes `z_lo..` of every channel
-    /// (`planes` of them).
+    /// Adds the `taps() x voxels` matrix `col` of `slab` back onto the input
+    /// positions it was read from (the transpose of [`Conv3d::im2col`]), into
+    /// `dst`, which holds input planes `z_lo..z_lo + planes` of every channel.
     #[allow(clippy::too_many_arguments)]
     fn col2im(
         &self,
@@ -144,22 +165,19 @@ impl Conv3d {
     ) {
         let [nx, ny, nz] = dims;
         let [ox, oy, _] = out;
-        let cols = (slab.z1 - slab.z0) * oy * ox;
+        let cols = (slab.r1 - slab.r0) * ox;
         let k = self.k;
         for (r, row) in col.chunks(cols).enumerate() {
             let (ci, kz, ky, kx) = (r / (k * k * k), r / (k * k) % k, r / k % k, r % k);
             let chan = &mut dst[ci * planes * ny * nx..][..planes * ny * nx];
-            for z in slab.z0..slab.z1 {
-                let Some(iz) = self.source(z, kz, nz) else { continue };
-                for y in 0..oy {
-                    let Some(iy) = self.source(y, ky, ny) else { continue };
-                    let line = &mut chan[((iz - z_lo) * ny + iy) * nx..][..nx];
-                    let src = &row[((z - slab.z0) * oy + y) * ox..][..ox];
-                    for (xo, s) in src.iter().enumerate() {
-                        if let Some(ix) = self.source(xo, kx, nx) {
-                            line[ix] += s;
-                        }
-                    }
+            let xs = self.valid(kx, nx, ox);
+            for (j, src) in row.chunks(ox).enumerate() {
+                let (z, y) = ((slab.r0 + j) / oy, (slab.r0 + j) % oy);
+                let (Some(iz), Some(iy)) = (self.source(z, kz, nz), self.source(y, ky, ny)) else { continue };
+                let line = &mut chan[((iz - z_lo) * ny + iy) * nx..][..nx];
+                let first = xs.start * self.stride + kx - self.pad;
+                for (s, i) in src[xs.clone()].iter().zip((first..).step_by(self.stride)) {
+                    line[i] += s;
                 }
             }
         }
@@ -172,30 +190,44 @@ impl Conv3d {
     pub fn forward(&self, x: &Volume) -> Volume {
         self.check_input(x);
         let out = self.out_dims(x.dims);
-        let plane = out[0] * out[1];
         let n_out: usize = out.iter().product();
         let taps = self.taps();
         let parts: Vec<(Slab, Vec<f32>)> = self
-            .slabs(out)
+            .slabs(out, usize::MAX)
             .into_par_iter()
-            .map(|slab| {
-                let col = self.im2col(x, out, slab);
-                let cols = (slab.z1 - slab.z0) * plane;
+            .map_init(Vec::new, |col, slab| {
+                self.im2col(x, out, slab, col);
+                let cols = (slab.r1 - slab.r0) * out[0];
                 let mut o = vec![0.0f32; self.cout * cols];
-                matmul(self.cout, cols, taps, &mut o, &self.weight, (taps, 1), &col, (cols, 1), 1.0, Parallelism::None);
+                matmul(self.cout, cols, taps, &mut o, &self.weight, (taps, 1), col, (cols, 1), 1.0, Parallelism::None);
                 (slab, o)
             })
             .collect();
         let mut y = Volume::zeros(self.cout, out);
         for (slab, o) in parts {
-            let cols = (slab.z1 - slab.z0) * plane;
+            let cols = (slab.r1 - slab.r0) * out[0];
             for co in 0..self.cout {
-                let dst = &mut y.data[co * n_out + slab.z0 * plane..][..cols];
+                let dst = &mut y.data[co * n_out + slab.r0 * out[0]..][..cols];
                 let b = self.bias[co];
                 dst.iter_mut().zip(&o[co * cols..][..cols]).for_each(|(d, v)| *d = v + b);
             }
         }
         y
+    }
+
+    /// The layer whose forward is this layer's input gradient (stride 1):
+    /// taps flipped, input and output channels swapped, padding `k − 1 − p`.
+    fn transposed(&self) -> Conv3d {
+        let k3 = self.k * self.k * self.k;
+        let mut t = Conv3d::zeros(self.cout, self.cin, self.k, 1, self.k - 1 - self.pad);
+        for co in 0..self.cout {
+            for ci in 0..self.cin {
+                for tap in 0..k3 {
+                    t.weight[(ci * self.cout + co) * k3 + k3 - 1 - tap] = self.weight[(co * self.cin + ci) * k3 + tap];
+                }
+            }
+        }
+        t
     }
 
     /// Backward of [`Conv3d::forward`] at input `x`: the parameters'
@@ -208,66 +240,111 @@ impl Conv3d {
         self.check_input(x);
         let out = self.out_dims(x.dims);
         assert_eq!((grad_out.channels, grad_out.dims), (self.cout, out), "conv3d backward: gradient size");
-        let plane = out[0] * out[1];
         let n_out: usize = out.iter().product();
         let taps = self.taps();
-        let [nx, ny, nz] = x.dims;
-        // Each slab: its weight gradient, and its input gradient over the
-        // input planes it reads, summed below in slab order (deterministic
-        // for a given thread count).
-        type Part = (Vec<f32>, Option<(usize, usize, Vec<f32>)>);
-        let parts: Vec<Part> = self
-            .slabs(out)
-            .into_par_iter()
-            .map(|slab| {
-                let col = self.im2col(x, out, slab);
-                let cols = (slab.z1 - slab.z0) * plane;
-                let g = &grad_out.data[slab.z0 * plane..];
+        // Weight gradient: slabs in WEIGHT_GROUPS fixed runs, each run summed
+        // in order, the runs then summed in order.
+        let slabs = self.slabs(out, usize::MAX);
+        let per_group = slabs.len().div_ceil(WEIGHT_GROUPS).max(1);
+        let partial: Vec<Vec<f32>> = slabs
+            .par_chunks(per_group)
+            .map_init(Vec::new, |col, group| {
                 let mut dw = vec![0.0f32; self.cout * taps];
-                // dW (cout x taps) = grad_out band (cout x cols, rows n_out apart) · colᵀ.
-                matmul(self.cout, taps, cols, &mut dw, g, (n_out, 1), &col, (1, cols), 1.0, Parallelism::None);
-                let dx = want_input.then(|| {
-                    let mut dcol = vec![0.0f32; taps * cols];
-                    // col' (taps x cols) = Wᵀ · grad_out band.
-                    matmul(
+                for &slab in group {
+                    self.im2col(x, out, slab, col);
+                    let cols = (slab.r1 - slab.r0) * out[0];
+                    let g = &grad_out.data[slab.r0 * out[0]..];
+                    // dW (cout x taps) += grad_out band (cout x cols, rows n_out apart) · colᵀ.
+                    nst3d_core::linalg::matmul_into(
+                        self.cout,
                         taps,
                         cols,
-                        self.cout,
-                        &mut dcol,
-                        &self.weight,
-                        (1, taps),
+                        &mut dw,
+                        taps,
+                        true,
                         g,
                         (n_out, 1),
+                        col,
+                        (1, cols),
                         1.0,
                         Parallelism::None,
                     );
-                    let z_lo = (slab.z0 * self.stride).saturating_sub(self.pad);
-                    let z_hi = ((slab.z1 - 1) * self.stride + self.k).saturating_sub(self.pad).min(nz);
-                    let planes = z_hi - z_lo;
-                    let mut local = vec![0.0f32; self.cin * planes * ny * nx];
-                    self.col2im(&dcol, x.dims, out, slab, &mut local, z_lo, planes);
-                    (z_lo, planes, local)
-                });
-                (dw, dx)
+                }
+                dw
             })
             .collect();
         let mut grads = Conv3dGrads { weight: vec![0.0; self.weight.len()], bias: vec![0.0; self.cout] };
-        let mut dx = want_input.then(|| Volume::zeros(self.cin, x.dims));
-        let chan = nz * ny * nx;
-        for (dw, part) in parts {
+        for dw in partial {
             grads.weight.iter_mut().zip(&dw).for_each(|(a, b)| *a += b);
-            if let (Some(dx), Some((z_lo, planes, local))) = (dx.as_mut(), part) {
-                let len = planes * ny * nx;
-                for ci in 0..self.cin {
-                    let dst = &mut dx.data[ci * chan + z_lo * ny * nx..][..len];
-                    dst.iter_mut().zip(&local[ci * len..][..len]).for_each(|(a, b)| *a += b);
-                }
-            }
         }
         for co in 0..self.cout {
             grads.bias[co] = grad_out.channel(co).iter().map(|&v| v as f64).sum::<f64>() as f32;
         }
+        let dx = want_input.then(|| match self.stride {
+            1 => self.transposed().forward(grad_out),
+            _ => self.input_grad_scatter(x.dims, out, grad_out),
+        });
         (dx, grads)
+    }
+
+    /// The input gradient of a strided layer: `Wᵀ · grad_out` per slab of
+    /// whole output planes, scattered (col2im) into the input planes the
+    /// slab read, and summed in slab order.
+    fn input_grad_scatter(&self, dims: [usize; 3], out: [usize; 3], grad_out: &Volume) -> Volume {
+        let [nx, ny, nz] = dims;
+        let n_out: usize = out.iter().product();
+        let taps = self.taps();
+        // Whole planes per slab, so a slab's input planes are a z-range.
+        let plane_rows = out[1];
+        let slabs: Vec<Slab> = self
+            .slabs(out, usize::MAX)
+            .iter()
+            .map(|s| Slab { r0: s.r0 / plane_rows * plane_rows, r1: s.r1.div_ceil(plane_rows) * plane_rows })
+            .fold(Vec::new(), |mut v: Vec<Slab>, s| {
+                match v.last_mut() {
+                    Some(l) if s.r0 < l.r1 => l.r1 = l.r1.max(s.r1),
+                    _ => v.push(s),
+                }
+                v
+            });
+        let parts: Vec<(usize, usize, Vec<f32>)> = slabs
+            .into_par_iter()
+            .map(|slab| {
+                let cols = (slab.r1 - slab.r0) * out[0];
+                let g = &grad_out.data[slab.r0 * out[0]..];
+                let mut dcol = vec![0.0f32; taps * cols];
+                // col' (taps x cols) = Wᵀ · grad_out band.
+                matmul(
+                    taps,
+                    cols,
+                    self.cout,
+                    &mut dcol,
+                    &self.weight,
+                    (1, taps),
+                    g,
+                    (n_out, 1),
+                    1.0,
+                    Parallelism::None,
+                );
+                let (z0, z1) = (slab.r0 / plane_rows, slab.r1 / plane_rows);
+                let z_lo = (z0 * self.stride).saturating_sub(self.pad);
+                let z_hi = ((z1 - 1) * self.stride + self.k).saturating_sub(self.pad).min(nz);
+                let planes = z_hi - z_lo;
+                let mut local = vec![0.0f32; self.cin * planes * ny * nx];
+                self.col2im(&dcol, dims, out, slab, &mut local, z_lo, planes);
+                (z_lo, planes, local)
+            })
+            .collect();
+        let mut dx = Volume::zeros(self.cin, dims);
+        let chan = nz * ny * nx;
+        for (z_lo, planes, local) in parts {
+            let len = planes * ny * nx;
+            for ci in 0..self.cin {
+                let dst = &mut dx.data[ci * chan + z_lo * ny * nx..][..len];
+                dst.iter_mut().zip(&local[ci * len..][..len]).for_each(|(a, b)| *a += b);
+            }
+        }
+        dx
     }
 }
 

@@ -1,0 +1,180 @@
+//! The feed-forward stylization network of Fig. 9 (paper Sec. 4): an
+//! encoder of two strided 3D convolutions (5³ then 3³, each halving the
+//! resolution), four 3³ convolutions at a quarter of the resolution, a
+//! decoder of two (trilinear ×2 upsample, 3³ convolution) steps and a final
+//! 3³ convolution to the output channels, LeakyReLU 0.01 after all but the
+//! last. The same network as `shared/bench/torch_ff_ref.py`'s `FeedForward`.
+//!
+//! The output is raw: density mode maps it to a scale `s = 1 + tanh(o)`,
+//! velocity mode to `v = vmax · tanh(o)` (eq. 1, 3); those maps belong to the
+//! trainer and to inference, which know the limits.
+
+use nst3d_core::math::SplitMix64;
+
+use crate::activation::{leaky_relu, leaky_relu_backward};
+use crate::conv3d::{Conv3d, Conv3dGrads};
+use crate::upsample::{upsample2, upsample2_backward};
+use crate::volume::Volume;
+
+/// Number of convolution layers.
+pub const LAYERS: usize = 9;
+
+/// The network's weights. Layer order: `e1, e2, m1..m4, d1, d2, last`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FeedForward {
+    /// The convolutions in order.
+    pub layers: Vec<Conv3d>,
+}
+
+/// What [`FeedForward::backward`] needs from the forward: each layer's input
+/// and each activated output.
+pub struct Tape {
+    inputs: Vec<Volume>,
+    outputs: Vec<Volume>,
+    /// The decoder's inputs before upsampling (for the upsample backward).
+    before_up: [[usize; 3]; 2],
+}
+
+impl FeedForward {
+    /// Width `c` (first level; `2c` at the low resolution) and `out` output
+    /// channels (1 for density, 3 for velocity), initialised as PyTorch's
+    /// `nn.Conv3d` does (weights and biases uniform in ±1/√fan_in) from `seed`.
+    pub fn new(c: usize, out: usize, seed: u64) -> Self {
+        let shapes = [
+            (1, c, 5, 2, 2),
+            (c, 2 * c, 3, 2, 1),
+            (2 * c, 2 * c, 3, 1, 1),
+            (2 * c, 2 * c, 3, 1, 1),
+            (2 * c, 2 * c, 3, 1, 1),
+            (2 * c, 2 * c, 3, 1, 1),
+            (2 * c, c, 3, 1, 1),
+            (c, c, 3, 1, 1),
+            (c, out, 3, 1, 1),
+        ];
+        let mut rng = SplitMix64::new(seed);
+        let layers = shapes
+            .iter()
+            .map(|&(cin, cout, k, s, p)| {
+                let mut l = Conv3d::zeros(cin, cout, k, s, p);
+                let bound = 1.0 / ((cin * k * k * k) as f32).sqrt();
+                l.weight.iter_mut().chain(l.bias.iter_mut()).for_each(|w| *w = bound * (2.0 * rng.uniform_f32() - 1.0));
+                l
+            })
+            .collect();
+        Self { layers }
+    }
+
+    /// Input size the network maps back onto itself: every side a multiple of 4.
+    pub fn fits(dims: [usize; 3]) -> bool {
+        dims.iter().all(|&n| n > 0 && n % 4 == 0)
+    }
+
+    /// Output channels.
+    pub fn out_channels(&self) -> usize {
+        self.layers[LAYERS - 1].cout
+    }
+
+    /// Forward pass without keeping anything for a backward (inference).
+    ///
+    /// # Panics
+    /// If `x` is not one channel whose sides are multiples of 4 ([`FeedForward::fits`]).
+    pub fn infer(&self, x: &Volume) -> Volume {
+        self.run(x, None)
+    }
+
+    /// Forward pass keeping what [`FeedForward::backward`] needs.
+    pub fn forward(&self, x: &Volume) -> (Volume, Tape) {
+        let mut tape =
+            Tape { inputs: Vec::with_capacity(LAYERS), outputs: Vec::with_capacity(LAYERS), before_up: [[0; 3]; 2] };
+        let y = self.run(x, Some(&mut tape));
+        (y, tape)
+    }
+
+    fn run(&self, x: &Volume, mut tape: Option<&mut Tape>) -> Volume {
+        assert!(
+            x.channels == 1 && Self::fits(x.dims),
+            "the network takes one channel with sides a multiple of 4, got {:?}",
+            x.dims
+        );
+        let mut h = x.clone();
+        for (i, layer) in self.layers.iter().enumerate() {
+            if i == 6 || i == 7 {
+                if let Some(t) = tape.as_deref_mut() {
+                    t.before_up[i - 6] = h.dims;
+                }
+                h = upsample2(&h);
+            }
+            let mut y = layer.forward(&h);
+            if i + 1 < LAYERS {
+                leaky_relu(&mut y.data);
+            }
+            if let Some(t) = tape.as_deref_mut() {
+                t.inputs.push(h);
+                t.outputs.push(y.clone());
+            }
+            h = y;
+        }
+        h
+    }
+
+    /// Gradients of every layer's parameters from the gradient w.r.t. the
+    /// network's output (the network's input needs none: it is data).
+    pub fn backward(&self, tape: &Tape, grad_out: &Volume) -> Vec<Conv3dGrads> {
+        let mut grads = Vec::with_capacity(LAYERS);
+        let mut g = grad_out.clone();
+        for i in (0..LAYERS).rev() {
+            if i + 1 < LAYERS {
+                leaky_relu_backward(&tape.outputs[i].data, &mut g.data);
+            }
+            let (dx, dw) = self.layers[i].backward(&tape.inputs[i], &g, i > 0);
+            grads.push(dw);
+            if let Some(dx) = dx {
+                g = if i == 6 || i == 7 { upsample2_backward(&dx, tape.before_up[i - 6]) } else { dx };
+            }
+        }
+        grads.reverse();
+        grads
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
+
+    #[test]
+    fn output_has_the_input_size() {
+        let net = FeedForward::new(2, 3, 1);
+        let x = Volume::from_vec(1, [8, 4, 12], pseudo_random(384, 2));
+        let y = net.infer(&x);
+        assert_eq!((y.channels, y.dims), (3, [8, 4, 12]));
+        assert_eq!(net.forward(&x).0, y);
+    }
+
+    /// The whole network's weight gradients against finite differences,
+    /// probing every layer.
+    #[test]
+    fn weight_gradients_match_finite_differences() {
+        let net = FeedForward::new(2, 1, 3);
+        let x = Volume::from_vec(1, [8, 8, 8], pseudo_random(512, 4).iter().map(|v| v.abs()).collect());
+        let (y, tape) = net.forward(&x);
+        let w = pseudo_random(y.data.len(), 5);
+        let grads = net.backward(&tape, &Volume::from_vec(1, y.dims, w.clone()));
+        for l in 0..LAYERS {
+            let mut probe = net.clone();
+            let r = check_gradient(
+                &net.layers[l].weight,
+                &grads[l].weight,
+                |q| {
+                    probe.layers[l].weight.copy_from_slice(q);
+                    dot(&w, &probe.infer(&x).data)
+                },
+                1e-3,
+                30,
+                1e-3,
+            );
+            // LeakyReLU kinks make a few probes land across a kink.
+            assert!(r.max_rel_err < 2e-2, "layer {l}: {r:?}");
+        }
+    }
+}
