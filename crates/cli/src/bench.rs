@@ -25,7 +25,10 @@ pub struct BenchArgs {
     /// Timed iterations after one warm-up (the peer's default is 6).
     #[arg(long, default_value_t = 6)]
     iters: usize,
-    /// infer: the network's width C (2C at the low resolution), as the peer's --channels.
+    /// train-step: patch size P (a multiple of 4).
+    #[arg(long, default_value_t = 64)]
+    patch: usize,
+    /// infer, train-step: the network's width C (2C at the low resolution), as the peer's --channels.
     #[arg(long, default_value_t = 16)]
     channels: usize,
     #[command(flatten)]
@@ -42,6 +45,9 @@ enum Which {
     /// One forward pass of the feed-forward network (Fig. 9) on an N^3 grid,
     /// as `torch_ff_ref.py --infer N` times it.
     Infer,
+    /// One training step of the feed-forward network on a --patch^3 patch,
+    /// as `torch_ff_ref.py --patch P --mode M` times it.
+    TrainStep,
 }
 
 /// Runs the benchmark; the last line is `ms_per_iter <median>`.
@@ -50,6 +56,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         Which::VolumeIter => volume_iter(&args),
         Which::StrandsIter => strands_iter(&args),
         Which::Infer => infer(&args),
+        Which::TrainStep => train_step(&args),
     }
 }
 
@@ -85,6 +92,31 @@ fn infer(args: &BenchArgs) -> Result<()> {
     println!("iteration_ms {}", shown.join(" "));
     println!("peak_rss_mb {:.0}", peak_rss_mb());
     println!("ms_infer {:.1}", bench::median(&times));
+    Ok(())
+}
+
+/// `train-step`: one feed-forward training step; the last line is `ms_per_step`.
+fn train_step(args: &BenchArgs) -> Result<()> {
+    if !(16..=256).contains(&args.patch) || args.patch % 4 != 0 {
+        bail!("--patch must be a multiple of 4 between 16 and 256, got {}", args.patch);
+    }
+    if !(1..=256).contains(&args.channels) {
+        bail!("--channels must be between 1 and 256, got {}", args.channels);
+    }
+    let velocity = matches!(args.mode, Mode::Velocity);
+    eprintln!(
+        "train-step: patch={} mode={} channels={} threads={}",
+        args.patch,
+        if velocity { "velocity" } else { "density" },
+        args.channels,
+        rayon::current_num_threads()
+    );
+    let (times, last) = nst3d_train::bench::train_step(args.patch, velocity, args.channels, args.iters.max(1));
+    let shown: Vec<String> = times.iter().map(|t| format!("{t:.1}")).collect();
+    println!("iteration_ms {}", shown.join(" "));
+    println!("loss_last {last:.6}");
+    println!("peak_rss_mb {:.0}", peak_rss_mb());
+    println!("ms_per_step {:.1}", bench::median(&times));
     Ok(())
 }
 

@@ -64,6 +64,34 @@ impl FeedForward {
         Self { layers }
     }
 
+    /// All weights and biases as one vector, layer by layer (weights, then
+    /// biases), the order [`FeedForward::flat_grads`] and
+    /// [`FeedForward::set_flat`] use.
+    pub fn flat(&self) -> Vec<f32> {
+        self.layers.iter().flat_map(|l| l.weight.iter().chain(&l.bias)).copied().collect()
+    }
+
+    /// Loads a vector from [`FeedForward::flat`] back into the layers.
+    ///
+    /// # Panics
+    /// If `values` does not hold exactly the network's parameter count.
+    pub fn set_flat(&mut self, values: &[f32]) {
+        let mut rest = values;
+        for l in &mut self.layers {
+            let (w, r) = rest.split_at(l.weight.len());
+            l.weight.copy_from_slice(w);
+            let (b, r) = r.split_at(l.bias.len());
+            l.bias.copy_from_slice(b);
+            rest = r;
+        }
+        assert!(rest.is_empty(), "set_flat: {} values too many", rest.len());
+    }
+
+    /// Gradients from [`FeedForward::backward`] in [`FeedForward::flat`]'s order.
+    pub fn flat_grads(grads: &[Conv3dGrads]) -> Vec<f32> {
+        grads.iter().flat_map(|g| g.weight.iter().chain(&g.bias)).copied().collect()
+    }
+
     /// Input size the network maps back onto itself: every side a multiple of 4.
     pub fn fits(dims: [usize; 3]) -> bool {
         dims.iter().all(|&n| n > 0 && n % 4 == 0)

@@ -7,6 +7,10 @@
 
 #![warn(missing_docs)]
 
+pub mod schedule;
+
+pub use schedule::{clip_grad_norm, OneCycle};
+
 use rayon::prelude::*;
 
 /// Why an optimizer state or setting was rejected.
