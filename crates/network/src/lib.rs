@@ -14,11 +14,13 @@ pub mod activation;
 pub mod bench;
 pub mod conv3d;
 pub mod feedforward;
+pub mod model;
 pub mod upsample;
 pub mod volume;
 
 pub use activation::{leaky_relu, leaky_relu_backward, LEAKY_SLOPE};
 pub use conv3d::{Conv3d, Conv3dGrads};
 pub use feedforward::FeedForward;
+pub use model::{Model, ModelError};
 pub use upsample::{upsample2, upsample2_backward};
 pub use volume::Volume;

@@ -129,6 +129,30 @@ pub fn parse_as(format: WeightsFormat, bytes: &[u8], source: &Path) -> Result<Te
     result.map_err(|problem| WeightsError::Malformed { path: source.to_path_buf(), problem })
 }
 
+/// Bytes of a `.safetensors` file holding `tensors` (name, shape, F32 values,
+/// written in this order) and the string `metadata` (its `__metadata__`).
+///
+/// # Panics
+/// If a tensor's values do not fill its shape (a programming error).
+pub fn safetensors_bytes(tensors: &[(&str, &[usize], &[f32])], metadata: &BTreeMap<String, String>) -> Vec<u8> {
+    for (name, shape, data) in tensors {
+        assert_eq!(shape.iter().product::<usize>(), data.len(), "tensor {name}: shape vs values");
+    }
+    safetensors::write(tensors, metadata)
+}
+
+/// The tensors and the `__metadata__` strings of `.safetensors` bytes;
+/// `source` names them in errors.
+pub fn parse_safetensors(bytes: &[u8], source: &Path) -> Result<(TensorMap, BTreeMap<String, String>), WeightsError> {
+    let malformed = |problem| WeightsError::Malformed { path: source.to_path_buf(), problem };
+    if !safetensors::looks_like(bytes) {
+        return Err(malformed("not a .safetensors file".into()));
+    }
+    let meta = safetensors::metadata(bytes).map_err(malformed)?;
+    let tensors = safetensors::read(bytes).map_err(malformed)?;
+    Ok((tensors, meta))
+}
+
 /// Lowercase hex SHA-256 of a file's contents.
 pub fn sha256_file(path: &Path) -> Result<String, WeightsError> {
     let io = |source| WeightsError::Io { path: path.to_path_buf(), source };

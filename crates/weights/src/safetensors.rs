@@ -20,6 +20,56 @@ fn header_len(bytes: &[u8]) -> Option<usize> {
     (n <= bytes.len() - 8).then_some(n)
 }
 
+/// The `__metadata__` string map of a safetensors file (empty if it has none).
+pub(crate) fn metadata(bytes: &[u8]) -> Result<std::collections::BTreeMap<String, String>, Problem> {
+    let n = header_len(bytes).ok_or("safetensors header length exceeds the file")?;
+    let header: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_slice(&bytes[8..8 + n]).map_err(|e| format!("bad safetensors header: {e}"))?;
+    let mut out = std::collections::BTreeMap::new();
+    if let Some(meta) = header.get("__metadata__") {
+        let meta = meta.as_object().ok_or("__metadata__ is not an object")?;
+        for (k, v) in meta {
+            let v = v.as_str().ok_or_else(|| format!("metadata {k} is not a string"))?;
+            out.insert(k.clone(), v.to_string());
+        }
+    }
+    Ok(out)
+}
+
+/// A safetensors file of F32 tensors (in `tensors`' order) with string
+/// metadata, as the reference implementation lays it out: the header padded
+/// with spaces to a multiple of 8 bytes, then the data.
+pub(crate) fn write(
+    tensors: &[(&str, &[usize], &[f32])],
+    metadata: &std::collections::BTreeMap<String, String>,
+) -> Vec<u8> {
+    let mut header = serde_json::Map::new();
+    if !metadata.is_empty() {
+        let meta = metadata.iter().map(|(k, v)| (k.clone(), serde_json::Value::from(v.as_str()))).collect();
+        header.insert("__metadata__".into(), serde_json::Value::Object(meta));
+    }
+    let mut offset = 0usize;
+    for (name, shape, data) in tensors {
+        let end = offset + 4 * data.len();
+        header.insert(
+            name.to_string(),
+            serde_json::json!({"dtype": "F32", "shape": shape, "data_offsets": [offset, end]}),
+        );
+        offset = end;
+    }
+    let mut json = serde_json::to_vec(&serde_json::Value::Object(header)).expect("a JSON map serialises");
+    while json.len() % 8 != 0 {
+        json.push(b' ');
+    }
+    let mut out = Vec::with_capacity(8 + json.len() + offset);
+    out.extend_from_slice(&(json.len() as u64).to_le_bytes());
+    out.extend_from_slice(&json);
+    for (_, _, data) in tensors {
+        data.iter().for_each(|v| out.extend_from_slice(&v.to_le_bytes()));
+    }
+    out
+}
+
 /// Reads every tensor of a safetensors file.
 pub(crate) fn read(bytes: &[u8]) -> Result<TensorMap, Problem> {
     let n = header_len(bytes).ok_or("safetensors header length exceeds the file")?;

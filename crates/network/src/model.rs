@@ -1,0 +1,140 @@
+//! The model file: a trained network's weights plus what it is, as one
+//! `.safetensors` file (the ecosystem's format for weights). The tensors are
+//! named after Fig. 9's layers (`e1.weight`, `m3.bias`, ...) in PyTorch's
+//! shapes, so `safetensors.torch.load_file` reads them into
+//! `torch_ff_ref.py`'s `FeedForward` too; the metadata says the format, the
+//! architecture and its widths, and carries the trainer's own keys
+//! (painting hash, rotation ranges, steps, version).
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use crate::feedforward::{FeedForward, LAYERS};
+
+/// The `format` metadata value of nst3d model files.
+pub const FORMAT: &str = "nst3d-feedforward-v1";
+
+/// Layer names in [`FeedForward::layers`]' order.
+pub const LAYER_NAMES: [&str; LAYERS] = ["e1", "e2", "m1", "m2", "m3", "m4", "d1", "d2", "last"];
+
+/// A trained network and its description.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Model {
+    /// The weights.
+    pub net: FeedForward,
+    /// String metadata beyond the architecture (the trainer's keys).
+    pub info: BTreeMap<String, String>,
+}
+
+/// Why a model file could not be used; the message names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// Not readable as a safetensors file at all.
+    #[error(transparent)]
+    Weights(#[from] nst3d_weights::WeightsError),
+    /// A safetensors file, but not a usable nst3d model.
+    #[error("{path}: {problem}")]
+    Invalid {
+        /// The file.
+        path: String,
+        /// What is wrong with it.
+        problem: String,
+    },
+}
+
+impl Model {
+    /// The file's bytes: tensors in layer order, then metadata (`format`,
+    /// `architecture`, `channels`, `out_channels` and [`Model::info`]).
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut meta = self.info.clone();
+        meta.insert("format".into(), FORMAT.into());
+        meta.insert("architecture".into(), "volumetric-style-transfer fig9".into());
+        meta.insert("channels".into(), self.net.layers[0].cout.to_string());
+        meta.insert("out_channels".into(), self.net.out_channels().to_string());
+        let names: Vec<(String, String)> =
+            LAYER_NAMES.iter().map(|n| (format!("{n}.weight"), format!("{n}.bias"))).collect();
+        let shapes: Vec<([usize; 5], [usize; 1])> =
+            self.net.layers.iter().map(|l| ([l.cout, l.cin, l.k, l.k, l.k], [l.cout])).collect();
+        let mut tensors: Vec<(&str, &[usize], &[f32])> = Vec::new();
+        for ((l, (wn, bn)), (ws, bs)) in self.net.layers.iter().zip(&names).zip(&shapes) {
+            tensors.push((wn, ws, &l.weight));
+            tensors.push((bn, bs, &l.bias));
+        }
+        nst3d_weights::safetensors_bytes(&tensors, &meta)
+    }
+
+    /// Reads a model file's bytes; `source` names it in errors. Refuses
+    /// files of another format, a network of other shapes than its metadata
+    /// says, and non-finite weights.
+    pub fn from_bytes(bytes: &[u8], source: &Path) -> Result<Model, ModelError> {
+        let invalid = |problem: String| ModelError::Invalid { path: source.display().to_string(), problem };
+        let (tensors, mut info) = nst3d_weights::parse_safetensors(bytes, source)?;
+        match info.get("format").map(String::as_str) {
+            Some(FORMAT) => {}
+            Some(other) => return Err(invalid(format!("model format '{other}', this nst3d reads '{FORMAT}'"))),
+            None => return Err(invalid("a .safetensors file, but not an nst3d model (no 'format' metadata)".into())),
+        }
+        let number = |key: &str| -> Result<usize, ModelError> {
+            info.get(key)
+                .and_then(|v| v.parse().ok())
+                .filter(|&v| (1..=1024).contains(&v))
+                .ok_or_else(|| invalid(format!("metadata '{key}' is missing or not a width from 1 to 1024")))
+        };
+        let (c, out) = (number("channels")?, number("out_channels")?);
+        let mut net = FeedForward::new(c, out, 0);
+        for (l, name) in net.layers.iter_mut().zip(LAYER_NAMES) {
+            for (suffix, dst, shape) in
+                [("weight", &mut l.weight, vec![l.cout, l.cin, l.k, l.k, l.k]), ("bias", &mut l.bias, vec![l.cout])]
+            {
+                let key = format!("{name}.{suffix}");
+                let t = tensors.get(&key).ok_or_else(|| invalid(format!("tensor {key} is missing")))?;
+                if t.shape != shape {
+                    return Err(invalid(format!(
+                        "tensor {key} has shape {:?}, the metadata's widths (channels {c}) need {shape:?}",
+                        t.shape
+                    )));
+                }
+                if let Some(i) = t.data.iter().position(|v| !v.is_finite()) {
+                    return Err(invalid(format!("tensor {key} holds a non-finite weight at {i}")));
+                }
+                dst.copy_from_slice(&t.data);
+            }
+        }
+        for key in ["format", "architecture", "channels", "out_channels"] {
+            info.remove(key);
+        }
+        Ok(Model { net, info })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_and_refusals() {
+        let mut info = BTreeMap::new();
+        info.insert("mode".to_string(), "density".to_string());
+        let m = Model { net: FeedForward::new(3, 1, 9), info };
+        let bytes = m.to_bytes();
+        let p = Path::new("m.safetensors");
+        assert_eq!(Model::from_bytes(&bytes, p).unwrap(), m);
+
+        // Another format, truncation, a NaN and wrong widths each say what is wrong.
+        let e = Model::from_bytes(&bytes[..bytes.len() / 2], p).unwrap_err().to_string();
+        assert!(e.contains("m.safetensors"), "{e}");
+        let mut nan = m.clone();
+        nan.net.layers[4].weight[7] = f32::NAN;
+        let e = Model::from_bytes(&nan.to_bytes(), p).unwrap_err().to_string();
+        assert!(e.contains("m3.weight") && e.contains("non-finite"), "{e}");
+        let foreign = nst3d_weights::safetensors_bytes(&[("x", &[1], &[1.0])], &BTreeMap::new());
+        let e = Model::from_bytes(&foreign, p).unwrap_err().to_string();
+        assert!(e.contains("not an nst3d model"), "{e}");
+        let key = b"\"channels\":\"3\"";
+        let at = bytes.windows(key.len()).position(|w| w == key).expect("channels in the header");
+        let mut wider = bytes.clone();
+        wider[at + key.len() - 2] = b'4';
+        let e = Model::from_bytes(&wider, p).unwrap_err().to_string();
+        assert!(e.contains("e1.weight") && e.contains("channels 4"), "{e}");
+    }
+}
