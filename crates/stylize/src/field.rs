@@ -33,8 +33,20 @@ pub enum Field {
     /// grid. The density moves by their smooth version `v = S w`
     /// ([`Field::velocity`]; docs/VOLUME_LOOK.md section 2 says why).
     Velocity(Vec<[f32; 3]>),
-    /// Per-voxel density scale.
+    /// Per-voxel density scale parameters `s`; the density is multiplied by
+    /// their smooth version `1 + S (s − 1)` ([`Field::scale`]).
     Scale(Vec<f32>),
+}
+
+/// The scale the density is multiplied by, `1 + S (s − 1)`: the smoothed
+/// deviation from 1, so the grid's outside reads as "no change". Per-voxel
+/// scales drew small grid-aligned marks in dense smoke (docs/VOLUME_LOOK.md
+/// section 2), as per-voxel velocities drew blocks. `S` averages with
+/// non-negative weights summing to at most 1, so the result stays within
+/// `[smin, smax]` whenever 1 is inside it.
+fn smooth_scale(s: &[f32], dims: [usize; 3]) -> Vec<f32> {
+    let dev: Vec<f32> = s.iter().map(|v| v - 1.0).collect();
+    transport::tent_smooth_flat(&dev, 1, dims).iter().map(|v| v + 1.0).collect()
 }
 
 /// What [`Field::backward`] needs from [`Field::forward`]: the smoothed
@@ -111,7 +123,19 @@ impl Field {
         }
     }
 
-    /// `d* = T(d, field)`: `I(d, g + S w)` or `d · s`.
+    /// The scale `1 + S (s − 1)` that multiplies the density (density mode),
+    /// for a field on a grid of `dims` voxels; `None` for a velocity field.
+    ///
+    /// # Panics
+    /// If the field does not have one value per voxel of `dims`.
+    pub fn scale(&self, dims: [usize; 3]) -> Option<Vec<f32>> {
+        match self {
+            Field::Scale(s) => Some(smooth_scale(s, dims)),
+            Field::Velocity(_) => None,
+        }
+    }
+
+    /// `d* = T(d, field)`: `I(d, g + S w)` or `d · (1 + S (s − 1))`.
     pub fn transport(&self, d: &Grid3) -> Grid3 {
         self.forward(d).0
     }
@@ -124,7 +148,7 @@ impl Field {
                 let v = self.velocity(d.dims).expect("velocity field");
                 (transport::advect_linear(d, &v), Tape { velocity: Some(v) })
             }
-            Field::Scale(s) => (transport::modulate(d, s), Tape { velocity: None }),
+            Field::Scale(s) => (transport::modulate(d, &smooth_scale(s, d.dims)), Tape { velocity: None }),
         }
     }
 
@@ -151,7 +175,8 @@ impl Field {
             Field::Scale(s) => {
                 let mut g = vec![0.0f32; s.len()];
                 transport::modulate_backward(d, grad_out, &mut g);
-                g
+                // ∂L/∂s = S ∂L/∂s_eff (S is its own adjoint).
+                transport::tent_smooth_flat(&g, 1, d.dims)
             }
         }
     }

@@ -60,26 +60,36 @@ fn tent_line(out: &mut [f32], src: &[f32], stride: usize) {
 /// If `w.len()` is not the voxel count of `dims`.
 pub fn tent_smooth(w: &[[f32; 3]], dims: [usize; 3]) -> Vec<[f32; 3]> {
     assert_eq!(w.len(), dims.iter().product::<usize>(), "field length must match dims");
+    let out = tent_smooth_flat(w.as_flattened(), 3, dims);
+    out.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+}
+
+/// [`tent_smooth`] for a field of `comps` interleaved values per voxel
+/// (1 for a scalar field such as the density scale).
+///
+/// # Panics
+/// If `w.len()` is not `comps` times the voxel count of `dims`.
+pub fn tent_smooth_flat(w: &[f32], comps: usize, dims: [usize; 3]) -> Vec<f32> {
+    assert_eq!(w.len(), comps * dims.iter().product::<usize>(), "field length must match dims");
     let [nx, ny, nz] = dims;
-    let (row, plane) = (3 * nx, 3 * nx * ny);
-    let mut out = vec![[0f32; 3]; w.len()];
+    let (row, plane) = (comps * nx, comps * nx * ny);
+    let mut out = vec![0f32; w.len()];
     if w.is_empty() {
         return out;
     }
-    let src = w.as_flattened();
     // x, then y, inside each z-plane: the plane stays in cache.
-    let mut xy = vec![0f32; src.len()];
-    xy.par_chunks_mut(plane).zip(src.par_chunks(plane)).for_each_init(
+    let mut xy = vec![0f32; w.len()];
+    xy.par_chunks_mut(plane).zip(w.par_chunks(plane)).for_each_init(
         || vec![0f32; plane],
         |xs, (dst, s)| {
             for (o, r) in xs.chunks_mut(row).zip(s.chunks(row)) {
-                tent_line(o, r, 3);
+                tent_line(o, r, comps);
             }
             tent_line(dst, xs, row);
         },
     );
     // z: each output plane from three smoothed planes.
-    out.as_flattened_mut().par_chunks_mut(plane).enumerate().for_each(|(z, o)| {
+    out.par_chunks_mut(plane).enumerate().for_each(|(z, o)| {
         let at = |k: usize| &xy[k * plane..][..plane];
         let lo = (z > 0).then(|| at(z - 1));
         let hi = (z + 1 < nz).then(|| at(z + 1));
