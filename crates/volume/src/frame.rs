@@ -104,7 +104,7 @@ pub fn stylize_frame_file(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Re
     };
     let held_out_before = mean_loss(&loss, &padded, &held_out)?;
 
-    reporter.begin((s.octaves * s.iters) as u64);
+    reporter.begin((s.octaves * s.iterations()) as u64);
     let result = stylize_frame_views(&padded, &loss, &params, &views, &mut |p| {
         reporter.step(&format!(
             "octave {}/{} iteration {}/{} loss {:.4e}",

@@ -233,7 +233,7 @@ fn velocity_grid(
 /// contents, and each input frame's size and modification time.
 fn job_hash(s: &VolumeSettings, seq: &SequenceSettings, run_paths: &[PathBuf]) -> Result<u64> {
     let settings = format!(
-        "{:?}|{:?}|{:?}|{}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{}|{:?}|{}|{:?}|{:?}",
+        "{:?}|{:?}|{:?}|{}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{}|{:?}|{}|{:?}|{:?}|{}",
         s.input,
         Some(&seq.frames),
         seq.chunk,
@@ -263,6 +263,7 @@ fn job_hash(s: &VolumeSettings, seq: &SequenceSettings, run_paths: &[PathBuf]) -
         s.camera_seed,
         s.weights,
         s.upsample,
+        s.strength,
     );
     let mut read = vec![s.style.clone()];
     read.extend(s.camera_file.clone());
@@ -401,11 +402,11 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
     let mut store = if sim.is_empty() { None } else { Some(DiskStore::open(&work)?) };
     if let Some(store) = &mut store {
         let n = sim.len();
-        let per_octave = s.iters * n;
+        let per_octave = s.iterations() * n;
         let mut done_steps = 0;
         if let Some(r) = store.resume_point() {
-            done_steps = (r.octave * s.iters + r.sweeps_done) * n;
-            if r.octave + 1 == r.octaves && r.sweeps_done == s.iters {
+            done_steps = (r.octave * s.iterations() + r.sweeps_done) * n;
+            if r.octave + 1 == r.octaves && r.sweeps_done == s.iterations() {
                 reporter.status(&format!(
                     "optimisation already complete in {}; writing the missing frames",
                     work.display()
@@ -426,7 +427,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
                 "octave {} sweep {}/{} frame {} loss {:.4e}",
                 p.octave + 1,
                 p.iteration,
-                s.iters,
+                s.iterations(),
                 live[p.frame],
                 p.loss
             ))

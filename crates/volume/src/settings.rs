@@ -50,6 +50,12 @@ pub struct VolumeSettings {
     pub smax: f32,
     /// Style image scale factor (smaller = larger patterns).
     pub style_scale: f32,
+    /// The art-directable strength (1 = the defaults): below 1 it shrinks
+    /// how far the stylization may move the smoke (`vmax`) and how far it may
+    /// scale it from 1 (`[smin, smax]`) by this factor, keeping the shape;
+    /// above 1 it runs this many times the iterations (docs/VOLUME_LOOK.md,
+    /// "Art-directable strength").
+    pub strength: f32,
     /// Match the painting's colour Grams too, not only its luminance's.
     pub style_color: bool,
     /// VGG-19 layers whose Gram matrices are matched.
@@ -141,6 +147,7 @@ impl VolumeSettings {
             smin: 0.0,
             smax: 2.0,
             style_scale: 0.5,
+            strength: 1.0,
             style_color: false,
             layers: vec![VggLayer::Relu1_1, VggLayer::Relu2_1, VggLayer::Relu3_1, VggLayer::Relu4_1],
             absorption: None,
@@ -163,9 +170,12 @@ impl VolumeSettings {
         if self.octaves == 0 || self.iters == 0 {
             bail!("--octaves and --iters must be at least 1");
         }
-        for (name, v) in
-            [("--vmax", self.vmax.unwrap_or(1.0)), ("--fov", self.fov), ("--style-scale", self.style_scale)]
-        {
+        for (name, v) in [
+            ("--vmax", self.vmax.unwrap_or(1.0)),
+            ("--fov", self.fov),
+            ("--style-scale", self.style_scale),
+            ("--strength", self.strength),
+        ] {
             if !(v.is_finite() && v > 0.0) {
                 bail!("{name} must be a positive number, got {v}");
             }
@@ -194,16 +204,35 @@ impl VolumeSettings {
         FrameParams {
             mode: self.mode,
             octaves: self.octaves,
-            iterations: self.iters,
+            iterations: self.iterations(),
             learning_rate: lr,
-            limits: Limits { vmax, smin: self.smin, smax: self.smax },
+            limits: Limits {
+                vmax,
+                smin: 1.0 - self.reach() * (1.0 - self.smin),
+                smax: 1.0 + self.reach() * (self.smax - 1.0),
+            },
             view: view.clone(),
         }
     }
 
-    /// The default `vmax` for a box whose largest side is `extent` voxels.
+    /// Iterations (sweeps for a sequence) per octave: `iters`, times the
+    /// strength above 1.
+    pub fn iterations(&self) -> usize {
+        ((self.iters as f32 * self.strength.max(1.0)).round() as usize).max(1)
+    }
+
+    /// The strength's share of the limits: the strength up to 1.
+    fn reach(&self) -> f32 {
+        self.strength.min(1.0)
+    }
+
+    /// `vmax` for a box whose largest side is `extent` voxels: `--vmax`, or 4 %
+    /// of the side (at least 1 voxel), scaled by the strength up to 1.
     pub(crate) fn vmax_for(&self, extent: usize) -> f32 {
-        self.vmax.unwrap_or_else(|| (0.04 * extent as f32).max(1.0))
+        match self.vmax {
+            Some(v) => v * self.reach(),
+            None => (0.04 * extent as f32 * self.reach()).max(1.0),
+        }
     }
 
     /// Empty voxels around the box, so the velocity can move smoke outwards.
@@ -212,5 +241,30 @@ impl VolumeSettings {
             Mode::Velocity => vmax.ceil() as usize + 1,
             Mode::Density => 0,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `--strength` below 1 narrows the limits around "no change", above 1 adds
+    /// iterations, and explicit limits are scaled the same way.
+    #[test]
+    fn strength_scales_the_limits_or_the_iterations() {
+        let mut s = VolumeSettings::new("in.vdb", "p.jpg", "out.vdb");
+        let view = ViewSpec { camera: None, gamma: 1.0, exposure: 1.0, equalize: false };
+        assert_eq!((s.vmax_for(100), s.iterations()), (4.0, 20));
+        s.strength = 0.5;
+        let p = s.frame_params(s.vmax_for(100), &view);
+        assert_eq!((p.limits.vmax, p.limits.smin, p.limits.smax, p.iterations), (2.0, 0.5, 1.5, 20));
+        assert_eq!(s.vmax_for(10), 1.0, "at least one voxel by default");
+        s.vmax = Some(3.0);
+        assert_eq!(s.vmax_for(100), 1.5);
+        s.strength = 1.5;
+        let p = s.frame_params(s.vmax_for(100), &view);
+        assert_eq!((p.limits.vmax, p.limits.smin, p.limits.smax, p.iterations), (3.0, 0.0, 2.0, 30));
+        s.strength = 0.0;
+        assert!(s.check().is_err());
     }
 }

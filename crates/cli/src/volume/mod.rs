@@ -77,6 +77,12 @@ pub struct VolumeArgs {
     /// Style image scale factor (smaller = larger patterns).
     #[arg(long, default_value_t = 0.5)]
     pub style_scale: f32,
+    /// Strength of the look: `subtle` (0.5), `default` (1), `strong` (1.5) or
+    /// a number. Below 1 it shrinks --vmax and the density range around 1 by
+    /// that factor (the smoke keeps its shape); above 1 it runs that many
+    /// times the iterations (docs/VOLUME_LOOK.md, "Art-directable strength").
+    #[arg(long, default_value = "default", value_parser = parse_strength)]
+    pub strength: f32,
     /// Match the painting's colour statistics too (by default only its
     /// luminance: the renderer draws grey smoke, which cannot reach colour Grams).
     #[arg(long)]
@@ -198,6 +204,7 @@ impl VolumeArgs {
             smin: self.smin,
             smax: self.smax,
             style_scale: self.style_scale,
+            strength: self.strength,
             style_color: self.style_color,
             layers: self.layers,
             absorption: self.absorption,
@@ -213,6 +220,19 @@ impl VolumeArgs {
             upsample: self.upsample,
             sequence,
         }
+    }
+}
+
+/// `--strength`: a named look or a positive number.
+fn parse_strength(s: &str) -> Result<f32, String> {
+    match s {
+        "subtle" => Ok(0.5),
+        "default" => Ok(1.0),
+        "strong" => Ok(1.5),
+        _ => match s.parse::<f32>() {
+            Ok(v) if v.is_finite() && v > 0.0 && v <= 10.0 => Ok(v),
+            _ => Err(format!("'{s}' is not subtle, default, strong or a number in (0, 10]")),
+        },
     }
 }
 
