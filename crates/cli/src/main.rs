@@ -7,6 +7,7 @@
 mod bench;
 mod console;
 mod strands;
+mod train;
 mod volume;
 
 /// mimalloc keeps freed pages for reuse. With the system allocator every
@@ -39,6 +40,8 @@ enum Command {
     Preview(volume::preview::PreviewArgs),
     /// Stylize a hair or fur groom (strand style transfer, one frame).
     Strands(strands::StrandsArgs),
+    /// Train the feed-forward network (volumetric paper Sec. 4) for one painting.
+    Train(train::TrainArgs),
 }
 
 fn main() {
@@ -65,6 +68,7 @@ fn main() {
         Command::Bench(args) => bench::run(args),
         Command::Preview(args) => volume::preview::run(args),
         Command::Strands(args) => strands::run(args),
+        Command::Train(args) => train::run(args),
     };
     if let Err(e) = result {
         eprintln!("nst3d: error: {}", one_line(&e));

@@ -10,8 +10,10 @@
 #![warn(missing_docs)]
 
 pub mod bench;
+pub mod job;
 pub mod patch;
 pub mod step;
 
+pub use job::{train, TrainReport, TrainSettings};
 pub use patch::{rotated_patch, Rotation};
 pub use step::{Stylization, TrainStep};

@@ -103,6 +103,19 @@ impl TrainStep {
         self.steps
     }
 
+    /// Adam's moments and step count (for a checkpoint).
+    pub fn adam_state(&self) -> (&[f32], &[f32], u64) {
+        self.adam.state()
+    }
+
+    /// Restores a checkpoint's optimiser state; the trainer continues at
+    /// step `step`.
+    pub fn set_adam_state(&mut self, m: &[f32], v: &[f32], step: u64) -> Result<(), nst3d_optim::OptimError> {
+        self.adam.set_state(m, v, step)?;
+        self.steps = step;
+        Ok(())
+    }
+
     /// One step on `patch` (densities in `[0, 1]`, sides a multiple of 4)
     /// seen from `view`; returns the style loss before the update.
     pub fn step(&mut self, patch: &Grid3, loss: &ViewLoss, view: &ViewSpec) -> Result<f32, ViewError> {

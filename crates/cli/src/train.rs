@@ -1,0 +1,114 @@
+//! `nst3d train`: arguments → [`nst3d_train::TrainSettings`] → one library
+//! call → the printed report.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Result};
+use clap::Args;
+use nst3d_sequence::{expand_pattern, FrameSpec};
+use nst3d_stylize::Mode;
+use nst3d_train::TrainSettings;
+
+use crate::console::Console;
+
+/// Arguments of `nst3d train`.
+#[derive(Args)]
+pub struct TrainArgs {
+    /// Simulation frames: an OpenVDB file, or a pattern with `####` / `%04d`
+    /// together with --frames. Repeat for several simulations.
+    #[arg(long, required = true)]
+    input: Vec<String>,
+    /// Frames of each --input pattern, in the same order (e.g. `1-40`).
+    #[arg(long)]
+    frames: Vec<String>,
+    /// The painting.
+    #[arg(long)]
+    style: PathBuf,
+    /// The model file to write (`.safetensors`); a checkpoint `<out>.ckpt`
+    /// and the loss log `<out>.csv` go beside it.
+    #[arg(long)]
+    out: PathBuf,
+    /// density (a scale in [0, 2]) or velocity (vmax = 4 % of the patch).
+    #[arg(long, default_value = "density")]
+    mode: Mode,
+    /// Name of the density grid.
+    #[arg(long, default_value = "density")]
+    grid: String,
+    /// Network width C (2C at the low resolution).
+    #[arg(long, default_value_t = 16)]
+    channels: usize,
+    /// Patch side in voxels (a multiple of 4; the paper used 128 and 256 on a GPU).
+    #[arg(long, default_value_t = 32)]
+    patch: usize,
+    /// Steps of the OneCycle schedule.
+    #[arg(long, default_value_t = 2000)]
+    steps: u64,
+    /// Stop after this many minutes (a checkpoint is written; rerun to continue).
+    #[arg(long)]
+    minutes: Option<f64>,
+    /// Random rotation about x, ± degrees.
+    #[arg(long, default_value_t = 180.0)]
+    theta: f32,
+    /// Random rotation about y, ± degrees (the paper narrows it to 20 for some styles).
+    #[arg(long, default_value_t = 90.0)]
+    phi: f32,
+    /// Style image scale factor (smaller = larger patterns).
+    #[arg(long, default_value_t = 0.5)]
+    style_scale: f32,
+    /// Seed of the initial weights and the patch sampling.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Steps between checkpoints.
+    #[arg(long, default_value_t = 50)]
+    checkpoint_every: u64,
+    /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).
+    #[arg(long)]
+    weights: Option<PathBuf>,
+}
+
+/// Runs `nst3d train`.
+pub fn run(args: TrainArgs) -> Result<()> {
+    if !args.frames.is_empty() && args.frames.len() != args.input.len() {
+        bail!("give one --frames per --input ({} inputs, {} frame specs)", args.input.len(), args.frames.len());
+    }
+    let mut frames = Vec::new();
+    for (i, input) in args.input.iter().enumerate() {
+        match args.frames.get(i) {
+            Some(spec) => {
+                for &f in FrameSpec::parse(spec)?.frames() {
+                    frames.push(PathBuf::from(expand_pattern(input, f)?));
+                }
+            }
+            None => frames.push(PathBuf::from(input)),
+        }
+    }
+    let settings = TrainSettings {
+        frames,
+        grid: args.grid,
+        style: args.style,
+        style_scale: args.style_scale,
+        weights: args.weights,
+        velocity: matches!(args.mode, Mode::Velocity),
+        channels: args.channels,
+        patch: args.patch,
+        steps: args.steps,
+        minutes: args.minutes,
+        theta_deg: args.theta,
+        phi_deg: args.phi,
+        seed: args.seed,
+        out: args.out,
+        checkpoint_every: args.checkpoint_every,
+    };
+    let r = nst3d_train::train(&settings, &mut Console::default())?;
+    let how = if r.resumed_at > 0 { format!(" (resumed at step {})", r.resumed_at + 1) } else { String::new() };
+    let left = if r.steps < settings.steps { "; time budget reached, rerun to continue" } else { "" };
+    println!(
+        "trained {} of {} steps{how}; loss {:.4e} (first 10 %) -> {:.4e} (last 10 %){left}; wrote {}",
+        r.steps,
+        settings.steps,
+        r.loss_first,
+        r.loss_last,
+        r.out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,299 @@
+//! `nst3d train`: one network for one painting, trained on the frames of
+//! one or more simulations (Sec. 5.1), with a step budget and a wall-clock
+//! budget, a loss log, and a checkpoint after every `checkpoint_every`
+//! steps so a killed run resumes where it stopped. The checkpoint holds the
+//! weights, Adam's moments, the step and the random generator's state, so a
+//! resumed run continues exactly as an uninterrupted one on the same thread
+//! count would have.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use nst3d_core::{math::SplitMix64, Grid3, Reporter};
+use nst3d_features::Vgg19;
+use nst3d_network::{FeedForward, Model};
+use nst3d_optim::OneCycle;
+use nst3d_stylize::{StyleSpec, ViewLoss, ViewSpec};
+
+use crate::patch::{rotated_patch, Rotation};
+use crate::step::{Stylization, TrainStep};
+
+/// Everything `nst3d train` can be asked.
+#[derive(Clone, Debug)]
+pub struct TrainSettings {
+    /// Density frames to cut patches from (already expanded from patterns).
+    pub frames: Vec<PathBuf>,
+    /// Name of the float grid in each frame.
+    pub grid: String,
+    /// The painting.
+    pub style: PathBuf,
+    /// Style image scale factor.
+    pub style_scale: f32,
+    /// VGG-19 weights (`None`: `$NST3D_VGG19`, else the user cache).
+    pub weights: Option<PathBuf>,
+    /// Density scale or velocity output.
+    pub velocity: bool,
+    /// Network width `C`.
+    pub channels: usize,
+    /// Patch side (a multiple of 4).
+    pub patch: usize,
+    /// Steps of the OneCycle schedule (the run stops there).
+    pub steps: u64,
+    /// Wall-clock budget in minutes (the run stops after the step that crosses it).
+    pub minutes: Option<f64>,
+    /// Rotation range about x, degrees (±).
+    pub theta_deg: f32,
+    /// Rotation range about y, degrees (±).
+    pub phi_deg: f32,
+    /// Seed of the patch sampling and the initial weights.
+    pub seed: u64,
+    /// The model file written at the end (and with every checkpoint).
+    pub out: PathBuf,
+    /// Steps between checkpoints.
+    pub checkpoint_every: u64,
+}
+
+/// What a training run did.
+#[derive(Clone, Debug)]
+pub struct TrainReport {
+    /// Steps done in total (including those of earlier, resumed runs).
+    pub steps: u64,
+    /// Step this run started at (0 unless resumed).
+    pub resumed_at: u64,
+    /// Mean loss of the first and of the last 10 % of the steps.
+    pub loss_first: f32,
+    /// See `loss_first`.
+    pub loss_last: f32,
+    /// The model file.
+    pub out: PathBuf,
+}
+
+/// The checkpoint beside the model: `<out>.ckpt`.
+pub fn checkpoint_path(out: &Path) -> PathBuf {
+    let mut p = out.as_os_str().to_owned();
+    p.push(".ckpt");
+    PathBuf::from(p)
+}
+
+/// The loss log beside the model: `<out>.csv` (step, loss, learning rate).
+pub fn log_path(out: &Path) -> PathBuf {
+    out.with_extension("csv")
+}
+
+fn load_frames(s: &TrainSettings) -> Result<Vec<Grid3>> {
+    let mut out = Vec::new();
+    for path in &s.frames {
+        let file = nst3d_io::vdb::read_vdb(path)?;
+        let grid = file.grid(&s.grid).with_context(|| format!("{}: no grid named '{}'", path.display(), s.grid))?;
+        if grid.active_voxel_count() == 0 {
+            continue;
+        }
+        let (_, mut d) = grid.to_dense()?;
+        // Densities normalised to [0, 1] going in (Sec. 5.1).
+        let max = d.max();
+        if max > 0.0 {
+            d.data.iter_mut().for_each(|v| *v = (*v / max).clamp(0.0, 1.0));
+        }
+        // Frames smaller than a patch are padded with empty space.
+        let dims = d.dims.map(|n| n.max(s.patch));
+        if dims != d.dims {
+            let mut p = Grid3::zeros(dims);
+            for z in 0..d.dims[2] {
+                for y in 0..d.dims[1] {
+                    let (a, b) = (d.index(0, y, z), p.index(0, y, z));
+                    p.data[b..b + d.dims[0]].copy_from_slice(&d.data[a..a + d.dims[0]]);
+                }
+            }
+            d = p;
+        }
+        out.push(d);
+    }
+    if out.is_empty() {
+        bail!("none of the {} training frames has smoke in grid '{}'", s.frames.len(), s.grid);
+    }
+    Ok(out)
+}
+
+/// What must match for a checkpoint to be resumed.
+fn fingerprint(s: &TrainSettings) -> String {
+    format!(
+        "{:?}|{}|{:?}|{}|{}|{}|{}|{}|{}|{}|{}|{}",
+        s.frames,
+        s.grid,
+        s.style,
+        s.style_scale,
+        s.velocity,
+        s.channels,
+        s.patch,
+        s.steps,
+        s.theta_deg,
+        s.phi_deg,
+        s.seed,
+        rayon::current_num_threads()
+    )
+}
+
+struct Checkpoint {
+    net: FeedForward,
+    m: Vec<f32>,
+    v: Vec<f32>,
+    step: u64,
+    rng: u64,
+    losses: Vec<f32>,
+}
+
+fn save_checkpoint(path: &Path, s: &TrainSettings, t: &TrainStep, rng: &SplitMix64, losses: &[f32]) -> Result<()> {
+    let (m, v, adam_step) = t.adam_state();
+    let mut meta = BTreeMap::new();
+    meta.insert("fingerprint".to_string(), fingerprint(s));
+    meta.insert("step".to_string(), t.steps().to_string());
+    meta.insert("adam_step".to_string(), adam_step.to_string());
+    meta.insert("rng".to_string(), rng.state().to_string());
+    let model = Model { net: t.net.clone(), info: meta };
+    // The model's bytes then the optimiser's tensors, in one safetensors file.
+    let bytes = nst3d_weights::safetensors_bytes(
+        &[("adam.m", &[m.len()], m), ("adam.v", &[v.len()], v), ("losses", &[losses.len()], losses)],
+        &BTreeMap::new(),
+    );
+    nst3d_io::atomic::write_atomic(path, |w| {
+        let model = model.to_bytes();
+        w.write_all(&(model.len() as u64).to_le_bytes())?;
+        w.write_all(&model)?;
+        w.write_all(&bytes)
+    })
+    .with_context(|| format!("cannot write the checkpoint {}", path.display()))
+}
+
+fn load_checkpoint(path: &Path, s: &TrainSettings) -> Result<Option<Checkpoint>> {
+    let bytes = match std::fs::read(path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
+    };
+    let bad = || format!("{}: not a checkpoint of this nst3d (delete it to start over)", path.display());
+    let n = bytes.get(..8).map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")) as usize).with_context(bad)?;
+    let model_bytes = bytes.get(8..8usize.saturating_add(n)).with_context(bad)?;
+    let model = Model::from_bytes(model_bytes, path)?;
+    if model.info.get("fingerprint").map(String::as_str) != Some(fingerprint(s).as_str()) {
+        bail!(
+            "{}: a checkpoint of a different training run (other frames, painting, settings or thread count); delete it to start over",
+            path.display()
+        );
+    }
+    let (tensors, _) = nst3d_weights::parse_safetensors(&bytes[8 + n..], path)?;
+    let get = |k: &str| tensors.get(k).map(|t| t.data.clone()).with_context(bad);
+    let num = |k: &str| model.info.get(k).and_then(|v| v.parse::<u64>().ok()).with_context(bad);
+    Ok(Some(Checkpoint {
+        net: model.net,
+        m: get("adam.m")?,
+        v: get("adam.v")?,
+        step: num("step")?,
+        rng: num("rng")?,
+        losses: get("losses")?,
+    }))
+}
+
+/// Writes the model file and the loss log.
+fn write_outputs(
+    s: &TrainSettings,
+    t: &TrainStep,
+    losses: &[f32],
+    style_sha: &str,
+    style_size: [usize; 2],
+) -> Result<()> {
+    let mut info = BTreeMap::new();
+    info.insert("mode".to_string(), if s.velocity { "velocity" } else { "density" }.to_string());
+    if let Stylization::Velocity { vmax } = t.stylization {
+        info.insert("vmax_fraction".to_string(), (vmax / s.patch as f32).to_string());
+    }
+    info.insert("style_sha256".to_string(), style_sha.to_string());
+    info.insert("style_size".to_string(), format!("{}x{}", style_size[0], style_size[1]));
+    info.insert("style_scale".to_string(), s.style_scale.to_string());
+    info.insert("theta_deg".to_string(), s.theta_deg.to_string());
+    info.insert("phi_deg".to_string(), s.phi_deg.to_string());
+    info.insert("patch".to_string(), s.patch.to_string());
+    info.insert("steps".to_string(), t.steps().to_string());
+    info.insert("nst3d_version".to_string(), env!("CARGO_PKG_VERSION").to_string());
+    let bytes = Model { net: t.net.clone(), info }.to_bytes();
+    nst3d_io::atomic::write_atomic(&s.out, |w| w.write_all(&bytes))
+        .with_context(|| format!("cannot write the model {}", s.out.display()))?;
+    let log = log_path(&s.out);
+    nst3d_io::atomic::write_atomic(&log, |w| {
+        writeln!(w, "step,loss,lr")?;
+        for (i, l) in losses.iter().enumerate() {
+            writeln!(w, "{},{l},{}", i + 1, t.schedule.at(i as u64).0)?;
+        }
+        Ok(())
+    })
+    .with_context(|| format!("cannot write the loss log {}", log.display()))
+}
+
+/// Trains (or resumes training) the network `s` describes.
+pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainReport> {
+    if s.patch % 4 != 0 || !(16..=256).contains(&s.patch) {
+        bail!("--patch must be a multiple of 4 from 16 to 256, got {}", s.patch);
+    }
+    if !(1..=128).contains(&s.channels) || s.steps == 0 || s.checkpoint_every == 0 {
+        bail!("--channels must be 1..=128 and --steps and --checkpoint-every at least 1");
+    }
+    let frames = load_frames(s)?;
+    let style_img = nst3d_io::image::luminance_rgb(&nst3d_io::image::load_style(&s.style, s.style_scale)?);
+    let style_sha = nst3d_weights::sha256_file(&s.style)?;
+    let vgg = Vgg19::load(s.weights.as_deref())?;
+    let loss = ViewLoss::new(&vgg, &style_img, &StyleSpec::default())?;
+    let stylization =
+        if s.velocity { Stylization::Velocity { vmax: 0.04 * s.patch as f32 } } else { Stylization::Density };
+    let net = FeedForward::new(s.channels, stylization.channels(), s.seed);
+    let mut trainer = TrainStep::new(net, stylization, OneCycle::new(1e-4, s.steps, 20.0));
+    let mut rng = SplitMix64::new(s.seed ^ 0x7261_696e);
+    let mut losses = Vec::new();
+    let ckpt = checkpoint_path(&s.out);
+    if let Some(c) = load_checkpoint(&ckpt, s)? {
+        trainer.net = c.net;
+        trainer.set_adam_state(&c.m, &c.v, c.step)?;
+        rng = SplitMix64::new(c.rng);
+        losses = c.losses;
+        reporter.status(&format!("resuming at step {} of {} from {}", c.step + 1, s.steps, ckpt.display()));
+    }
+    let resumed_at = trainer.steps();
+    // γ = 8/P as the benchmark: the densest ray of a full patch gets optical depth ~8.
+    let view = ViewSpec { camera: None, gamma: 8.0 / s.patch as f32, exposure: 1.0, equalize: false };
+    let t0 = Instant::now();
+    reporter.begin(s.steps - resumed_at);
+    while trainer.steps() < s.steps {
+        let d = &frames[(rng.next_u64() % frames.len() as u64) as usize];
+        let origin: [usize; 3] = std::array::from_fn(|a| (rng.next_u64() % (d.dims[a] - s.patch + 1) as u64) as usize);
+        let rot = Rotation {
+            theta: (2.0 * rng.uniform_f32() - 1.0) * s.theta_deg.to_radians(),
+            phi: (2.0 * rng.uniform_f32() - 1.0) * s.phi_deg.to_radians(),
+            mirror: rng.uniform_f32() < 0.5,
+        };
+        let patch = rotated_patch(d, origin, s.patch, &rot);
+        let l = trainer.step(&patch, &loss, &view)?;
+        if !l.is_finite() {
+            bail!("the loss became {l} at step {} (try a smaller learning rate)", trainer.steps());
+        }
+        losses.push(l);
+        reporter.step(&format!("step {}/{} loss {l:.4e}", trainer.steps(), s.steps));
+        let out_of_time = s.minutes.is_some_and(|m| t0.elapsed().as_secs_f64() >= 60.0 * m);
+        if trainer.steps() % s.checkpoint_every == 0 || trainer.steps() == s.steps || out_of_time {
+            save_checkpoint(&ckpt, s, &trainer, &rng, &losses)?;
+            write_outputs(s, &trainer, &losses, &style_sha, [style_img.width, style_img.height])?;
+        }
+        if out_of_time {
+            break;
+        }
+    }
+    reporter.end();
+    let tenth = (losses.len() / 10).max(1);
+    let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len().max(1) as f32;
+    Ok(TrainReport {
+        steps: trainer.steps(),
+        resumed_at,
+        loss_first: mean(&losses[..tenth.min(losses.len())]),
+        loss_last: mean(&losses[losses.len().saturating_sub(tenth)..]),
+        out: s.out.clone(),
+    })
+}

@@ -1,0 +1,70 @@
+//! `train` end to end on real frames with the real VGG-19: a run killed
+//! after its first step and started again ends with the same model file,
+//! byte for byte, as an uninterrupted run; bad settings fail in one line.
+
+use std::path::{Path, PathBuf};
+
+use nst3d_core::Silent;
+use nst3d_train::{job::checkpoint_path, train, TrainSettings};
+
+fn shared(rel: &str) -> PathBuf {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
+    assert!(p.exists(), "shared test data missing: {} (the repo expects ../shared beside it)", p.display());
+    p
+}
+
+fn settings(out: &Path) -> TrainSettings {
+    TrainSettings {
+        frames: (20..=22).map(|f| shared(&format!("volumes/plume48/fluid_data_{f:04}.vdb"))).collect(),
+        grid: "density".into(),
+        style: shared("styles/starry_night.jpg"),
+        style_scale: 0.25,
+        weights: None,
+        velocity: false,
+        channels: 2,
+        patch: 16,
+        steps: 5,
+        minutes: None,
+        theta_deg: 180.0,
+        phi_deg: 90.0,
+        seed: 3,
+        out: out.to_path_buf(),
+        checkpoint_every: 2,
+    }
+}
+
+#[test]
+fn a_killed_run_resumes_to_the_same_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let whole = dir.path().join("whole.safetensors");
+    let r = train(&settings(&whole), &mut Silent).unwrap();
+    assert_eq!((r.steps, r.resumed_at), (5, 0));
+    assert!(r.loss_first.is_finite() && r.loss_last.is_finite());
+    let log = std::fs::read_to_string(whole.with_extension("csv")).unwrap();
+    assert_eq!(log.lines().count(), 6, "{log}");
+
+    // A zero-minute budget stops after the first step, as a kill would.
+    let parts = dir.path().join("parts.safetensors");
+    let mut s = settings(&parts);
+    s.minutes = Some(0.0);
+    assert_eq!(train(&s, &mut Silent).unwrap().steps, 1);
+    assert!(checkpoint_path(&parts).exists());
+    s.minutes = None;
+    let r = train(&s, &mut Silent).unwrap();
+    assert_eq!((r.steps, r.resumed_at), (5, 1));
+    assert_eq!(std::fs::read(&whole).unwrap(), std::fs::read(&parts).unwrap(), "resumed model differs");
+
+    // The model file says what it is and loads back.
+    let m = nst3d_network::Model::from_bytes(&std::fs::read(&whole).unwrap(), &whole).unwrap();
+    assert_eq!(m.info.get("mode").map(String::as_str), Some("density"));
+    assert_eq!(m.info.get("steps").map(String::as_str), Some("5"));
+
+    // Other settings refuse the checkpoint instead of mixing runs.
+    let mut other = settings(&parts);
+    other.seed = 4;
+    let e = train(&other, &mut Silent).unwrap_err().to_string();
+    assert!(e.contains("different training run"), "{e}");
+    let mut bad = settings(&dir.path().join("bad.safetensors"));
+    bad.patch = 18;
+    assert!(train(&bad, &mut Silent).unwrap_err().to_string().contains("--patch"));
+}
