@@ -15,6 +15,7 @@ pub mod bench;
 pub mod conv3d;
 pub mod feedforward;
 pub mod model;
+pub mod tiled;
 pub mod upsample;
 pub mod volume;
 
@@ -22,5 +23,6 @@ pub use activation::{leaky_relu, leaky_relu_backward, LEAKY_SLOPE};
 pub use conv3d::{Conv3d, Conv3dGrads};
 pub use feedforward::FeedForward;
 pub use model::{Model, ModelError};
+pub use tiled::{infer_tiled, RECEPTIVE_RADIUS};
 pub use upsample::{upsample2, upsample2_backward};
 pub use volume::Volume;
