@@ -17,6 +17,7 @@
 
 pub mod cameras;
 pub mod dense;
+pub mod feedforward;
 pub mod frame;
 pub mod look;
 pub mod output;
@@ -28,6 +29,7 @@ pub mod style;
 pub mod upsample;
 
 pub use cameras::{front_camera, turntable, CameraSet, Cameras, Lens};
+pub use feedforward::{stylize_with_model, ModelReport, ModelSettings};
 pub use frame::{stylize_frame_file, FrameReport};
 pub use look::PREVIEW_HEIGHT;
 pub use nst3d_core::{Reporter, Silent};
@@ -43,13 +45,17 @@ pub enum VolumeReport {
     Frame(FrameReport),
     /// A sequence (or chunk) was stylized, or had nothing left to do.
     Sequence(SequenceReport),
+    /// Frames were stylized by a trained network.
+    Model(ModelReport),
 }
 
-/// Runs the volume job `settings` describes: a sequence when it has
+/// Runs the volume job `settings` describes: with a trained model when it
+/// has [`VolumeSettings::model`], else a sequence when it has
 /// [`VolumeSettings::sequence`], else one frame.
 pub fn stylize(settings: &VolumeSettings, reporter: &mut dyn Reporter) -> anyhow::Result<VolumeReport> {
-    Ok(match settings.sequence {
-        Some(_) => VolumeReport::Sequence(stylize_sequence_files(settings, reporter)?),
-        None => VolumeReport::Frame(stylize_frame_file(settings, reporter)?),
+    Ok(match (&settings.model, &settings.sequence) {
+        (Some(m), _) => VolumeReport::Model(stylize_with_model(settings, m, reporter)?),
+        (None, Some(_)) => VolumeReport::Sequence(stylize_sequence_files(settings, reporter)?),
+        (None, None) => VolumeReport::Frame(stylize_frame_file(settings, reporter)?),
     })
 }

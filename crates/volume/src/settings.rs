@@ -9,6 +9,7 @@ use nst3d_features::VggLayer;
 use nst3d_render::Projection;
 use nst3d_stylize::{FrameParams, Limits, Mode, StyleSpec, ViewSpec};
 
+use crate::feedforward::ModelSettings;
 use crate::upsample::Upsample;
 
 /// Which index axis of a file points up: Blender caches are z-up, Houdini's y-up.
@@ -86,6 +87,9 @@ pub struct VolumeSettings {
     pub upsample: Upsample,
     /// Frames and temporal coherence when the input is a simulation.
     pub sequence: Option<SequenceSettings>,
+    /// Stylize with a trained feed-forward network instead of optimising
+    /// (frames independently; the style and optimiser settings are unused).
+    pub model: Option<ModelSettings>,
 }
 
 /// The sequence half of a volume job (paper Sec. 3.2, Algorithm 1), and
@@ -162,6 +166,7 @@ impl VolumeSettings {
             eval_cameras: None,
             upsample: Upsample::Auto,
             sequence: None,
+            model: None,
         }
     }
 

@@ -10,7 +10,7 @@ use clap::{Args, ValueEnum};
 use nst3d_features::VggLayer;
 use nst3d_render::Projection;
 use nst3d_stylize::Mode;
-use nst3d_volume::{SequenceReport, SequenceSettings, UpAxis, Upsample, VolumeReport, VolumeSettings};
+use nst3d_volume::{ModelSettings, SequenceReport, SequenceSettings, UpAxis, Upsample, VolumeReport, VolumeSettings};
 
 use crate::console::{plural, Console};
 
@@ -20,9 +20,9 @@ pub struct VolumeArgs {
     /// Input OpenVDB file.
     #[arg(long)]
     pub input: PathBuf,
-    /// Style painting (PNG or JPEG).
-    #[arg(long)]
-    pub style: PathBuf,
+    /// Style painting (PNG or JPEG); not needed with --model.
+    #[arg(long, required_unless_present = "model")]
+    pub style: Option<PathBuf>,
     /// Output OpenVDB file (written atomically).
     #[arg(long)]
     pub out: PathBuf,
@@ -52,9 +52,20 @@ pub struct VolumeArgs {
     /// Name of the float grid to stylize.
     #[arg(long, default_value = "density")]
     pub grid: String,
-    /// velocity (transport by an optimised velocity, eq. 2) or density (scale field, eq. 5).
-    #[arg(long, default_value = "velocity")]
-    pub mode: Mode,
+    /// velocity (transport by an optimised velocity, eq. 2) or density (scale
+    /// field, eq. 5); default velocity (with --model: the model's mode).
+    #[arg(long)]
+    pub mode: Option<Mode>,
+    /// A feed-forward model from `nst3d train`: stylize each frame with it in
+    /// one pass, from every viewpoint, no optimisation (paper Sec. 4).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// --model: tile side in voxels (memory follows it; Sec. 5.2).
+    #[arg(long, default_value_t = 128)]
+    pub tile: usize,
+    /// --model: context around each tile, in voxels (32 covers the network's reach).
+    #[arg(long, default_value_t = 32)]
+    pub tile_margin: usize,
     /// Octaves (coarse-to-fine levels).
     #[arg(long, default_value_t = 2)]
     pub octaves: usize,
@@ -192,11 +203,11 @@ impl VolumeArgs {
         });
         VolumeSettings {
             input: self.input,
-            style: self.style,
+            style: self.style.unwrap_or_default(),
             out: self.out,
             preview: self.preview,
             grid: self.grid,
-            mode: self.mode,
+            mode: self.mode.unwrap_or(Mode::Velocity),
             octaves: self.octaves,
             iters: self.iters,
             lr: self.lr,
@@ -219,6 +230,12 @@ impl VolumeArgs {
             eval_cameras: self.eval_cameras,
             upsample: self.upsample,
             sequence,
+            model: self.model.map(|path| ModelSettings {
+                path,
+                tile: self.tile,
+                margin: self.tile_margin,
+                mode: self.mode,
+            }),
         }
     }
 }
@@ -268,6 +285,15 @@ pub fn run(args: VolumeArgs) -> Result<()> {
                 r.out.display()
             );
         }
+        VolumeReport::Model(r) => println!(
+            "{} frame{} stylized by the {:?}-mode model ({:.2} Mvoxels/s in the network){}; wrote {}",
+            r.frames,
+            plural(r.frames),
+            r.mode,
+            r.voxels as f64 / r.seconds.max(1e-9) / 1e6,
+            if r.skipped > 0 { format!(", {} kept or copied unchanged", r.skipped) } else { String::new() },
+            r.out
+        ),
         VolumeReport::Sequence(SequenceReport::NothingToDo { frames, start, end }) => {
             println!("all {frames} frames {start}-{end} already exist; nothing to do (--force redoes them)");
         }
