@@ -53,8 +53,9 @@ pub fn infer_tiled(net: &FeedForward, x: &Volume, tile: usize, margin: usize) ->
                     for z in lo[2]..hi[2] {
                         for y in lo[1]..hi[1] {
                             let dst = c * n_out + (z * dims[1] + y) * dims[0];
-                            let src = c * n_reg + ((z - from[2]) * size[1] + (y - from[1])) * size[0] - from[0];
-                            out.data[dst + lo[0]..dst + hi[0]].copy_from_slice(&o.data[src + lo[0]..src + hi[0]]);
+                            let src = c * n_reg + ((z - from[2]) * size[1] + (y - from[1])) * size[0];
+                            let (a, b) = (lo[0] - from[0], hi[0] - from[0]);
+                            out.data[dst + lo[0]..dst + hi[0]].copy_from_slice(&o.data[src + a..src + b]);
                         }
                     }
                 }
