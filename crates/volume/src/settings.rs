@@ -98,7 +98,9 @@ pub struct VolumeSettings {
 pub struct SequenceSettings {
     /// Frames, e.g. `1-120` or `1-3,5,7-20:2`.
     pub frames: String,
-    /// EMA weight α of eq. 4.
+    /// EMA weight α of eq. 4 (0.8: at 0.7 the shared plume kept 0.51x of
+    /// per-frame flicker, at 0.8 every plume measured is under 0.5x;
+    /// docs/SEQUENCES.md).
     pub ema: f32,
     /// Each octave's first sweep runs without EMA blending (docs/FARM.md);
     /// `false` runs Algorithm 1 exactly as printed.
@@ -122,7 +124,7 @@ impl Default for SequenceSettings {
     fn default() -> Self {
         Self {
             frames: String::new(),
-            ema: 0.7,
+            ema: 0.8,
             ema_settle: true,
             velocity_grid: None,
             velocity_scale: None,

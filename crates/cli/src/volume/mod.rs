@@ -33,8 +33,9 @@ pub struct VolumeArgs {
     /// then --input and --out are patterns with `####` or `%04d`.
     #[arg(long)]
     pub frames: Option<String>,
-    /// EMA weight α of the temporal coherence (eq. 4), sequences only.
-    #[arg(long, default_value_t = 0.7)]
+    /// EMA weight α of the temporal coherence (eq. 4), sequences only; 0
+    /// stylizes every frame on its own (docs/SEQUENCES.md says why 0.8).
+    #[arg(long, default_value_t = 0.8)]
     pub ema: f32,
     /// Let each octave's first sweep run without EMA blending (on by
     /// default: it makes farm chunks meet at their seams and cuts flicker
