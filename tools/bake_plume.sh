@@ -19,7 +19,7 @@
 # the two plumes of docs/SEQUENCES.md "EMA 0 vs 0.7, measured":
 #
 #   bash tools/bake_plume.sh /work/data/plumeA 64 48 --offset 0.4 0.25 --vorticity 0.3
-#   bash tools/bake_plume.sh /work/data/plumeB 56 48 --offset -0.3 0 --radius 0.2 \
+#   bash tools/bake_plume.sh /work/data/plumeB 56 48 --offset -0.4 0 --radius 0.2 \
 #       --velocity 1.5 0 0 --alpha 2 --beta 3 --vorticity 0.15
 #
 # Options: --offset X Y, --radius R, --vorticity V, --velocity VX VY VZ,
