@@ -54,7 +54,8 @@ if [ -d "$out/data" ] && [ -n "$(ls -A "$out/data")" ]; then
   echo "bake_plume: $out/data is not empty; remove it to bake again" >&2
   exit 1
 fi
-blender -b --factory-startup --python-exit-code 1 --python "$script" -- "$out" "$res" "$frames" "$@" >"$out/bake.log" 2>&1 \
+# From OUTDIR: with --noise Mantaflow writes waveletNoiseTile.bin into the current folder.
+(cd "$out" && blender -b --factory-startup --python-exit-code 1 --python "$script" -- "$out" "$res" "$frames" "$@") >"$out/bake.log" 2>&1 \
   || { tail -20 "$out/bake.log" >&2; exit 1; }
 n=$(ls "$out/data"/fluid_data_*.vdb 2>/dev/null | wc -l)
 if [ "$n" -ne "$frames" ]; then
