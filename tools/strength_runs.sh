@@ -1,7 +1,11 @@
 #!/usr/bin/env bash
 # Runs the settings of docs/VOLUME_LOOK.md "Art-directable strength" one at
-# a time and prints one line per run: name, optimised-view loss before ->
-# after (ratio), held-out ring:6:30 mean loss before -> after (ratio).
+# a time and prints one line per run: name, UTC time, optimised-view loss
+# before -> after (ratio), held-out ring:6:30 mean loss before -> after
+# (ratio). v_k* and d_k* are the --strength knob; *_omni are the
+# --cameras omniview:16 rows of "Style strength from the optimised view
+# and from views it never saw" (there the optimised loss is the sum over
+# the 16 cameras).
 #
 #     bash tools/strength_runs.sh NST3D_BINARY OUT_DIR [NAME ...]
 #
@@ -53,6 +57,16 @@ v_vmax6_it30|--mode velocity --vmax 5.76 --iters 30
 d_s0713|--mode density --smin 0.75 --smax 1.25
 d_s0025_it30|--mode density --smin 0 --smax 2.5 --iters 30
 d_s0030_it40|--mode density --smin 0 --smax 3 --iters 40
+v_k0.5|--mode velocity --strength 0.5
+v_k1|--mode velocity --strength 1
+v_k1.5|--mode velocity --strength 1.5
+v_k2|--mode velocity --strength 2
+d_k0.5|--mode density --strength 0.5
+d_k1|--mode density --strength 1
+d_k1.5|--mode density --strength 1.5
+d_k2|--mode density --strength 2
+v_omni|--mode velocity --cameras omniview:16
+d_omni|--mode density --cameras omniview:16
 '
 
 ratio() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.3f", b / a }'; }

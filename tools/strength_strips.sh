@@ -14,9 +14,10 @@ cd "$(dirname "$0")/.."
 O=docs/img
 strip() { "$PY" tools/strip.py "$@"; }
 
-strip $O/strength_knob.png --before \
-  --row velocity $S/v_vmax1.png=0.25 $S/v_vmax1.92.png=0.5 $S/v_def.png="1 (default)" $S/v_it30.png=1.5 $S/v_it40.png=2 \
-  --row density $S/d_s0713.png=0.25 $S/d_s0515.png=0.5 $S/d_def.png="1 (default)" $S/d_it30.png=1.5 $S/d_it40.png=2
+strip $O/strength_knob_velocity.png --before \
+  $S/v_k0.5.png="0.5 subtle" $S/v_k1.png="1 default" $S/v_k1.5.png="1.5 strong" $S/v_k2.png=2
+strip $O/strength_knob_density.png --before \
+  $S/d_k0.5.png="0.5 subtle" $S/d_k1.png="1 default" $S/d_k1.5.png="1.5 strong" $S/d_k2.png=2
 strip $O/strength_style_scale.png --before \
   --row velocity $S/v_ss025.png=0.25 $S/v_def.png="0.5 (default)" $S/v_ss100.png=1.0 \
   --row density $S/d_ss025.png=0.25 $S/d_def.png="0.5 (default)" $S/d_ss100.png=1.0

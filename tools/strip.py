@@ -15,6 +15,12 @@ width and the painting's aspect (--style, default Starry Night). Each
 "before" panel at the start of every row. Panels are scaled to --height
 rows and the strip is written as a 8-bit grey PNG, small enough for docs.
 
+    python tools/strip.py --sheet SHEET.png OUT.png
+
+writes a whole preview sheet (before | after | painting) as a grey PNG,
+the smoke at 128 greys and the painting at 32, about 150 KB
+(docs/VOLUME_LOOK.md, "The look at the defaults").
+
     python tools/strip.py --measure SHEET.png ...
 
 prints, for each sheet, numbers that go with the pictures: the silhouette
@@ -76,6 +82,17 @@ def measure(path, aspect):
           f"rows {rows:.3f} (input {rows_in:.3f})  cols {cols:.3f}  centre line {centre:.3f} vs {top:.3f}")
 
 
+def sheet(path, out, aspect):
+    """The whole sheet in grey: smoke panels at 128 levels, painting at 32."""
+    im = Image.open(path).convert("L")
+    before, _ = panels(im, aspect)
+    a = np.asarray(im, dtype=np.float64)
+    q = lambda x, n: np.round(x / 255 * (n - 1)) * (255 / (n - 1))
+    half = 2 * before.width
+    a[:, :half], a[:, half:] = q(a[:, :half], 128), q(a[:, half:], 32)
+    Image.fromarray(a.astype(np.uint8), "L").save(out, optimize=True)
+
+
 def font(size):
     for name in ("DejaVuSans.ttf", "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf"):
         try:
@@ -89,6 +106,9 @@ def main():
     argv = sys.argv[1:]
     if not argv or argv[0] in ("-h", "--help"):
         sys.exit(__doc__)
+    if argv[0] == "--sheet":
+        sheet(argv[1], argv[2], 1024 / 640)
+        return
     if argv[0] == "--measure":
         for path in argv[1:]:
             measure(path, 1024 / 640)
