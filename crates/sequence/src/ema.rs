@@ -229,7 +229,7 @@ pub fn stylize_sequence_with(
             // Carry fields up from the coarser octave; fresh Adam moments.
             for t in 0..n {
                 let field = match store.load(t)? {
-                    None => Field::identity(fp.mode, here.iter().product()),
+                    None => Field::initial(fp.mode, here.iter().product()),
                     Some(s) => s.field.resize(dims[level + 1], here),
                 };
                 let len = field.len();

@@ -76,6 +76,26 @@ impl Field {
         }
     }
 
+    /// The identity plus a tiny fixed pseudo-random perturbation (1/100 of a
+    /// voxel, or of the scale), the start of every optimisation.
+    ///
+    /// Why not exactly the identity: started at exactly zero, velocity mode
+    /// drew a line down the middle of mirror-symmetric smoke (a centred
+    /// source seen by the centred front camera: smoke_000002's cap and stem,
+    /// plume48's stem, where it also showed as box-like bars), and this
+    /// perturbation removes it (docs/VOLUME_LOOK.md, "The centre line").
+    /// Two things a symmetric start keeps: the two mirrored halves of the
+    /// pattern meeting on the axis, and every sample sitting exactly on a
+    /// voxel centre, where trilinear sampling has a kink and the first
+    /// gradient is one-sided. The perturbation is seeded, so results stay
+    /// reproducible, and far below anything visible.
+    pub fn initial(mode: Mode, voxels: usize) -> Self {
+        let mut f = Self::identity(mode, voxels);
+        let mut rng = nst3d_core::math::SplitMix64::new(0x5eed);
+        f.params_mut().iter_mut().for_each(|p| *p += 0.01 * (2.0 * rng.uniform_f32() - 1.0));
+        f
+    }
+
     /// Number of scalar parameters.
     pub fn len(&self) -> usize {
         self.params().len()

@@ -141,7 +141,7 @@ pub fn stylize_frame_views(
         let factor = (1usize << (octaves - 1 - k)) as f32;
         let level_views: Vec<ViewSpec> = views.iter().map(|v| view_at(v, factor)).collect();
         let mut f = match field.take() {
-            None => Field::identity(params.mode, level.len()),
+            None => Field::initial(params.mode, level.len()),
             Some((f, dims)) => f.resize(dims, level.dims),
         };
         let vmax_here = params.limits.vmax / factor;
