@@ -160,10 +160,8 @@ pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut 
             let spec = FrameSpec::parse(&seq.frames)?;
             let frames: Vec<i64> = match &seq.chunk {
                 Some(c) => {
-                    let (a, b) = c
-                        .split_once('-')
-                        .and_then(|(a, b)| Some((a.parse().ok()?, b.parse().ok()?)))
-                        .with_context(|| format!("--chunk must be START-END, got {c}"))?;
+                    // The same chunk syntax and checks as optimised sequences.
+                    let (a, b) = crate::sequence::parse_chunk(c)?;
                     spec.within(a, b)
                 }
                 None => spec.frames().to_vec(),

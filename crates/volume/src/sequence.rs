@@ -121,7 +121,7 @@ fn plan(s: &VolumeSettings, seq: &SequenceSettings) -> Result<Plan> {
 }
 
 /// A farm chunk: `START-END` (frame numbers, inclusive).
-fn parse_chunk(s: &str) -> Result<(i64, i64)> {
+pub(crate) fn parse_chunk(s: &str) -> Result<(i64, i64)> {
     let spec = FrameSpec::parse(s).with_context(|| format!("--chunk '{s}'"))?;
     let f = spec.frames();
     if f.len() != (f[f.len() - 1] - f[0] + 1) as usize {
