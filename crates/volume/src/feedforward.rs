@@ -15,7 +15,7 @@ use nst3d_sequence::{expand_pattern, FrameSpec};
 use nst3d_stylize::Mode;
 use nst3d_train::step::{apply, Stylization};
 
-use crate::dense::pad;
+use crate::dense::{pad, paste};
 use crate::output::write_stylized;
 use crate::settings::VolumeSettings;
 
@@ -92,29 +92,20 @@ fn stylize_density(model: &Model, mode: Mode, vmax: f32, d: &Grid3, m: &ModelSet
     if !(max > 0.0) {
         return d.clone();
     }
-    // The network maps sides that are multiples of 4 onto themselves.
-    let dims = d.dims.map(|n| n.next_multiple_of(4));
-    let mut x = Volume::zeros(1, dims);
-    for z in 0..d.dims[2] {
-        for y in 0..d.dims[1] {
-            let (a, b) = (d.index(0, y, z), (z * dims[1] + y) * dims[0]);
-            x.data[b..b + d.dims[0]].iter_mut().zip(&d.data[a..a + d.dims[0]]).for_each(|(o, v)| *o = v / max);
-        }
-    }
-    let o = infer_tiled(&model.net, &x, m.tile, m.margin);
-    let xg = Grid3::from_vec(dims, x.data);
+    // The network maps sides that are multiples of 4 onto themselves: the
+    // frame goes into the corner of such a box, normalised, and comes back out.
+    let mut xg = Grid3::zeros(d.dims.map(|n| n.next_multiple_of(4)));
+    paste(d, [0; 3], &mut xg, [0; 3]);
+    xg.data.iter_mut().for_each(|v| *v /= max);
+    let o = infer_tiled(&model.net, &Volume::from_grid(&xg), m.tile, m.margin);
     let how = match mode {
         Mode::Density => Stylization::Density,
         Mode::Velocity => Stylization::Velocity { vmax },
     };
-    let styled = apply(&xg, &o, how);
+    let mut styled = apply(&xg, &o, how);
+    styled.data.iter_mut().for_each(|v| *v *= max);
     let mut out = Grid3::zeros(d.dims);
-    for z in 0..d.dims[2] {
-        for y in 0..d.dims[1] {
-            let (a, b) = (out.index(0, y, z), (z * dims[1] + y) * dims[0]);
-            out.data[a..a + d.dims[0]].iter_mut().zip(&styled.data[b..b + d.dims[0]]).for_each(|(o, v)| *o = v * max);
-        }
-    }
+    paste(&styled, [0; 3], &mut out, [0; 3]);
     out
 }
 
