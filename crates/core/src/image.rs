@@ -36,3 +36,53 @@ impl Image {
         &self.data[c * p..(c + 1) * p]
     }
 }
+
+/// How the values of a `C x P` feature matrix lie in memory.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// Channel-major, PyTorch's `(C, H, W)`: element `(c, p)` at `c · P + p`.
+    Planar,
+    /// Pixel-major, `(H, W, C)`: element `(c, p)` at `p · C + c`. This is how
+    /// the VGG network keeps its activations, and the layout in which a
+    /// Gram product `F Fᵀ` streams both operands contiguously.
+    ChannelsLast,
+}
+
+/// A layer's features borrowed as the `C x P` matrix `F` of the Gram
+/// formulas (`P = height · width` pixels), in either [`Layout`], so a loss
+/// can read the network's activations where they lie instead of copying
+/// them into planar images.
+#[derive(Clone, Copy, Debug)]
+pub struct FeatureView<'a> {
+    /// Channels `C`.
+    pub channels: usize,
+    /// Rows of the feature map.
+    pub height: usize,
+    /// Columns of the feature map.
+    pub width: usize,
+    /// Memory layout of `data`.
+    pub layout: Layout,
+    /// `C · height · width` values.
+    pub data: &'a [f32],
+}
+
+impl FeatureView<'_> {
+    /// Pixels `P` per channel.
+    pub fn pixels(&self) -> usize {
+        self.height * self.width
+    }
+
+    /// (row, column) strides of `F` as a `C x P` matrix in `data`.
+    pub fn strides(&self) -> (usize, usize) {
+        match self.layout {
+            Layout::Planar => (self.pixels(), 1),
+            Layout::ChannelsLast => (1, self.channels),
+        }
+    }
+}
+
+impl<'a> From<&'a Image> for FeatureView<'a> {
+    fn from(img: &'a Image) -> Self {
+        Self { channels: img.channels, height: img.height, width: img.width, layout: Layout::Planar, data: &img.data }
+    }
+}

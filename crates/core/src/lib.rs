@@ -18,6 +18,6 @@ pub mod report;
 
 pub use grid::Grid3;
 pub use groom::{Groom, GroomError, Strand, StrandSpline};
-pub use image::Image;
+pub use image::{FeatureView, Image, Layout};
 pub use mesh::TriMesh;
 pub use report::{Reporter, Silent};

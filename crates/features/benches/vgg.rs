@@ -6,7 +6,7 @@
 
 use std::time::Instant;
 
-use nst3d_core::{gradcheck::pseudo_random, Image};
+use nst3d_core::{gradcheck::pseudo_random, FeatureView, Image};
 use nst3d_features::{Vgg19, VggFlavor, VggLayer};
 
 fn main() {
@@ -24,12 +24,10 @@ fn main() {
             let f = net.forward(&img, &taps, true);
             let t1 = Instant::now();
             // d(sum of squares)/d tap = 2 * tap, like the PyTorch script's loss.
-            let grads: Vec<Image> = f
-                .taps()
-                .iter()
-                .map(|t| Image::from_vec(t.channels, t.height, t.width, t.data.iter().map(|v| 2.0 * v).collect()))
-                .collect();
-            let g = net.backward(&f, &grads);
+            let grads: Vec<Vec<f32>> = f.features().iter().map(|t| t.data.iter().map(|v| 2.0 * v).collect()).collect();
+            let views: Vec<FeatureView> =
+                f.features().iter().zip(&grads).map(|(t, g)| FeatureView { data: g, ..*t }).collect();
+            let g = net.backward(&f, &views);
             let t2 = Instant::now();
             std::hint::black_box(g);
             ((t1 - t0).as_secs_f64() * 1e3, (t2 - t1).as_secs_f64() * 1e3)

@@ -4,7 +4,7 @@
 //! a Winograd tile then reads and writes whole 16-lane channel vectors, and
 //! planar `nst3d_core::Image`s are produced only at the requested taps.
 
-use nst3d_core::Image;
+use nst3d_core::{FeatureView, Image, Layout};
 use rayon::prelude::*;
 
 use crate::simd::dispatch;
@@ -45,22 +45,27 @@ impl FeatureMap {
 
     /// Channels-last copy of a planar image.
     pub fn from_image(img: &Image) -> Self {
-        let (c, plane) = (img.channels, img.plane());
-        let mut data = take_buffer(img.data.len());
+        Self::from_planar(img.channels, img.height, img.width, &img.data)
+    }
+
+    /// Channels-last copy of planar `(C, H, W)` values, in a pooled buffer.
+    fn from_planar(c: usize, height: usize, width: usize, planar: &[f32]) -> Self {
+        let plane = height * width;
+        let mut data = take_buffer(planar.len());
         // Rows of pixels in parallel; each pixel gathers its channels.
-        data.spare_capacity_mut()[..img.data.len()].par_chunks_mut((img.width * c).max(1)).enumerate().for_each(
+        data.spare_capacity_mut()[..planar.len()].par_chunks_mut((width * c).max(1)).enumerate().for_each(
             |(y, row)| {
-                for x in 0..img.width {
-                    let p = y * img.width + x;
+                for x in 0..width {
+                    let p = y * width + x;
                     for ch in 0..c {
-                        row[x * c + ch].write(img.data[ch * plane + p]);
+                        row[x * c + ch].write(planar[ch * plane + p]);
                     }
                 }
             },
         );
         // SAFETY: every element was written above.
-        unsafe { data.set_len(img.data.len()) };
-        Self { height: img.height, width: img.width, channels: c, data }
+        unsafe { data.set_len(planar.len()) };
+        Self { height, width, channels: c, data }
     }
 
     /// Planar (PyTorch `(C, H, W)`) copy.
@@ -94,10 +99,33 @@ impl FeatureMap {
         recycle(self.data);
     }
 
-    /// Adds `other` element-wise (same shape).
-    pub(crate) fn add_assign(&mut self, other: &FeatureMap) {
-        assert_eq!(self.data.len(), other.data.len(), "feature map shapes differ");
-        self.data.par_chunks_mut(1 << 14).zip(other.data.par_chunks(1 << 14)).for_each(|(a, b)| {
+    /// This map as the `C x P` feature matrix of a loss (channels-last).
+    pub fn view(&self) -> FeatureView<'_> {
+        FeatureView {
+            channels: self.channels,
+            height: self.height,
+            width: self.width,
+            layout: Layout::ChannelsLast,
+            data: &self.data,
+        }
+    }
+
+    /// A channels-last copy of `v` in a pooled buffer, whatever its layout.
+    pub(crate) fn from_view(v: FeatureView<'_>) -> Self {
+        match v.layout {
+            Layout::ChannelsLast => {
+                let mut data = take_buffer(v.data.len());
+                data.extend_from_slice(v.data);
+                Self { height: v.height, width: v.width, channels: v.channels, data }
+            }
+            Layout::Planar => Self::from_planar(v.channels, v.height, v.width, v.data),
+        }
+    }
+
+    /// Adds channels-last values element-wise (same shape).
+    pub(crate) fn add_assign_slice(&mut self, other: &[f32]) {
+        assert_eq!(self.data.len(), other.len(), "feature map shapes differ");
+        self.data.par_chunks_mut(1 << 14).zip(other.par_chunks(1 << 14)).for_each(|(a, b)| {
             for (x, y) in a.iter_mut().zip(b) {
                 *x += y;
             }

@@ -2,8 +2,9 @@
 
 use std::fmt;
 use std::str::FromStr;
+use std::sync::OnceLock;
 
-use nst3d_core::Image;
+use nst3d_core::{FeatureView, Image, Layout};
 use nst3d_weights::TensorMap;
 
 use crate::conv::{Conv1x1, Conv3x3, ConvAlgorithm};
@@ -140,15 +141,34 @@ struct Record {
 /// Result of [`Vgg19::forward`]: features at the requested taps.
 pub struct VggForward {
     layers: Vec<VggLayer>,
-    taps: Vec<Image>,
+    /// The taps' activations when there is no [`Record`] to read them from.
+    maps: Vec<FeatureMap>,
+    /// Planar copies of the taps, made on first request.
+    planar: OnceLock<Vec<Image>>,
     input_size: (usize, usize),
     record: Option<Record>,
 }
 
 impl VggForward {
-    /// Feature maps (planar `C x H x W`), in the order the taps were requested.
+    /// Feature maps (planar `C x H x W`), in the order the taps were
+    /// requested. Copied from the network's channels-last activations on
+    /// first use; a loss that can read [`VggForward::features`] avoids that.
     pub fn taps(&self) -> &[Image] {
-        &self.taps
+        self.planar.get_or_init(|| (0..self.layers.len()).map(|k| self.map(k).to_image()).collect())
+    }
+
+    /// The taps as `C x P` feature matrices where the network keeps them
+    /// (channels-last), same order as [`VggForward::taps`]; no copy.
+    pub fn features(&self) -> Vec<FeatureView<'_>> {
+        (0..self.layers.len()).map(|k| self.map(k).view()).collect()
+    }
+
+    /// Activation of tap `k`.
+    fn map(&self, k: usize) -> &FeatureMap {
+        match &self.record {
+            Some(rec) => &rec.acts[self.layers[k].conv_index()],
+            None => &self.maps[k],
+        }
     }
 
     /// The requested taps, same order as [`VggForward::taps`].
@@ -309,10 +329,12 @@ impl Vgg19 {
         assert!(rgb.height >= 2 && rgb.width >= 2, "VGG-19 input must be at least 2x2");
         let mut out = VggForward {
             layers: taps.to_vec(),
-            taps: vec![Image::zeros(0, 0, 0); taps.len()],
+            maps: Vec::new(),
+            planar: OnceLock::new(),
             input_size: (rgb.height, rgb.width),
             record: None,
         };
+        let mut maps: Vec<Option<FeatureMap>> = vec![None; taps.len()];
         let Some(deepest) = taps.iter().map(|l| l.conv_index()).max() else { return out };
         let mut acts: Vec<FeatureMap> = Vec::with_capacity(deepest + 1);
         let mut pools = Vec::new();
@@ -330,9 +352,12 @@ impl Vgg19 {
             if let Some(x) = x.take() {
                 x.recycle();
             }
-            for (slot, l) in out.taps.iter_mut().zip(taps) {
-                if l.conv_index() == i {
-                    *slot = y.to_image();
+            if !keep {
+                // With a record the taps are read from it; without, keep a copy.
+                for (slot, l) in maps.iter_mut().zip(taps) {
+                    if l.conv_index() == i {
+                        *slot = Some(y.clone());
+                    }
                 }
             }
             if POOL_AFTER.contains(&i) && i < deepest {
@@ -354,14 +379,15 @@ impl Vgg19 {
             out.record = Some(Record { acts, pools });
         } else {
             acts.into_iter().for_each(FeatureMap::recycle);
+            out.maps = maps.into_iter().map(|m| m.expect("every tap is at or above the deepest layer")).collect();
         }
         out
     }
 
     /// Gradient w.r.t. the input RGB image from gradients at the taps (same
-    /// order and shapes as `fwd.taps()`). `fwd` must come from
-    /// [`Vgg19::forward`] with `keep = true`.
-    pub fn backward(&self, fwd: &VggForward, tap_grads: &[Image]) -> Image {
+    /// order and shapes as `fwd.taps()`, in either layout; channels-last is
+    /// used as it is). `fwd` must come from [`Vgg19::forward`] with `keep = true`.
+    pub fn backward(&self, fwd: &VggForward, tap_grads: &[FeatureView<'_>]) -> Image {
         let rec = fwd.record.as_ref().expect("Vgg19::backward needs a forward pass run with keep = true");
         assert_eq!(tap_grads.len(), fwd.layers.len(), "one gradient per tap");
         let (h, w) = fwd.input_size;
@@ -377,13 +403,14 @@ impl Vgg19 {
                         (a.channels, a.height, a.width),
                         "gradient shape at {l}"
                     );
-                    let tg = FeatureMap::from_image(tg);
-                    match g.as_mut() {
-                        Some(g) => {
-                            g.add_assign(&tg);
+                    match (g.as_mut(), tg.layout) {
+                        (Some(g), Layout::ChannelsLast) => g.add_assign_slice(tg.data),
+                        (Some(g), Layout::Planar) => {
+                            let tg = FeatureMap::from_view(*tg);
+                            g.add_assign_slice(&tg.data);
                             tg.recycle();
                         }
-                        None => g = Some(tg),
+                        (None, _) => g = Some(FeatureMap::from_view(*tg)),
                     }
                 }
             }
@@ -410,6 +437,7 @@ impl Drop for VggForward {
         if let Some(rec) = self.record.take() {
             rec.acts.into_iter().for_each(FeatureMap::recycle);
         }
+        std::mem::take(&mut self.maps).into_iter().for_each(FeatureMap::recycle);
     }
 }
 
@@ -438,14 +466,11 @@ mod tests {
             let x = Image::from_vec(3, h, w, pseudo_random(3 * h * w, 4).iter().map(|v| 0.5 + 0.4 * v).collect());
             let taps = [VggLayer::Relu1_1, VggLayer::Relu2_1, VggLayer::Relu3_1, VggLayer::Relu4_1];
             let f = net.forward(&x, &taps, true);
+            // Probes on the channels-last features, the layout the style loss passes back.
             let probes: Vec<Vec<f32>> =
-                f.taps().iter().enumerate().map(|(k, t)| pseudo_random(t.data.len(), 10 + k as u64)).collect();
-            let grads: Vec<Image> = f
-                .taps()
-                .iter()
-                .zip(&probes)
-                .map(|(t, p)| Image::from_vec(t.channels, t.height, t.width, p.clone()))
-                .collect();
+                f.features().iter().enumerate().map(|(k, t)| pseudo_random(t.data.len(), 10 + k as u64)).collect();
+            let grads: Vec<FeatureView> =
+                f.features().iter().zip(&probes).map(|(t, p)| FeatureView { data: p, ..*t }).collect();
             let g = net.backward(&f, &grads);
             let scale = g.data.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
             let entries: Vec<usize> = (0..24).map(|k| (k * 131 + 7) % x.data.len()).collect();
@@ -456,7 +481,7 @@ mod tests {
                         let mut xi = x.clone();
                         xi.data[i] = p[0];
                         let f = net.forward(&xi, &taps, false);
-                        f.taps().iter().zip(&probes).map(|(t, pr)| dot(pr, &t.data)).sum::<f64>()
+                        f.features().iter().zip(&probes).map(|(t, pr)| dot(pr, t.data)).sum::<f64>()
                     };
                     check_gradient(&[x.data[i]], &[g.data[i]], loss, 1e-3, 1, scale * 0.1).max_rel_err < 5e-2
                 })

@@ -1,7 +1,7 @@
 //! VGG-19 taps and input gradient against PyTorch on identical deterministic
 //! weights (tools/fixtures/features_vgg.py writes the fixtures).
 
-use nst3d_core::Image;
+use nst3d_core::{FeatureView, Image};
 use nst3d_features::{ConvAlgorithm, Vgg19, VggFlavor, VggLayer};
 
 const SEED: u64 = 5;
@@ -55,7 +55,8 @@ fn check(flavor: VggFlavor, algorithm: ConvAlgorithm, file: &str) {
             Image::from_vec(t.channels, t.height, t.width, t.data.iter().map(|v| v / n).collect())
         })
         .collect();
-    let g = net.backward(&f, &grads);
+    // Planar gradients (what the NNST loss passes back) are converted inside.
+    let g = net.backward(&f, &grads.iter().map(FeatureView::from).collect::<Vec<_>>());
     let want = take(3 * H * W);
     // Direct convs round like PyTorch's: the gradient must match to 1e-3 of
     // its largest entry everywhere. Winograd is ~1e-5 off in the forward, and

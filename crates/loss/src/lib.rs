@@ -12,8 +12,8 @@
 
 pub mod nnst;
 
-use nst3d_core::linalg::{matmul, parallelism, Parallelism};
-use nst3d_core::Image;
+use nst3d_core::linalg::{matmul, matmul_into, parallelism, Parallelism};
+use nst3d_core::{FeatureView, Layout};
 use rayon::prelude::*;
 
 /// Why a style target or style loss could not be built from the given inputs.
@@ -71,17 +71,21 @@ pub enum LossError {
 /// threads busy without many partial Grams to sum.
 const MAX_GRAM_CHUNKS: usize = 8;
 
-/// Gram matrix `G = F Fᵀ / (h·w)` of a feature map, with `F` the
-/// `C x (h·w)` matrix of its planar data: symmetric `C x C`, row-major.
+/// Gram matrix `G = F Fᵀ / (h·w)` of a layer's features, `F` the `C x (h·w)`
+/// matrix of `f` in whichever layout it lies: symmetric `C x C`, row-major.
 ///
 /// Dividing by the pixel count (not by `C·h·w`) matches the reference, so the
 /// same style weights mean the same thing in both. An empty map (no pixels)
-/// gives an all-zero Gram.
-pub fn gram(f: &Image) -> Vec<f32> {
-    let (c, p) = (f.channels, f.plane());
+/// gives an all-zero Gram. Channels-last features (the network's own layout)
+/// are the fast case: both operands of the product then stream contiguously,
+/// where planar ones make `gemm` repack a transposed operand (2-3x slower at
+/// relu1_1, docs/PERFORMANCE.md).
+pub fn gram(f: FeatureView<'_>) -> Vec<f32> {
+    let (c, p) = (f.channels, f.pixels());
     if p == 0 {
         return vec![0.0; c * c];
     }
+    let (_, col) = f.strides();
     // Shallow layers are C x C outputs over a very long k = h·w (64 x 256² at
     // relu1_1): too few output tiles for gemm to spread over threads, so the
     // pixels are split into column chunks whose partial Grams are summed. The
@@ -90,14 +94,14 @@ pub fn gram(f: &Image) -> Vec<f32> {
     let chunks = (p / c.max(256)).clamp(1, MAX_GRAM_CHUNKS);
     let scale = 1.0 / p as f32;
     let mut g = if chunks == 1 {
-        upper_gram(c, p, &f.data, p, scale, parallelism(c, c, p))
+        upper_gram(c, p, f.data, f.strides(), scale, parallelism(c, c, p))
     } else {
         let width = p.div_ceil(chunks);
         (0..chunks)
             .into_par_iter()
             .map(|i| {
                 let (k0, k1) = (i * width, ((i + 1) * width).min(p));
-                upper_gram(c, k1 - k0, &f.data[k0..], p, scale, Parallelism::None)
+                upper_gram(c, k1 - k0, &f.data[k0 * col..], f.strides(), scale, Parallelism::None)
             })
             .collect::<Vec<_>>()
             .into_iter()
@@ -119,34 +123,31 @@ pub fn gram(f: &Image) -> Vec<f32> {
 }
 
 /// The upper triangle (and diagonal blocks) of `scale · F Fᵀ` for the
-/// `c x k` matrix `F` whose row `i` starts at `cols[i * stride]`; the
-/// strictly lower part of whole blocks below the diagonal is left 0.
+/// `c x k` matrix `F` whose element `(i, p)` is `data[i * row + p * col]`;
+/// the strictly lower part of whole blocks below the diagonal is left 0.
 ///
 /// A Gram matrix is symmetric, so only the row bands' right parts are
 /// multiplied: with 8 bands that is 36/64 of the full product.
-fn upper_gram(c: usize, k: usize, cols: &[f32], stride: usize, scale: f32, par: Parallelism) -> Vec<f32> {
+fn upper_gram(c: usize, k: usize, data: &[f32], (row, col): (usize, usize), scale: f32, par: Parallelism) -> Vec<f32> {
     let band = (c / 8).max(32);
     let mut g = vec![0.0; c * c];
-    let mut tmp = Vec::new();
     for r0 in (0..c).step_by(band) {
         let (m, n) = ((c - r0).min(band), c - r0);
-        tmp.resize(m * n, 0.0);
-        let rows = &cols[r0 * stride..];
-        matmul(m, n, k, &mut tmp, rows, (stride, 1), rows, (1, stride), scale, par);
-        for (i, row) in tmp.chunks_exact(n).enumerate() {
-            g[(r0 + i) * c + r0..][..n].copy_from_slice(row);
-        }
+        // Rows r0.. of F, and the same rows seen as the columns of Fᵀ.
+        let rows = &data[r0 * row..];
+        matmul_into(m, n, k, &mut g[r0 * c + r0..], c, false, rows, (row, col), rows, (col, row), scale, par);
     }
     g
 }
 
 /// Backward of [`gram`]: `dL/dF = (dG + dGᵀ) F / (h·w)` for an upstream
-/// gradient `grad_g` (`C x C`, row-major, not necessarily symmetric).
+/// gradient `grad_g` (`C x C`, row-major, not necessarily symmetric),
+/// returned in `f`'s layout.
 ///
 /// # Panics
 /// If `grad_g` is not `C x C` (a programming error: it comes from [`gram`]'s output).
-pub fn gram_backward(f: &Image, grad_g: &[f32]) -> Image {
-    let (c, p) = (f.channels, f.plane());
+pub fn gram_backward(f: FeatureView<'_>, grad_g: &[f32]) -> Vec<f32> {
+    let (c, p) = (f.channels, f.pixels());
     assert_eq!(grad_g.len(), c * c, "gram_backward: grad_g must be C x C");
     let mut sym = vec![0.0; c * c];
     for i in 0..c {
@@ -154,10 +155,16 @@ pub fn gram_backward(f: &Image, grad_g: &[f32]) -> Image {
             sym[i * c + j] = grad_g[i * c + j] + grad_g[j * c + i];
         }
     }
-    let mut out = Image::zeros(c, f.height, f.width);
+    let mut out = vec![0.0; c * p];
     if p > 0 {
         let par = parallelism(c, p, c);
-        matmul(c, p, c, &mut out.data, &sym, (c, 1), &f.data, (p, 1), 1.0 / p as f32, par);
+        let scale = 1.0 / p as f32;
+        match f.layout {
+            // dF (C x P) = sym F.
+            Layout::Planar => matmul(c, p, c, &mut out, &sym, (c, 1), f.data, (p, 1), scale, par),
+            // dFᵀ (P x C) = Fᵀ symᵀ = Fᵀ sym.
+            Layout::ChannelsLast => matmul(p, c, c, &mut out, f.data, (c, 1), &sym, (c, 1), scale, par),
+        }
     }
     out
 }
@@ -202,7 +209,7 @@ impl StyleTarget {
     /// Grams of the style image's features `feats`, one per layer, weighted by
     /// `weights` (one per layer; an empty slice means weight 1 everywhere, as
     /// in the reference).
-    pub fn from_features(feats: &[Image], weights: &[f32]) -> Result<Self, LossError> {
+    pub fn from_features(feats: &[FeatureView<'_>], weights: &[f32]) -> Result<Self, LossError> {
         let weights = if weights.is_empty() {
             vec![1.0; feats.len()]
         } else if weights.len() == feats.len() {
@@ -217,7 +224,7 @@ impl StyleTarget {
             check_not_empty(layer, f)?;
         }
         Ok(Self {
-            grams: feats.iter().map(gram).collect(),
+            grams: feats.iter().map(|f| gram(*f)).collect(),
             channels: feats.iter().map(|f| f.channels).collect(),
             weights,
         })
@@ -244,17 +251,17 @@ impl StyleTarget {
     }
 }
 
-fn check_not_empty(layer: usize, f: &Image) -> Result<(), LossError> {
-    if f.plane() == 0 {
+fn check_not_empty(layer: usize, f: &FeatureView<'_>) -> Result<(), LossError> {
+    if f.pixels() == 0 {
         return Err(LossError::EmptyLayer { layer, channels: f.channels, height: f.height, width: f.width });
     }
     Ok(())
 }
 
 /// Style loss `Σ_l w_l · mse(gram(F_l), G_l)` of the render's features `feats`
-/// against `target`; returns the loss and `dL/dF_l` for every layer (same
-/// shapes as `feats`), ready for the feature network's backward pass.
-pub fn style_loss(feats: &[Image], target: &StyleTarget) -> Result<(f32, Vec<Image>), LossError> {
+/// against `target`; returns the loss and `dL/dF_l` for every layer (each in
+/// its layer's layout and shape), ready for the feature network's backward pass.
+pub fn style_loss(feats: &[FeatureView<'_>], target: &StyleTarget) -> Result<(f32, Vec<Vec<f32>>), LossError> {
     if feats.len() != target.layers() {
         return Err(LossError::LayerCount { got: feats.len(), expected: target.layers() });
     }
@@ -268,11 +275,11 @@ pub fn style_loss(feats: &[Image], target: &StyleTarget) -> Result<(f32, Vec<Ima
     let mut grads = Vec::with_capacity(feats.len());
     for (l, f) in feats.iter().enumerate() {
         let w = target.weights[l];
-        let g = gram(f);
+        let g = gram(*f);
         loss += w as f64 * mse(&g, &target.grams[l]) as f64;
         let mut grad_g = mse_backward(&g, &target.grams[l]);
         grad_g.iter_mut().for_each(|v| *v *= w);
-        grads.push(gram_backward(f, &grad_g));
+        grads.push(gram_backward(*f, &grad_g));
     }
     Ok((loss as f32, grads))
 }
@@ -281,6 +288,17 @@ pub fn style_loss(feats: &[Image], target: &StyleTarget) -> Result<(f32, Vec<Ima
 mod tests {
     use super::*;
     use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
+    use nst3d_core::Image;
+
+    fn views(images: &[Image]) -> Vec<FeatureView<'_>> {
+        images.iter().map(FeatureView::from).collect()
+    }
+
+    /// The same values transposed to channels-last `(H, W, C)`.
+    fn channels_last(f: &Image) -> Vec<f32> {
+        let p = f.plane();
+        (0..p * f.channels).map(|k| f.data[(k % f.channels) * p + k / f.channels]).collect()
+    }
 
     fn image(c: usize, h: usize, w: usize, seed: u64) -> Image {
         Image::from_vec(c, h, w, pseudo_random(c * h * w, seed))
@@ -304,7 +322,7 @@ mod tests {
         // One small (single-threaded path) and one above the parallel threshold.
         for (c, h, w) in [(5, 3, 7), (40, 30, 33)] {
             let f = image(c, h, w, 3);
-            let g = gram(&f);
+            let g = gram((&f).into());
             let want = gram_naive(&f);
             for (a, b) in g.iter().zip(&want) {
                 assert!((*a as f64 - b).abs() < 1e-5, "{a} vs {b}");
@@ -321,10 +339,32 @@ mod tests {
     fn gram_backward_gradcheck_nonsymmetric_upstream() {
         let f = image(6, 4, 5, 11);
         let wgt = pseudo_random(36, 12); // not symmetric: exercises dG + dGᵀ
-        let analytic = gram_backward(&f, &wgt);
-        let probe = |x: &[f32]| dot(&wgt, &gram(&Image::from_vec(6, 4, 5, x.to_vec())));
-        let r = check_gradient(&f.data, &analytic.data, probe, 1e-2, 120, 1e-3);
+        let analytic = gram_backward((&f).into(), &wgt);
+        let probe = |x: &[f32]| dot(&wgt, &gram((&Image::from_vec(6, 4, 5, x.to_vec())).into()));
+        let r = check_gradient(&f.data, &analytic, probe, 1e-2, 120, 1e-3);
         assert!(r.max_rel_err < 1e-2, "{r:?}");
+    }
+
+    /// Channels-last features give the planar Gram and the planar gradient
+    /// transposed (the forward is checked against the definition above and
+    /// the backward by finite differences, so this covers both layouts).
+    #[test]
+    fn channels_last_matches_planar() {
+        // Small, and chunked over pixels with several row bands.
+        for (c, h, w) in [(6, 4, 5), (96, 40, 33)] {
+            let f = image(c, h, w, 21);
+            let cl = channels_last(&f);
+            let view = FeatureView { channels: c, height: h, width: w, layout: Layout::ChannelsLast, data: &cl };
+            let (gp, gc) = (gram((&f).into()), gram(view));
+            for (a, b) in gp.iter().zip(&gc) {
+                assert!((a - b).abs() <= 1e-5 * (1.0 + a.abs()), "gram {a} vs {b}");
+            }
+            let wgt = pseudo_random(c * c, 22);
+            let planar = Image::from_vec(c, h, w, gram_backward((&f).into(), &wgt));
+            for (a, b) in channels_last(&planar).iter().zip(&gram_backward(view, &wgt)) {
+                assert!((a - b).abs() <= 1e-5 * (1.0 + a.abs()), "gram_backward {a} vs {b}");
+            }
+        }
     }
 
     #[test]
@@ -341,19 +381,19 @@ mod tests {
         let shapes = [(4, 5, 6), (8, 3, 4), (3, 2, 9)];
         let style: Vec<Image> =
             shapes.iter().enumerate().map(|(i, &(c, h, w))| image(c, h, w, 100 + i as u64)).collect();
-        let target = StyleTarget::from_features(&style, &[1.0, 0.5, 3.0]).unwrap();
+        let target = StyleTarget::from_features(&views(&style), &[1.0, 0.5, 3.0]).unwrap();
         let feats: Vec<Image> =
             shapes.iter().enumerate().map(|(i, &(c, h, w))| image(c, h, w, 200 + i as u64)).collect();
-        let (_, grads) = style_loss(&feats, &target).unwrap();
+        let (_, grads) = style_loss(&views(&feats), &target).unwrap();
         // Perturb one layer at a time, the others held fixed.
         for l in 0..shapes.len() {
             let (c, h, w) = shapes[l];
             let probe = |x: &[f32]| {
                 let mut fs = feats.clone();
                 fs[l] = Image::from_vec(c, h, w, x.to_vec());
-                style_loss(&fs, &target).unwrap().0 as f64
+                style_loss(&views(&fs), &target).unwrap().0 as f64
             };
-            let r = check_gradient(&feats[l].data, &grads[l].data, probe, 1e-2, 60, 1e-4);
+            let r = check_gradient(&feats[l].data, &grads[l], probe, 1e-2, 60, 1e-4);
             assert!(r.max_rel_err < 2e-2, "layer {l}: {r:?}");
         }
     }
@@ -361,28 +401,37 @@ mod tests {
     #[test]
     fn style_loss_is_zero_at_target() {
         let style = vec![image(4, 3, 3, 1), image(2, 5, 2, 2)];
-        let target = StyleTarget::from_features(&style, &[]).unwrap();
-        let (loss, grads) = style_loss(&style, &target).unwrap();
+        let target = StyleTarget::from_features(&views(&style), &[]).unwrap();
+        let (loss, grads) = style_loss(&views(&style), &target).unwrap();
         assert_eq!(loss, 0.0);
-        assert!(grads.iter().all(|g| g.data.iter().all(|v| *v == 0.0)));
+        assert!(grads.iter().all(|g| g.iter().all(|v| *v == 0.0)));
     }
 
     #[test]
     fn bad_inputs_are_errors() {
         let style = vec![image(4, 3, 3, 1), image(2, 5, 2, 2)];
-        assert_eq!(StyleTarget::from_features(&style, &[1.0]), Err(LossError::WeightCount { weights: 1, layers: 2 }));
+        assert_eq!(
+            StyleTarget::from_features(&views(&style), &[1.0]),
+            Err(LossError::WeightCount { weights: 1, layers: 2 })
+        );
         assert!(matches!(
-            StyleTarget::from_features(&style, &[1.0, f32::NAN]),
+            StyleTarget::from_features(&views(&style), &[1.0, f32::NAN]),
             Err(LossError::NonFiniteWeight { layer: 1, .. })
         ));
         assert!(matches!(
-            StyleTarget::from_features(&[Image::zeros(3, 0, 4)], &[]),
+            StyleTarget::from_features(&views(&[Image::zeros(3, 0, 4)]), &[]),
             Err(LossError::EmptyLayer { layer: 0, .. })
         ));
-        let target = StyleTarget::from_features(&style, &[]).unwrap();
-        assert_eq!(style_loss(&style[..1], &target).unwrap_err(), LossError::LayerCount { got: 1, expected: 2 });
+        let target = StyleTarget::from_features(&views(&style), &[]).unwrap();
+        assert_eq!(
+            style_loss(&views(&style[..1]), &target).unwrap_err(),
+            LossError::LayerCount { got: 1, expected: 2 }
+        );
         let wrong = vec![style[0].clone(), image(3, 5, 2, 2)];
-        assert_eq!(style_loss(&wrong, &target).unwrap_err(), LossError::ChannelCount { layer: 1, got: 3, expected: 2 });
+        assert_eq!(
+            style_loss(&views(&wrong), &target).unwrap_err(),
+            LossError::ChannelCount { layer: 1, got: 3, expected: 2 }
+        );
         // Error messages are one line and name the problem.
         let msg = LossError::WeightCount { weights: 1, layers: 2 }.to_string();
         assert!(!msg.contains('\n') && msg.contains("weights"));

@@ -1,7 +1,7 @@
 //! Gram, MSE and style loss against PyTorch (fixture from
 //! tools/fixtures/loss_gram.py; layout documented there).
 
-use nst3d_core::Image;
+use nst3d_core::{FeatureView, Image};
 use nst3d_loss::{gram, mse, mse_backward, style_loss, StyleTarget};
 
 const SHAPES: [(usize, usize, usize); 2] = [(8, 6, 5), (16, 3, 4)];
@@ -50,17 +50,21 @@ fn matches_pytorch() {
     let grads = r.images();
     assert_eq!(r.pos, r.data.len(), "fixture has trailing data: layout changed?");
 
-    let target = StyleTarget::from_features(&style, &weights).unwrap();
+    let target = StyleTarget::from_features(&views(&style), &weights).unwrap();
     for l in 0..2 {
-        let g = gram(&feats[l]);
+        let g = gram((&feats[l]).into());
         assert_close(&g, &grams[l], 1e-6, "gram");
         assert_close(&[mse(&g, target.gram(l))], &mses[l..l + 1], 1e-6, "mse");
     }
-    assert_close(&mse_backward(&gram(&feats[0]), target.gram(0)), &dmse0, 1e-6, "mse_backward");
+    assert_close(&mse_backward(&gram((&feats[0]).into()), target.gram(0)), &dmse0, 1e-6, "mse_backward");
 
-    let (got_loss, got_grads) = style_loss(&feats, &target).unwrap();
+    let (got_loss, got_grads) = style_loss(&views(&feats), &target).unwrap();
     assert_close(&[got_loss], &[loss], 1e-6, "style loss");
     for l in 0..2 {
-        assert_close(&got_grads[l].data, &grads[l].data, 1e-6, "style loss gradient");
+        assert_close(&got_grads[l], &grads[l].data, 1e-6, "style loss gradient");
     }
+}
+
+fn views(images: &[Image]) -> Vec<FeatureView<'_>> {
+    images.iter().map(FeatureView::from).collect()
 }

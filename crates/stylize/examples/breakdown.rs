@@ -4,7 +4,7 @@
 
 use std::time::Instant;
 
-use nst3d_core::{gradcheck::pseudo_random, Image};
+use nst3d_core::{gradcheck::pseudo_random, FeatureView, Image};
 use nst3d_features::{Vgg19, VggFlavor, VggLayer};
 use nst3d_loss::{style_loss, StyleTarget};
 use nst3d_optim::Adam;
@@ -19,7 +19,7 @@ fn main() {
     let layers = [VggLayer::Relu1_1, VggLayer::Relu2_1, VggLayer::Relu3_1, VggLayer::Relu4_1];
     let style =
         Image::from_vec(3, 2 * n, 2 * n, pseudo_random(12 * n * n, 7).iter().map(|v| 0.5 * (v + 1.0)).collect());
-    let target = StyleTarget::from_features(vgg.forward(&style, &layers, false).taps(), &[]).unwrap();
+    let target = StyleTarget::from_features(&vgg.forward(&style, &layers, false).features(), &[]).unwrap();
     for mode in [Mode::Velocity, Mode::Density] {
         let mut field = Field::identity(mode, d.len());
         let mut adam = Adam::new(field.len(), 0.1);
@@ -38,7 +38,9 @@ fn main() {
             lap("render+upsample");
             let fwd = vgg.forward(&rgb, &layers, true);
             lap("vgg forward");
-            let (_, g) = style_loss(fwd.taps(), &target).unwrap();
+            let feats = fwd.features();
+            let (_, g) = style_loss(&feats, &target).unwrap();
+            let g: Vec<FeatureView> = feats.iter().zip(&g).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
             lap("gram loss+backward");
             let grgb = vgg.backward(&fwd, &g);
             lap("vgg backward");

@@ -7,7 +7,7 @@
 //! Backward walks the same chain in reverse; each stage's backward sits next
 //! to its forward in its own crate.
 
-use nst3d_core::{Grid3, Image};
+use nst3d_core::{FeatureView, Grid3, Image};
 use nst3d_features::{Vgg19, VggLayer};
 use nst3d_loss::StyleTarget;
 use nst3d_render::{self as render, Camera, EqualizeParams};
@@ -74,7 +74,7 @@ impl<'a> ViewLoss<'a> {
     /// `[0, 1]`, already scaled by the style-scale factor).
     pub fn new(vgg: &'a Vgg19, style_rgb: &Image, spec: &StyleSpec) -> Result<Self, ViewError> {
         let fwd = vgg.forward(style_rgb, &spec.layers, false);
-        let target = StyleTarget::from_features(fwd.taps(), &spec.layer_weights)?;
+        let target = StyleTarget::from_features(&fwd.features(), &spec.layer_weights)?;
         Ok(Self { vgg, layers: spec.layers.clone(), target })
     }
 
@@ -108,7 +108,7 @@ impl<'a> ViewLoss<'a> {
         let (grey, _) = self.grey(d, view)?;
         let rgb = grey_to_rgb(&render::upsample2x(&grey));
         let fwd = self.vgg.forward(&rgb, &self.layers, false);
-        Ok(nst3d_loss::style_loss(fwd.taps(), &self.target)?.0)
+        Ok(nst3d_loss::style_loss(&fwd.features(), &self.target)?.0)
     }
 
     /// Style loss of one view and its gradient w.r.t. `d`.
@@ -116,8 +116,13 @@ impl<'a> ViewLoss<'a> {
         let (grey, trace) = self.grey(d, view)?;
         let rgb = grey_to_rgb(&render::upsample2x(&grey));
         let fwd = self.vgg.forward(&rgb, &self.layers, true);
-        let (loss, tap_grads) = nst3d_loss::style_loss(fwd.taps(), &self.target)?;
-        let grad_rgb = self.vgg.backward(&fwd, &tap_grads);
+        // The Gram loss reads the network's channels-last activations in
+        // place and hands its gradients back in the same layout.
+        let feats = fwd.features();
+        let (loss, tap_grads) = nst3d_loss::style_loss(&feats, &self.target)?;
+        let grads: Vec<FeatureView> =
+            feats.iter().zip(&tap_grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
+        let grad_rgb = self.vgg.backward(&fwd, &grads);
 
         let grad_up = rgb_to_grey_backward(&grad_rgb);
         let mut grad = render::upsample2x_backward(&grad_up);

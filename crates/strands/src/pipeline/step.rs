@@ -4,6 +4,7 @@
 
 use std::time::{Duration, Instant};
 
+use nst3d_core::FeatureView;
 use nst3d_features::Vgg19;
 use nst3d_loss::nnst::{nnst_loss_matched, NnstMatch};
 use nst3d_optim::Adam;
@@ -127,7 +128,7 @@ pub fn loss_and_gradient(
     if !loss.is_finite() {
         return Err(PipelineError::Diverged(format!("loss is {loss}")));
     }
-    let grad_img = vgg.backward(&fwd, &tap_grads);
+    let grad_img = vgg.backward(&fwd, &tap_grads.iter().map(FeatureView::from).collect::<Vec<_>>());
     drop(fwd);
     lap(&mut times.vgg_backward);
     let grad_points = render_backward(&s, cam, &scene.style, &cache, &grad_img)?;
