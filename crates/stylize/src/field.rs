@@ -5,6 +5,7 @@
 
 use nst3d_core::Grid3;
 use nst3d_transport as transport;
+use rayon::prelude::*;
 
 /// Which field is optimised.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -45,8 +46,10 @@ pub enum Field {
 /// non-negative weights summing to at most 1, so the result stays within
 /// `[smin, smax]` whenever 1 is inside it.
 fn smooth_scale(s: &[f32], dims: [usize; 3]) -> Vec<f32> {
-    let dev: Vec<f32> = s.iter().map(|v| v - 1.0).collect();
-    transport::tent_smooth_flat(&dev, 1, dims).iter().map(|v| v + 1.0).collect()
+    let dev: Vec<f32> = s.par_iter().map(|v| v - 1.0).collect();
+    let mut out = transport::tent_smooth_flat(&dev, 1, dims);
+    out.par_iter_mut().for_each(|v| *v += 1.0);
+    out
 }
 
 /// What [`Field::backward`] needs from [`Field::forward`]: the smoothed
