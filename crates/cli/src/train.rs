@@ -24,8 +24,8 @@ pub struct TrainArgs {
     /// The painting.
     #[arg(long)]
     style: PathBuf,
-    /// The model file to write (`.safetensors`); a checkpoint `<out>.ckpt`
-    /// and the loss log `<out>.csv` go beside it.
+    /// The model file to write (`.safetensors`); a checkpoint `<out>.ckpt`,
+    /// the loss log `<out>.csv` and its plot `<out>.loss.png` go beside it.
     #[arg(long)]
     out: PathBuf,
     /// density (a scale in [0, 2]) or velocity (vmax = 4 % of the patch).

@@ -82,6 +82,11 @@ pub fn log_path(out: &Path) -> PathBuf {
     out.with_extension("csv")
 }
 
+/// The loss curve beside the model: `<out>.loss.png` (see [`crate::curve`]).
+pub fn curve_path(out: &Path) -> PathBuf {
+    out.with_extension("loss.png")
+}
+
 fn load_frames(s: &TrainSettings) -> Result<Vec<Grid3>> {
     let mut out = Vec::new();
     for path in &s.frames {
@@ -227,7 +232,10 @@ fn write_outputs(
         }
         Ok(())
     })
-    .with_context(|| format!("cannot write the loss log {}", log.display()))
+    .with_context(|| format!("cannot write the loss log {}", log.display()))?;
+    let curve = curve_path(&s.out);
+    nst3d_io::image::write_png(&curve, &crate::curve::loss_curve(losses))
+        .with_context(|| format!("cannot write the loss curve {}", curve.display()))
 }
 
 /// Trains (or resumes training) the network `s` describes.

@@ -10,6 +10,7 @@
 #![warn(missing_docs)]
 
 pub mod bench;
+pub mod curve;
 pub mod job;
 pub mod patch;
 pub mod step;

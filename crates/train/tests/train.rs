@@ -42,6 +42,8 @@ fn a_killed_run_resumes_to_the_same_model() {
     assert!(r.loss_first.is_finite() && r.loss_last.is_finite());
     let log = std::fs::read_to_string(whole.with_extension("csv")).unwrap();
     assert_eq!(log.lines().count(), 6, "{log}");
+    let curve = nst3d_train::job::curve_path(&whole);
+    assert!(curve.ends_with("whole.loss.png") && curve.exists(), "no loss curve {}", curve.display());
 
     // A zero-minute budget stops after the first step, as a kill would.
     let parts = dir.path().join("parts.safetensors");
