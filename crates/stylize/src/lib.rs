@@ -16,4 +16,4 @@ pub mod view;
 
 pub use field::{Field, Limits, Mode, Tape};
 pub use frame::{stylize_frame, stylize_frame_views, FrameParams, FrameResult, Progress};
-pub use view::{StyleSpec, ViewError, ViewLoss, ViewSpec};
+pub use view::{view_image, StyleSpec, ViewError, ViewLoss, ViewSpec};

@@ -80,32 +80,12 @@ impl<'a> ViewLoss<'a> {
 
     /// The grey image the network sees, before upsampling (for previews).
     pub fn image(&self, d: &Grid3, view: &ViewSpec) -> Result<Image, ViewError> {
-        Ok(self.grey(d, view)?.0)
-    }
-
-    fn grey(&self, d: &Grid3, view: &ViewSpec) -> Result<(Image, Trace), ViewError> {
-        let (mut img, render_cache) = match &view.camera {
-            None => (render::march(d, view.gamma), None),
-            Some(cam) => {
-                let (img, cache) = render::render(d, cam, view.gamma)?;
-                (img, Some(cache))
-            }
-        };
-        if view.exposure != 1.0 {
-            img.data.iter_mut().for_each(|v| *v *= view.exposure);
-        }
-        let (img, eq_cache) = if view.equalize {
-            let (eq, cache) = render::equalize(&img, &EqualizeParams::default())?;
-            (eq, Some(cache))
-        } else {
-            (img, None)
-        };
-        Ok((img, Trace { render_cache, eq_cache }))
+        view_image(d, view)
     }
 
     /// Style loss of one view, without gradient.
     pub fn loss(&self, d: &Grid3, view: &ViewSpec) -> Result<f32, ViewError> {
-        let (grey, _) = self.grey(d, view)?;
+        let (grey, _) = grey(d, view)?;
         let rgb = grey_to_rgb(&render::upsample2x(&grey));
         let fwd = self.vgg.forward(&rgb, &self.layers, false);
         Ok(nst3d_loss::style_loss(&fwd.features(), &self.target)?.0)
@@ -113,7 +93,7 @@ impl<'a> ViewLoss<'a> {
 
     /// Style loss of one view and its gradient w.r.t. `d`.
     pub fn loss_and_grad(&self, d: &Grid3, view: &ViewSpec) -> Result<(f32, Grid3), ViewError> {
-        let (grey, trace) = self.grey(d, view)?;
+        let (grey, trace) = grey(d, view)?;
         let rgb = grey_to_rgb(&render::upsample2x(&grey));
         let fwd = self.vgg.forward(&rgb, &self.layers, true);
         // The Gram loss reads the network's channels-last activations in
@@ -138,6 +118,33 @@ impl<'a> ViewLoss<'a> {
         };
         Ok((loss, grad_d))
     }
+}
+
+/// The grey image of `d` seen from `view` (render, exposure, equalisation),
+/// as the loss sees it before upsampling: previews and the flicker metric
+/// draw with it.
+pub fn view_image(d: &Grid3, view: &ViewSpec) -> Result<Image, ViewError> {
+    Ok(grey(d, view)?.0)
+}
+
+fn grey(d: &Grid3, view: &ViewSpec) -> Result<(Image, Trace), ViewError> {
+    let (mut img, render_cache) = match &view.camera {
+        None => (render::march(d, view.gamma), None),
+        Some(cam) => {
+            let (img, cache) = render::render(d, cam, view.gamma)?;
+            (img, Some(cache))
+        }
+    };
+    if view.exposure != 1.0 {
+        img.data.iter_mut().for_each(|v| *v *= view.exposure);
+    }
+    let (img, eq_cache) = if view.equalize {
+        let (eq, cache) = render::equalize(&img, &EqualizeParams::default())?;
+        (eq, Some(cache))
+    } else {
+        (img, None)
+    };
+    Ok((img, Trace { render_cache, eq_cache }))
 }
 
 /// The grey render fed to a network that expects RGB (the peer's `expand`).

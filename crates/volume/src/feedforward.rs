@@ -45,6 +45,9 @@ pub struct ModelReport {
     pub voxels: u64,
     /// Seconds spent in the network and transport (not reading or writing).
     pub seconds: f64,
+    /// For a sequence, the flicker of the written frames by the metric the
+    /// optimised sequences report ([`crate::flicker_of_outputs`]).
+    pub flicker: Option<f64>,
     /// The output (pattern).
     pub out: String,
 }
@@ -192,5 +195,10 @@ pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut 
         reporter.step(&format!("{}", out.display()));
     }
     reporter.end();
-    Ok(ModelReport { frames, skipped, mode, voxels, seconds, out: output })
+    let flicker = match s.sequence {
+        // Scored as an optimised sequence of the model's mode would be.
+        Some(_) => crate::flicker_of_outputs(&VolumeSettings { mode, ..s.clone() }, reporter)?,
+        None => None,
+    };
+    Ok(ModelReport { frames, skipped, mode, voxels, seconds, flicker, out: output })
 }

@@ -34,7 +34,7 @@ pub use frame::{stylize_frame_file, FrameReport};
 pub use look::PREVIEW_HEIGHT;
 pub use nst3d_core::{Reporter, Silent};
 pub use preview::{preview, PreviewReport, PreviewSettings};
-pub use sequence::{stylize_sequence_files, SequenceReport, SequenceSummary};
+pub use sequence::{flicker_of_outputs, stylize_sequence_files, SequenceReport, SequenceSummary};
 pub use settings::{SequenceSettings, UpAxis, VolumeSettings};
 pub use upsample::Upsample;
 

@@ -20,9 +20,10 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use nst3d_core::{Grid3, Reporter};
 use nst3d_io::vdb::{read_vdb, GridValues, Transform};
+use nst3d_render::Camera;
 use nst3d_sequence::ema::{stylize_sequence_with, SequenceParams, Simulation, StateStore};
 use nst3d_sequence::{default_work_dir, expand_pattern, job_fingerprint, DiskStore, FrameSpec};
-use nst3d_stylize::{Mode, ViewLoss, ViewSpec};
+use nst3d_stylize::{view_image, Mode, ViewLoss, ViewSpec};
 
 use crate::cameras::Cameras;
 use crate::look::{absorption_for, mean_loss, views_of};
@@ -228,6 +229,126 @@ fn velocity_grid(
     Ok(velocity_grid)
 }
 
+/// Where a shot is stylized: one refinement `k` for the whole shot, the
+/// common box of every frame (plus the margin vmax needs) in fine voxels,
+/// and the simulation read in that box at the files' resolution.
+struct Shot {
+    k: usize,
+    vmax: f32,
+    dims: [usize; 3],
+    origin: [i32; 3],
+    transform: Transform,
+    full: VdbSimulation,
+}
+
+fn shot(
+    s: &VolumeSettings,
+    seq: &SequenceSettings,
+    sv: &Survey,
+    velocity_grid: Option<String>,
+    paths: &[PathBuf],
+    reporter: &mut dyn Reporter,
+) -> Result<Shot> {
+    let (lo, hi) = (sv.lo, sv.hi);
+    let active: [usize; 3] = std::array::from_fn(|a| (hi[a] - lo[a] + 1) as usize);
+    // One refinement for the whole shot, from the common box (crate::upsample).
+    let k = s.upsample.factor(active);
+    let vmax = s.vmax_for(active.iter().max().unwrap_or(&1) * k);
+    // The margin is counted in the file's voxels, enough for vmax fine voxels.
+    let margin = s.margin(vmax).div_ceil(k) as i32;
+    let coarse_origin = lo.map(|v| v - margin);
+    let coarse_dims: [usize; 3] = std::array::from_fn(|a| active[a] + 2 * margin as usize);
+    let dims = coarse_dims.map(|n| n * k);
+    if dims.iter().product::<usize>() > (1 << 28) {
+        bail!("the frames' common box {dims:?} is too large to stylize densely");
+    }
+    let origin = refine_origin(coarse_origin, k)?;
+    let transform = refine_transform(&sv.transform, k);
+    if k > 1 {
+        reporter.note(&format!(
+            "the frames' common box is {}x{}x{} voxels, too few for strokes; they are stylized and written {k}x finer ({}x{}x{}; --upsample 1 keeps the files' resolution)",
+            active[0], active[1], active[2], active[0] * k, active[1] * k, active[2] * k
+        ));
+    }
+    let mut full = VdbSimulation {
+        paths: paths.to_vec(),
+        grid: s.grid.clone(),
+        velocity_grid,
+        velocity_scale: 1.0,
+        origin: coarse_origin,
+        dims: coarse_dims,
+        linked: Vec::new(),
+    };
+    if full.velocity_grid.is_some() {
+        full.velocity_scale = match seq.velocity_scale {
+            Some(v) if v.is_finite() && v >= 0.0 => v,
+            Some(v) => bail!("--velocity-scale must be a non-negative number, got {v}"),
+            None => full.calibrate()?,
+        };
+    }
+    Ok(Shot { k, vmax, dims, origin, transform, full })
+}
+
+/// The densest frame and view of the whole sequence set the absorption
+/// for all, so brightness does not pump and chunks agree.
+fn shot_absorption(
+    s: &VolumeSettings,
+    full: &impl Simulation,
+    live_all: &[usize],
+    cams_at: &dyn Fn(usize) -> Vec<Camera>,
+) -> Result<f32> {
+    Ok(match s.absorption {
+        Some(_) => absorption_for(s.absorption, std::iter::empty())?,
+        None => {
+            let mut best = f32::INFINITY;
+            for &t in live_all {
+                let d = full.density(t)?;
+                let cams = cams_at(t);
+                if let Ok(g) = absorption_for(None, cams.iter().map(|c| (&d, c))) {
+                    best = best.min(g);
+                }
+            }
+            if !best.is_finite() {
+                bail!("the density is zero everywhere in view: nothing to stylize");
+            }
+            best
+        }
+    })
+}
+
+/// The flicker of the written frames `s.out` of the sequence
+/// `s.input` / `s.sequence`, by the metric optimised sequences report
+/// (docs/SEQUENCES.md) with the box, velocity and first camera such a run
+/// would use at the files' resolution (`--upsample 1`): so a feed-forward
+/// sequence and an optimised one are scored alike. Pairs of consecutive
+/// frames of the run with smoke in both count; `None` if there are none.
+pub fn flicker_of_outputs(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Result<Option<f64>> {
+    let s = &VolumeSettings { upsample: crate::Upsample::Factor(1), ..s.clone() };
+    let seq = s.sequence.as_ref().context("the job has no frames (set the sequence settings)")?;
+    let Plan { all, paths, run_frames, outs, .. } = plan(s, seq)?;
+    let sv = survey(s, &paths)?;
+    let velocity_grid = velocity_grid(seq, &sv, &all, &mut nst3d_core::Silent)?;
+    let Shot { dims, origin, transform, full, .. } = shot(s, seq, &sv, velocity_grid, &paths, reporter)?;
+    let cameras = Cameras::of(s)?;
+    let live_all: Vec<usize> = (0..all.len()).filter(|&i| !sv.empty[i]).collect();
+    let gamma = shot_absorption(s, &full, &live_all, &|t| cameras.at(all[t] as f64, dims, &transform, origin))?;
+    let written = VdbSimulation { paths: outs.clone(), ..full.clone() };
+    let at = |f: i64| all.iter().position(|&a| a == f).expect("run frames are --frames");
+    let (mut sum, mut pairs) = (0.0f64, 0usize);
+    for i in 1..run_frames.len() {
+        let (t0, t1) = (at(run_frames[i - 1]), at(run_frames[i]));
+        if t1 != t0 + 1 || sv.empty[t0] || sv.empty[t1] || !outs[i - 1].exists() || !outs[i].exists() {
+            continue;
+        }
+        let view = views_of(&cameras.at(run_frames[i] as f64, dims, &transform, origin), gamma, s.equalize).remove(0);
+        let render = |g: &Grid3| view_image(g, &view).expect("a view of the shot's box renders");
+        let frames = [written.density(i - 1)?, written.density(i)?];
+        sum += nst3d_sequence::flicker::flicker(&frames, &[full.velocity(t0)?, None], render) as f64;
+        pairs += 1;
+    }
+    Ok((pairs > 0).then(|| sum / pairs as f64))
+}
+
 /// Everything the optimised states depend on, so a work folder is only
 /// reused by the same job: settings, the style image and camera file
 /// contents, and each input frame's size and modification time.
@@ -295,43 +416,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
             s.grid
         ));
     }
-    let (lo, hi) = (sv.lo, sv.hi);
-    let active: [usize; 3] = std::array::from_fn(|a| (hi[a] - lo[a] + 1) as usize);
-    // One refinement for the whole shot, from the common box (crate::upsample).
-    let k = s.upsample.factor(active);
-    let vmax = s.vmax_for(active.iter().max().unwrap_or(&1) * k);
-    // The margin is counted in the file's voxels, enough for vmax fine voxels.
-    let margin = s.margin(vmax).div_ceil(k) as i32;
-    let coarse_origin = lo.map(|v| v - margin);
-    let coarse_dims: [usize; 3] = std::array::from_fn(|a| active[a] + 2 * margin as usize);
-    let dims = coarse_dims.map(|n| n * k);
-    if dims.iter().product::<usize>() > (1 << 28) {
-        bail!("the frames' common box {dims:?} is too large to stylize densely");
-    }
-    let origin = refine_origin(coarse_origin, k)?;
-    let transform = refine_transform(&sv.transform, k);
-    if k > 1 {
-        reporter.note(&format!(
-            "the frames' common box is {}x{}x{} voxels, too few for strokes; they are stylized and written {k}x finer ({}x{}x{}; --upsample 1 keeps the files' resolution)",
-            active[0], active[1], active[2], active[0] * k, active[1] * k, active[2] * k
-        ));
-    }
-    let mut full = VdbSimulation {
-        paths: paths.clone(),
-        grid: s.grid.clone(),
-        velocity_grid,
-        velocity_scale: 1.0,
-        origin: coarse_origin,
-        dims: coarse_dims,
-        linked: Vec::new(),
-    };
-    if full.velocity_grid.is_some() {
-        full.velocity_scale = match seq.velocity_scale {
-            Some(v) if v.is_finite() && v >= 0.0 => v,
-            Some(v) => bail!("--velocity-scale must be a non-negative number, got {v}"),
-            None => full.calibrate()?,
-        };
-    }
+    let Shot { k, vmax, dims, origin, transform, full } = shot(s, seq, &sv, velocity_grid, &paths, reporter)?;
     // The frames optimised: the run's frames with smoke. `run_index[k]` is
     // frame k's place in `run_frames`; two are linked when adjacent there.
     let run_index: Vec<usize> = (0..run_frames.len()).filter(|&i| !is_empty(run_frames[i])).collect();
@@ -362,25 +447,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
     let cameras = Cameras::of(s)?;
     let cams_at = |f: i64| cameras.at(f as f64, dims, &transform, origin);
     let live_all: Vec<usize> = (0..all.len()).filter(|&i| !sv.empty[i]).collect();
-    // The densest frame and view of the whole sequence set the absorption
-    // for all, so brightness does not pump and chunks agree.
-    let gamma = match s.absorption {
-        Some(_) => absorption_for(s.absorption, std::iter::empty())?,
-        None => {
-            let mut best = f32::INFINITY;
-            for &t in &live_all {
-                let d = full.density(t)?;
-                let cams = cams_at(all[t]);
-                if let Ok(g) = absorption_for(None, cams.iter().map(|c| (&d, c))) {
-                    best = best.min(g);
-                }
-            }
-            if !best.is_finite() {
-                bail!("the density is zero everywhere in view: nothing to stylize");
-            }
-            best
-        }
-    };
+    let gamma = shot_absorption(s, &full, &live_all, &|t| cams_at(all[t]))?;
     let views: Vec<Vec<ViewSpec>> = live.iter().map(|&f| views_of(&cams_at(f), gamma, s.equalize)).collect();
     let loss = ViewLoss::new(&vgg, &style, &s.style_spec())?;
     // Unused by the sweeps (each frame has its views); any view of the run will do.

@@ -287,12 +287,13 @@ pub fn run(args: VolumeArgs) -> Result<()> {
             );
         }
         VolumeReport::Model(r) => println!(
-            "{} frame{} stylized by the {:?}-mode model ({:.2} Mvoxels/s in the network){}; wrote {}",
+            "{} frame{} stylized by the {:?}-mode model ({:.2} Mvoxels/s in the network){}{}; wrote {}",
             r.frames,
             plural(r.frames),
             r.mode,
             r.voxels as f64 / r.seconds.max(1e-9) / 1e6,
             if r.skipped > 0 { format!(", {} kept or copied unchanged", r.skipped) } else { String::new() },
+            r.flicker.map_or(String::new(), |f| format!("; flicker {f:.5}")),
             r.out
         ),
         VolumeReport::Sequence(SequenceReport::NothingToDo { frames, start, end }) => {
