@@ -53,7 +53,7 @@ fn a_trained_model_stylizes_a_frame_it_never_saw() {
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stdout).contains("trained 3 of 3 steps"));
-    assert!(model.with_extension("csv").exists());
+    assert!(model.with_extension("csv").exists() && model.with_extension("loss.png").exists());
 
     let frame = shared("volumes/plume48/fluid_data_0030.vdb");
     let out = dir.path().join("styled.vdb");
@@ -99,6 +99,14 @@ fn a_trained_model_stylizes_a_frame_it_never_saw() {
     fails_with(&run(&["--model", s(&nan)]), &bad, "non-finite");
     std::fs::write(&nan, &bytes[..n / 2]).unwrap();
     fails_with(&run(&["--model", s(&nan)]), &bad, "nan.safetensors");
+    // Metadata that promises other widths than the tensors have.
+    let mut wider = std::fs::read(&model).unwrap();
+    let key = b"\"channels\":\"2\"";
+    let at = wider.windows(key.len()).position(|w| w == key).expect("channels in the header");
+    wider[at + key.len() - 2] = b'3';
+    let widths = dir.path().join("widths.safetensors");
+    std::fs::write(&widths, &wider).unwrap();
+    fails_with(&run(&["--model", s(&widths)]), &bad, "channels 3");
     let empty = shared("volumes/smoke_000001.vdb");
     let o = nst3d(&["volume", "--model", s(&model), "--input", s(&empty), "--out", s(&bad)]);
     fails_with(&o, &bad, "empty");

@@ -355,18 +355,9 @@ impl VdbGrid {
     /// background (0); the rest are active with their value.
     pub fn from_dense(name: &str, transform: Transform, origin: [i32; 3], grid: &Grid3, threshold: f32) -> VdbGrid {
         let mut sparse = SparseGrid::new(0.0f32);
-        let [nx, ny, nz] = grid.dims;
-        for z in 0..nz {
-            for y in 0..ny {
-                let row = &grid.data[grid.index(0, y, z)..grid.index(0, y, z) + nx];
-                for (x, &v) in row.iter().enumerate() {
-                    // NaN is kept active so `has_non_finite` can report it.
-                    if !matches!(v.partial_cmp(&threshold), Some(Ordering::Less | Ordering::Equal)) {
-                        sparse.set_active([origin[0] + x as i32, origin[1] + y as i32, origin[2] + z as i32], v);
-                    }
-                }
-            }
-        }
+        // NaN is kept active so `has_non_finite` can report it.
+        let keep = |v: f32| !matches!(v.partial_cmp(&threshold), Some(Ordering::Less | Ordering::Equal));
+        sparse.insert_region(origin, grid.dims, &grid.data, keep);
         Self::new(name, "fog volume", transform, GridValues::Float(sparse))
     }
 
@@ -414,27 +405,6 @@ impl VdbGrid {
 
 /// Copies a sparse grid into `N` dense component grids over `bx`.
 fn densify<T: Copy, const N: usize>(g: &SparseGrid<T>, bx: &DenseBox, split: impl Fn(T) -> [f32; N]) -> [Grid3; N] {
-    let [nx, ny, nz] = bx.dims;
-    let bg = split(g.background);
-    let mut out: [Grid3; N] = std::array::from_fn(|c| Grid3 { dims: bx.dims, data: vec![bg[c]; nx * ny * nz] });
-    let lo = bx.origin;
-    let hi = [0, 1, 2].map(|a| lo[a] + bx.dims[a] as i32 - 1);
-    for leaf in g.leaves() {
-        let o = leaf.origin;
-        if (0..3).any(|a| o[a] + 7 < lo[a] || o[a] > hi[a]) {
-            continue;
-        }
-        for n in 0..LEAF_VOXELS {
-            let c = leaf.coord(n);
-            if (0..3).any(|a| c[a] < lo[a] || c[a] > hi[a]) {
-                continue;
-            }
-            let i = (((c[2] - lo[2]) as usize * ny) + (c[1] - lo[1]) as usize) * nx + (c[0] - lo[0]) as usize;
-            let v = split(leaf.values[n]);
-            for k in 0..N {
-                out[k].data[i] = v[k];
-            }
-        }
-    }
-    out
+    let values = g.region(bx.origin, bx.dims);
+    std::array::from_fn(|c| Grid3 { dims: bx.dims, data: values.iter().map(|v| split(*v)[c]).collect() })
 }

@@ -22,11 +22,75 @@ pub const RECEPTIVE_RADIUS: usize = 32;
 /// # Panics
 /// If `x` is not one channel or `tile` is 0.
 pub fn infer_tiled(net: &FeedForward, x: &Volume, tile: usize, margin: usize) -> Volume {
-    assert!(x.channels == 1 && tile > 0, "tiled inference takes one channel and a tile size");
-    let (tile, margin) = (tile.next_multiple_of(4), margin.next_multiple_of(4));
+    assert!(x.channels == 1, "tiled inference takes one channel");
     let dims = x.dims;
     let out_c = net.out_channels();
     let mut out = Volume::zeros(out_c, dims);
+    let read = |from: [usize; 3], size: [usize; 3]| {
+        let mut region = Volume::zeros(1, size);
+        let to: [usize; 3] = std::array::from_fn(|a| (from[a] + size[a]).min(dims[a]));
+        for z in from[2]..to[2] {
+            for y in from[1]..to[1] {
+                let src = (z * dims[1] + y) * dims[0];
+                let dst = ((z - from[2]) * size[1] + (y - from[1])) * size[0];
+                region.data[dst..dst + to[0] - from[0]].copy_from_slice(&x.data[src + from[0]..src + to[0]]);
+            }
+        }
+        region
+    };
+    let n_out = dims.iter().product::<usize>();
+    infer_tiles(net, dims, tile, margin, read, |t: &Tile, _input: &Volume, o: &Volume| {
+        let n_reg = t.size.iter().product::<usize>();
+        for c in 0..out_c {
+            for z in t.lo[2]..t.hi[2] {
+                for y in t.lo[1]..t.hi[1] {
+                    let dst = c * n_out + (z * dims[1] + y) * dims[0];
+                    let src = c * n_reg + ((z - t.from[2]) * t.size[1] + (y - t.from[1])) * t.size[0];
+                    let (a, b) = (t.lo[0] - t.from[0], t.hi[0] - t.from[0]);
+                    out.data[dst + t.lo[0]..dst + t.hi[0]].copy_from_slice(&o.data[src + a..src + b]);
+                }
+            }
+        }
+    });
+    out
+}
+
+/// One tile of [`infer_tiles`], in voxels of the whole volume.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Tile {
+    /// The tile's own voxels: `lo` (inclusive) to `hi` (exclusive).
+    pub lo: [usize; 3],
+    /// See `lo`.
+    pub hi: [usize; 3],
+    /// Corner of the region the network ran on: the tile plus its margin,
+    /// clipped at 0 on the low side.
+    pub from: [usize; 3],
+    /// Size of that region, a multiple of 4 on every axis (zeros beyond the
+    /// volume).
+    pub size: [usize; 3],
+}
+
+/// Tiled inference over a volume of `dims` voxels that is never held
+/// whole: `read(from, size)` returns the one-channel input region of `size`
+/// voxels at `from` (zeros beyond the volume), and `emit(tile, input,
+/// output)` receives each tile with the region it read and the network's
+/// output on it, of which only `tile.lo .. tile.hi` is exact. Tiles and
+/// margin are rounded up to multiples of 4 (the network's stride), and
+/// tiles start at multiples of `tile` from 0, so they sit on the untiled
+/// network's stride lattice; memory is one region's activations.
+///
+/// # Panics
+/// If `tile` is 0.
+pub fn infer_tiles(
+    net: &FeedForward,
+    dims: [usize; 3],
+    tile: usize,
+    margin: usize,
+    mut read: impl FnMut([usize; 3], [usize; 3]) -> Volume,
+    mut emit: impl FnMut(&Tile, &Volume, &Volume),
+) {
+    assert!(tile > 0, "tiled inference needs a tile size");
+    let (tile, margin) = (tile.next_multiple_of(4), margin.next_multiple_of(4));
     let starts = |n: usize| (0..n).step_by(tile).collect::<Vec<_>>();
     for &z0 in &starts(dims[2]) {
         for &y0 in &starts(dims[1]) {
@@ -38,31 +102,13 @@ pub fn infer_tiled(net: &FeedForward, x: &Volume, tile: usize, margin: usize) ->
                 let from: [usize; 3] = std::array::from_fn(|a| lo[a].saturating_sub(margin));
                 let to: [usize; 3] = std::array::from_fn(|a| (lo[a] + tile + margin).min(dims[a]));
                 let size: [usize; 3] = std::array::from_fn(|a| (to[a] - from[a]).next_multiple_of(4));
-                let mut region = Volume::zeros(1, size);
-                for z in from[2]..to[2] {
-                    for y in from[1]..to[1] {
-                        let src = (z * dims[1] + y) * dims[0];
-                        let dst = ((z - from[2]) * size[1] + (y - from[1])) * size[0];
-                        region.data[dst..dst + to[0] - from[0]].copy_from_slice(&x.data[src + from[0]..src + to[0]]);
-                    }
-                }
-                let o = net.infer(&region);
                 let hi: [usize; 3] = std::array::from_fn(|a| (lo[a] + tile).min(dims[a]));
-                let (n_out, n_reg) = (dims.iter().product::<usize>(), size.iter().product::<usize>());
-                for c in 0..out_c {
-                    for z in lo[2]..hi[2] {
-                        for y in lo[1]..hi[1] {
-                            let dst = c * n_out + (z * dims[1] + y) * dims[0];
-                            let src = c * n_reg + ((z - from[2]) * size[1] + (y - from[1])) * size[0];
-                            let (a, b) = (lo[0] - from[0], hi[0] - from[0]);
-                            out.data[dst + lo[0]..dst + hi[0]].copy_from_slice(&o.data[src + a..src + b]);
-                        }
-                    }
-                }
+                let input = read(from, size);
+                let o = net.infer(&input);
+                emit(&Tile { lo, hi, from, size }, &input, &o);
             }
         }
     }
-    out
 }
 
 #[cfg(test)]

@@ -1,22 +1,23 @@
 //! Feed-forward stylization (paper Sec. 4 and 5.2): a trained network
 //! (`nst3d train`) stylizes each frame on its own, from every viewpoint at
 //! once, with no optimisation and no temporal machinery, so frames can run
-//! in any order on any blade. Large grids run in tiles
-//! ([`nst3d_network::infer_tiled`]), so memory follows the tile size.
+//! in any order on any blade. Grids run in tiles read from and written to
+//! the sparse VDB leaves ([`nst3d_network::tiled::infer_tiles`]), so memory
+//! follows the tile size and the smoke, never the dense box.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use nst3d_core::{Grid3, Reporter};
-use nst3d_io::vdb::read_vdb;
-use nst3d_network::{infer_tiled, Model, Volume};
+use nst3d_io::vdb::{read_vdb, GridValues, SparseGrid, VdbGrid, LEAF_DIM};
+use nst3d_network::tiled::infer_tiles;
+use nst3d_network::{Model, Volume};
 use nst3d_sequence::{expand_pattern, FrameSpec};
 use nst3d_stylize::Mode;
 use nst3d_train::step::{apply, Stylization};
 
-use crate::dense::{pad, paste};
-use crate::output::write_stylized;
+use crate::output::write_stylized_grid;
 use crate::settings::VolumeSettings;
 
 /// A trained model and how to run it.
@@ -87,29 +88,59 @@ fn load_model(m: &ModelSettings) -> Result<(Model, Mode, f32)> {
     Ok((model, mode, vmax))
 }
 
-/// Stylizes `d` (the file's densities) with the network: normalised to
-/// `[0, 1]` as in training, run in tiles, then applied as a scale or a
-/// velocity and scaled back.
-fn stylize_density(model: &Model, mode: Mode, vmax: f32, d: &Grid3, m: &ModelSettings) -> Grid3 {
-    let max = d.max();
+/// Stylizes one frame's density grid with the network, tile by tile,
+/// straight from the sparse grid into a sparse result: densities are
+/// normalised to `[0, 1]` by the frame's largest active value (as in
+/// training), each tile and its margin are read from the leaves, run,
+/// applied as a scale or a velocity, scaled back, and only the tile's own
+/// voxels that hold smoke are kept. Nothing of the frame's size is ever
+/// dense, so memory follows the tile. Returns the result and the voxels run.
+fn stylize_sparse(
+    model: &Model,
+    mode: Mode,
+    vmax: f32,
+    grid: &SparseGrid<f32>,
+    (lo, hi): ([i32; 3], [i32; 3]),
+    m: &ModelSettings,
+) -> (SparseGrid<f32>, u64) {
+    let max = grid.iter_active().map(|(_, v)| v).fold(0.0f32, f32::max);
+    let mut out = SparseGrid::new(0.0f32);
     if !(max > 0.0) {
-        return d.clone();
+        return (out, 0);
     }
-    // The network maps sides that are multiples of 4 onto themselves: the
-    // frame goes into the corner of such a box, normalised, and comes back out.
-    let mut xg = Grid3::zeros(d.dims.map(|n| n.next_multiple_of(4)));
-    paste(d, [0; 3], &mut xg, [0; 3]);
-    xg.data.iter_mut().for_each(|v| *v /= max);
-    let o = infer_tiled(&model.net, &Volume::from_grid(&xg), m.tile, m.margin);
+    // The active box plus room for the velocity to move smoke outwards,
+    // starting on a leaf corner: tiles (multiples of 8) then cover whole
+    // leaves, and the network's stride lattice is fixed in index space, so a
+    // frame's result does not depend on the tile size.
+    let room = if mode == Mode::Velocity { vmax.ceil() as i32 + 1 } else { 0 };
+    let origin: [i32; 3] = std::array::from_fn(|a| (lo[a] - room).div_euclid(LEAF_DIM) * LEAF_DIM);
+    let dims: [usize; 3] = std::array::from_fn(|a| (hi[a] + room - origin[a] + 1) as usize);
+    let at = |p: [usize; 3]| -> [i32; 3] { std::array::from_fn(|a| origin[a] + p[a] as i32) };
     let how = match mode {
         Mode::Density => Stylization::Density,
         Mode::Velocity => Stylization::Velocity { vmax },
     };
-    let mut styled = apply(&xg, &o, how);
-    styled.data.iter_mut().for_each(|v| *v *= max);
-    let mut out = Grid3::zeros(d.dims);
-    paste(&styled, [0; 3], &mut out, [0; 3]);
-    out
+    let read = |from: [usize; 3], size: [usize; 3]| {
+        let mut v = grid.region(at(from), size);
+        v.iter_mut().for_each(|x| *x /= max);
+        Volume::from_vec(1, size, v)
+    };
+    infer_tiles(&model.net, dims, m.tile.next_multiple_of(LEAF_DIM as usize), m.margin, read, |t, input, o| {
+        // Applied on the whole region: a velocity reads density up to vmax
+        // away, which the margin holds.
+        let styled = apply(&Grid3::from_vec(t.size, input.data.clone()), o, how);
+        let core: [usize; 3] = std::array::from_fn(|a| t.hi[a] - t.lo[a]);
+        let mut values = Vec::with_capacity(core.iter().product());
+        for z in t.lo[2]..t.hi[2] {
+            for y in t.lo[1]..t.hi[1] {
+                let row = ((z - t.from[2]) * t.size[1] + (y - t.from[1])) * t.size[0];
+                let (a, b) = (t.lo[0] - t.from[0], t.hi[0] - t.from[0]);
+                values.extend(styled.data[row + a..row + b].iter().map(|v| v * max));
+            }
+        }
+        out.insert_region(at(t.lo), core, &values, |v| v > 0.0 || !v.is_finite());
+    });
+    (out, dims.iter().product::<usize>() as u64)
 }
 
 /// One frame file in, one out.
@@ -124,22 +155,23 @@ fn one_frame(
 ) -> Result<Option<(u64, f64)>> {
     let file = read_vdb(input)?;
     let grid = file.grid(&s.grid).with_context(|| format!("{}: no grid named '{}'", input.display(), s.grid))?;
-    if grid.active_voxel_count() == 0 {
-        return Ok(None);
+    let GridValues::Float(sparse) = &grid.values else {
+        bail!("{}: grid '{}' is not a float grid", input.display(), s.grid);
+    };
+    let Some(bbox) = grid.active_bbox() else { return Ok(None) };
+    if let Some(ijk) = grid.first_non_finite() {
+        bail!("{}: grid '{}' has a non-finite value at {ijk:?}", input.display(), s.grid);
     }
-    let (bx, dense) = grid.to_dense()?;
-    // Room for the velocity to move smoke outwards.
-    let margin = if mode == Mode::Velocity { vmax.ceil() as usize + 1 } else { 0 };
-    let padded = pad(&dense, margin);
-    let origin = bx.origin.map(|o| o - margin as i32);
     let t0 = Instant::now();
-    let styled = stylize_density(model, mode, vmax, &padded, m);
+    let (styled, voxels) = stylize_sparse(model, mode, vmax, sparse, bbox, m);
     let secs = t0.elapsed().as_secs_f64();
-    if styled.data.iter().any(|v| !v.is_finite()) {
+    if styled.iter_active().any(|(_, v)| !v.is_finite()) {
         bail!("{}: the network produced non-finite densities", input.display());
     }
-    write_stylized(out, &file, &grid.name, &grid.transform, origin, &styled)?;
-    Ok(Some((padded.len() as u64, secs)))
+    let mut result = VdbGrid::new(&grid.name, &grid.class, grid.transform.clone(), GridValues::Float(styled));
+    result.metadata = grid.metadata.clone();
+    write_stylized_grid(out, &file, result)?;
+    Ok(Some((voxels, secs)))
 }
 
 /// Stylizes `s.input` (one frame, or the frames of `s.sequence`) with the
@@ -201,4 +233,54 @@ pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut 
         None => None,
     };
     Ok(ModelReport { frames, skipped, mode, voxels, seconds, flicker, out: output })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nst3d_network::FeedForward;
+    use std::collections::BTreeMap;
+
+    /// A blob of smoke away from the origin, sparse.
+    fn blob() -> (SparseGrid<f32>, ([i32; 3], [i32; 3])) {
+        let mut g = SparseGrid::new(0.0f32);
+        let (c, r) = ([-5.0f32, 30.0, 17.0], 11.0f32);
+        for z in 5..30 {
+            for y in 18..43 {
+                for x in -17..8 {
+                    let d2 = (x as f32 - c[0]).powi(2) + (y as f32 - c[1]).powi(2) + (z as f32 - c[2]).powi(2);
+                    if d2 < r * r {
+                        g.set_active([x, y, z], 1.0 - d2 / (r * r) + 0.01 * ((x + 2 * y + 3 * z) % 5) as f32);
+                    }
+                }
+            }
+        }
+        let bbox = g.active_bbox().unwrap();
+        (g, bbox)
+    }
+
+    /// Small tiles give the one-tile result (the margin covers the
+    /// network's reach), in both modes, and nothing is written where no
+    /// smoke can reach.
+    #[test]
+    fn tile_size_does_not_change_the_frame() {
+        let (g, bbox) = blob();
+        for (mode, out_c, vmax) in [(Mode::Density, 1, 0.0), (Mode::Velocity, 3, 2.0)] {
+            let model = Model { net: FeedForward::new(2, out_c, 4), info: BTreeMap::new() };
+            let run = |tile: usize| {
+                let m = ModelSettings { path: PathBuf::new(), tile, margin: 32, mode: None };
+                stylize_sparse(&model, mode, vmax, &g, bbox, &m).0
+            };
+            let (whole, tiled) = (run(256), run(8));
+            assert!(whole.active_voxel_count() > 1000);
+            assert_eq!(whole.active_voxel_count(), tiled.active_voxel_count(), "{mode:?}");
+            for (ijk, v) in whole.iter_active() {
+                assert!((v - tiled.get(ijk)).abs() <= 1e-5 * v.abs().max(1.0), "{mode:?} at {ijk:?}");
+            }
+            // Density mode only scales: no voxel outside the input's smoke.
+            if mode == Mode::Density {
+                assert!(whole.iter_active().all(|(ijk, _)| g.is_active(ijk)));
+            }
+        }
+    }
 }

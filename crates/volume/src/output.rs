@@ -20,14 +20,23 @@ pub fn write_stylized(
     origin: [i32; 3],
     density: &Grid3,
 ) -> Result<Vec<String>> {
+    let mut out = VdbGrid::from_dense(grid_name, transform.clone(), origin, density, 0.0);
+    if let Some(g) = file.grid(grid_name) {
+        out.metadata = g.metadata.clone();
+        out.class = g.class.clone();
+    }
+    write_stylized_grid(path, file, out)
+}
+
+/// [`write_stylized`] with the stylized grid already built (sparse, with the
+/// name, class, metadata and transform it is to have).
+pub fn write_stylized_grid(path: &Path, file: &VdbFile, stylized: VdbGrid) -> Result<Vec<String>> {
     let mut dropped = Vec::new();
     let mut grids = Vec::with_capacity(file.grids.len());
+    let mut stylized = Some(stylized);
     for g in &file.grids {
-        if g.name == grid_name {
-            let mut out = VdbGrid::from_dense(&g.name, transform.clone(), origin, density, 0.0);
-            out.metadata = g.metadata.clone();
-            out.class = g.class.clone();
-            grids.push(out);
+        if g.name == stylized.as_ref().map_or("", |s| s.name.as_str()) {
+            grids.push(stylized.take().expect("one grid of that name"));
         } else if matches!(g.values, GridValues::Unsupported { .. }) {
             dropped.push(format!("grid '{}' ({})", g.name, g.values.type_name()));
         } else {

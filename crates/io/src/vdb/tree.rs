@@ -178,4 +178,82 @@ impl<T: Copy> SparseGrid<T> {
         }
         bb
     }
+
+    /// The values of the box of `dims` voxels whose first voxel is at index
+    /// `origin`, x fastest (the `Grid3` order): voxels outside the leaves
+    /// take the background, inactive leaf voxels keep their stored value
+    /// (OpenVDB's `copyToDense`). One lookup per leaf the box touches, so a
+    /// tile of a huge grid costs the tile's size, not the grid's.
+    pub fn region(&self, origin: [i32; 3], dims: [usize; 3]) -> Vec<T> {
+        let n: usize = dims.iter().product();
+        let mut out = vec![self.background; n];
+        if n == 0 {
+            return out;
+        }
+        let hi: [i32; 3] = std::array::from_fn(|a| origin[a] + dims[a] as i32 - 1);
+        let lo = leaf_origin(origin);
+        for lz in (lo[2]..=hi[2]).step_by(LEAF_DIM as usize) {
+            for ly in (lo[1]..=hi[1]).step_by(LEAF_DIM as usize) {
+                for lx in (lo[0]..=hi[0]).step_by(LEAF_DIM as usize) {
+                    let Some(leaf) = self.leaves.get(&[lx, ly, lz]) else { continue };
+                    // The part of this leaf inside the box.
+                    let from: [i32; 3] = std::array::from_fn(|a| leaf.origin[a].max(origin[a]));
+                    let to: [i32; 3] = std::array::from_fn(|a| (leaf.origin[a] + LEAF_DIM - 1).min(hi[a]));
+                    for z in from[2]..=to[2] {
+                        for y in from[1]..=to[1] {
+                            let row = ((z - origin[2]) as usize * dims[1] + (y - origin[1]) as usize) * dims[0];
+                            for x in from[0]..=to[0] {
+                                out[row + (x - origin[0]) as usize] = leaf.values[leaf_offset([x, y, z])];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Writes the box of `dims` voxels at index `origin` (values x fastest)
+    /// into the grid leaf by leaf: voxels for which `keep` holds become
+    /// active with their value, the others are left as they were. Leaves
+    /// that would hold no active voxel are not created.
+    pub fn insert_region(&mut self, origin: [i32; 3], dims: [usize; 3], values: &[T], keep: impl Fn(T) -> bool) {
+        assert_eq!(values.len(), dims.iter().product::<usize>(), "region values must match its dims");
+        if values.is_empty() {
+            return;
+        }
+        let hi: [i32; 3] = std::array::from_fn(|a| origin[a] + dims[a] as i32 - 1);
+        let lo = leaf_origin(origin);
+        for lz in (lo[2]..=hi[2]).step_by(LEAF_DIM as usize) {
+            for ly in (lo[1]..=hi[1]).step_by(LEAF_DIM as usize) {
+                for lx in (lo[0]..=hi[0]).step_by(LEAF_DIM as usize) {
+                    let lorigin = [lx, ly, lz];
+                    let from: [i32; 3] = std::array::from_fn(|a| lorigin[a].max(origin[a]));
+                    let to: [i32; 3] = std::array::from_fn(|a| (lorigin[a] + LEAF_DIM - 1).min(hi[a]));
+                    let at = |x: i32, y: i32, z: i32| {
+                        ((z - origin[2]) as usize * dims[1] + (y - origin[1]) as usize) * dims[0]
+                            + (x - origin[0]) as usize
+                    };
+                    let any = (from[2]..=to[2])
+                        .any(|z| (from[1]..=to[1]).any(|y| (from[0]..=to[0]).any(|x| keep(values[at(x, y, z)]))));
+                    if !any {
+                        continue;
+                    }
+                    let leaf = self.leaf_mut(lorigin);
+                    for z in from[2]..=to[2] {
+                        for y in from[1]..=to[1] {
+                            for x in from[0]..=to[0] {
+                                let v = values[at(x, y, z)];
+                                if keep(v) {
+                                    let n = leaf_offset([x, y, z]);
+                                    leaf.values[n] = v;
+                                    leaf.active[n >> 6] |= 1 << (n & 63);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
 }
