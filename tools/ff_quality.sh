@@ -1,18 +1,20 @@
 #!/usr/bin/env bash
-# The feed-forward quality study of docs/FEEDFORWARD.md: one trained density
-# model against single-camera and omniview:16 optimisation on frames the
+# The feed-forward quality study of docs/FEEDFORWARD.md: one trained model
+# against single-camera and omniview:16 optimisation on frames the
 # model never saw, all scored by one judge — the mean Gram style loss from
 # the 8 cameras of `ring:8:30` (none of them a training or optimisation
 # view), measured on the written files by `nst3d volume --eval-cameras`
 # (its "before" number is the loss of the file it reads) — plus the wall
 # time of each stylization and turntable pictures.
 #
-#   bash tools/ff_quality.sh MODEL.safetensors OUTDIR FRAME.vdb [FRAME.vdb ...]
+#   bash tools/ff_quality.sh MODEL.safetensors MODE OUTDIR FRAME.vdb [FRAME.vdb ...]
+#
+# MODE (density or velocity) is the model's; the optimisations run in it too.
 #
 # Prints one table row per frame and method; pictures land in OUTDIR.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-MODEL=$1; OUT=$2; shift 2
+MODEL=$1; MODE=$2; OUT=$3; shift 3
 STYLE=../shared/data/styles/starry_night.jpg
 BIN=./target/release/nst3d
 EVAL=ring:8:30
@@ -20,7 +22,7 @@ mkdir -p "$OUT"
 
 # Mean style loss of a file from the $EVAL cameras.
 judge() {
-  "$BIN" volume --input "$1" --style "$STYLE" --mode density --upsample 1 --iters 1 --octaves 1 \
+  "$BIN" volume --input "$1" --style "$STYLE" --mode "$MODE" --upsample 1 --iters 1 --octaves 1 \
     --eval-cameras "$EVAL" --out "$OUT/judge_tmp.vdb" | sed -n 's/^held-out cameras [^:]*: mean style loss \([^ ]*\) .*/\1/p'
 }
 # Wall seconds of a command.
@@ -38,9 +40,9 @@ for f in "$@"; do
   echo "| $name | input | $base | 1 | |"
   t=$(timed "$BIN" volume --model "$MODEL" --input "$f" --out "$OUT/${name}_ff.vdb")
   l=$(judge "$OUT/${name}_ff.vdb"); echo "| $name | feed-forward | $l | $(echo "scale=3; $l / $base" | bc) | $t |"
-  t=$(timed "$BIN" volume --input "$f" --style "$STYLE" --mode density --upsample 1 --out "$OUT/${name}_opt.vdb")
+  t=$(timed "$BIN" volume --input "$f" --style "$STYLE" --mode "$MODE" --upsample 1 --out "$OUT/${name}_opt.vdb")
   l=$(judge "$OUT/${name}_opt.vdb"); echo "| $name | optimisation, front camera | $l | $(echo "scale=3; $l / $base" | bc) | $t |"
-  t=$(timed "$BIN" volume --input "$f" --style "$STYLE" --mode density --upsample 1 --cameras omniview:16 --out "$OUT/${name}_omni.vdb")
+  t=$(timed "$BIN" volume --input "$f" --style "$STYLE" --mode "$MODE" --upsample 1 --cameras omniview:16 --out "$OUT/${name}_omni.vdb")
   l=$(judge "$OUT/${name}_omni.vdb"); echo "| $name | optimisation, omniview:16 | $l | $(echo "scale=3; $l / $base" | bc) | $t |"
   for m in ff opt omni; do
     "$BIN" preview --input "$f" --compare "$OUT/${name}_$m.vdb" --turntable 4 --elevation 30 --height 256 \

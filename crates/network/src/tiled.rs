@@ -36,7 +36,7 @@ pub fn infer_tiled(net: &FeedForward, x: &Volume, tile: usize, margin: usize) ->
                 region.data[dst..dst + to[0] - from[0]].copy_from_slice(&x.data[src + from[0]..src + to[0]]);
             }
         }
-        region
+        Some(region)
     };
     let n_out = dims.iter().product::<usize>();
     infer_tiles(net, dims, tile, margin, read, |t: &Tile, _input: &Volume, o: &Volume| {
@@ -72,8 +72,9 @@ pub struct Tile {
 
 /// Tiled inference over a volume of `dims` voxels that is never held
 /// whole: `read(from, size)` returns the one-channel input region of `size`
-/// voxels at `from` (zeros beyond the volume), and `emit(tile, input,
-/// output)` receives each tile with the region it read and the network's
+/// voxels at `from` (zeros beyond the volume), or `None` to skip the tile
+/// (a caller that knows the tile's output is not needed, e.g. no smoke in
+/// reach), and `emit(tile, input, output)` receives each tile with the region it read and the network's
 /// output on it, of which only `tile.lo .. tile.hi` is exact. Tiles and
 /// margin are rounded up to multiples of 4 (the network's stride), and
 /// tiles start at multiples of `tile` from 0, so they sit on the untiled
@@ -86,7 +87,7 @@ pub fn infer_tiles(
     dims: [usize; 3],
     tile: usize,
     margin: usize,
-    mut read: impl FnMut([usize; 3], [usize; 3]) -> Volume,
+    mut read: impl FnMut([usize; 3], [usize; 3]) -> Option<Volume>,
     mut emit: impl FnMut(&Tile, &Volume, &Volume),
 ) {
     assert!(tile > 0, "tiled inference needs a tile size");
@@ -103,7 +104,7 @@ pub fn infer_tiles(
                 let to: [usize; 3] = std::array::from_fn(|a| (lo[a] + tile + margin).min(dims[a]));
                 let size: [usize; 3] = std::array::from_fn(|a| (to[a] - from[a]).next_multiple_of(4));
                 let hi: [usize; 3] = std::array::from_fn(|a| (lo[a] + tile).min(dims[a]));
-                let input = read(from, size);
+                let Some(input) = read(from, size) else { continue };
                 let o = net.infer(&input);
                 emit(&Tile { lo, hi, from, size }, &input, &o);
             }

@@ -42,7 +42,7 @@ pub struct ModelReport {
     pub skipped: usize,
     /// The model's mode.
     pub mode: Mode,
-    /// Voxels run through the network.
+    /// Voxels of the frames' boxes (active box plus room for the velocity).
     pub voxels: u64,
     /// Seconds spent in the network and transport (not reading or writing).
     pub seconds: f64,
@@ -93,8 +93,9 @@ fn load_model(m: &ModelSettings) -> Result<(Model, Mode, f32)> {
 /// normalised to `[0, 1]` by the frame's largest active value (as in
 /// training), each tile and its margin are read from the leaves, run,
 /// applied as a scale or a velocity, scaled back, and only the tile's own
-/// voxels that hold smoke are kept. Nothing of the frame's size is ever
-/// dense, so memory follows the tile. Returns the result and the voxels run.
+/// voxels that hold smoke are kept; tiles with no smoke in reach are not
+/// run. Nothing of the frame's size is ever dense, so memory follows the
+/// tile. Returns the result and the voxels of the frame's box.
 fn stylize_sparse(
     model: &Model,
     mode: Mode,
@@ -120,10 +121,15 @@ fn stylize_sparse(
         Mode::Density => Stylization::Density,
         Mode::Velocity => Stylization::Velocity { vmax },
     };
+    // A region without smoke stays without smoke in either mode (a scale of
+    // zero, or zero moved about): its tile is skipped.
     let read = |from: [usize; 3], size: [usize; 3]| {
         let mut v = grid.region(at(from), size);
+        if v.iter().all(|x| *x == 0.0) {
+            return None;
+        }
         v.iter_mut().for_each(|x| *x /= max);
-        Volume::from_vec(1, size, v)
+        Some(Volume::from_vec(1, size, v))
     };
     infer_tiles(&model.net, dims, m.tile.next_multiple_of(LEAF_DIM as usize), m.margin, read, |t, input, o| {
         // Applied on the whole region: a velocity reads density up to vmax

@@ -287,7 +287,7 @@ pub fn run(args: VolumeArgs) -> Result<()> {
             );
         }
         VolumeReport::Model(r) => println!(
-            "{} frame{} stylized by the {:?}-mode model ({:.2} Mvoxels/s in the network){}{}; wrote {}",
+            "{} frame{} stylized by the {:?}-mode model ({:.2} Mvoxels/s of the frames' boxes){}{}; wrote {}",
             r.frames,
             plural(r.frames),
             r.mode,
