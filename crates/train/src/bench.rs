@@ -30,6 +30,8 @@ pub fn train_step(p: usize, velocity: bool, channels: usize, steps: usize) -> (V
     let stylization = if velocity { Stylization::Velocity { vmax: 0.04 * p as f32 } } else { Stylization::Density };
     let net = FeedForward::new(channels, stylization.channels(), 0);
     let mut trainer = TrainStep::new(net, stylization, OneCycle::new(1e-4, steps as u64 + 1, 20.0));
+    // The peer scores one octave.
+    trainer.octaves = 1;
     let mut rng = SplitMix64::new(1);
     let mut times = Vec::with_capacity(steps);
     let mut last = 0.0;

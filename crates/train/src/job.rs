@@ -39,6 +39,8 @@ pub struct TrainSettings {
     pub channels: usize,
     /// Patch side (a multiple of 4).
     pub patch: usize,
+    /// Octaves of the loss (the paper's 2; see [`crate::step::octave_loss`]).
+    pub octaves: usize,
     /// Steps of the OneCycle schedule (the run stops there).
     pub steps: u64,
     /// Wall-clock budget in minutes (the run stops after the step that crosses it).
@@ -124,7 +126,7 @@ fn load_frames(s: &TrainSettings) -> Result<Vec<Grid3>> {
 /// What must match for a checkpoint to be resumed.
 fn fingerprint(s: &TrainSettings) -> String {
     format!(
-        "{:?}|{}|{:?}|{}|{}|{}|{}|{}|{}|{}|{}|{}",
+        "{:?}|{}|{:?}|{}|{}|{}|{}|{}|{}|{}|{}|{}|{}",
         s.frames,
         s.grid,
         s.style,
@@ -132,6 +134,7 @@ fn fingerprint(s: &TrainSettings) -> String {
         s.velocity,
         s.channels,
         s.patch,
+        s.octaves,
         s.steps,
         s.theta_deg,
         s.phi_deg,
@@ -219,6 +222,7 @@ fn write_outputs(
     info.insert("theta_deg".to_string(), s.theta_deg.to_string());
     info.insert("phi_deg".to_string(), s.phi_deg.to_string());
     info.insert("patch".to_string(), s.patch.to_string());
+    info.insert("octaves".to_string(), s.octaves.to_string());
     info.insert("steps".to_string(), t.steps().to_string());
     info.insert("nst3d_version".to_string(), env!("CARGO_PKG_VERSION").to_string());
     let bytes = Model { net: t.net.clone(), info }.to_bytes();
@@ -246,6 +250,13 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     if !(1..=128).contains(&s.channels) || s.steps == 0 || s.checkpoint_every == 0 {
         bail!("--channels must be 1..=128 and --steps and --checkpoint-every at least 1");
     }
+    if !(1..=3).contains(&s.octaves) || s.patch >> (s.octaves - 1) < 8 {
+        bail!(
+            "--octaves must be 1 to 3, with the patch at least 8 voxels at the coarsest ({} at {})",
+            s.patch,
+            s.octaves
+        );
+    }
     let frames = load_frames(s)?;
     let style_img = nst3d_io::image::luminance_rgb(&nst3d_io::image::load_style(&s.style, s.style_scale)?);
     let style_sha = nst3d_weights::sha256_file(&s.style)?;
@@ -255,6 +266,7 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         if s.velocity { Stylization::Velocity { vmax: 0.04 * s.patch as f32 } } else { Stylization::Density };
     let net = FeedForward::new(s.channels, stylization.channels(), s.seed);
     let mut trainer = TrainStep::new(net, stylization, OneCycle::new(1e-4, s.steps, 20.0));
+    trainer.octaves = s.octaves;
     let mut rng = SplitMix64::new(s.seed ^ 0x7261_696e);
     let mut losses = Vec::new();
     let ckpt = checkpoint_path(&s.out);

@@ -30,6 +30,7 @@ fn settings(out: &Path) -> TrainSettings {
         seed: 3,
         out: out.to_path_buf(),
         checkpoint_every: 2,
+        octaves: 2,
     }
 }
 

@@ -14,7 +14,7 @@ mod sample;
 mod smooth;
 mod transport;
 
-pub use resample::{downsample2, resize_grid, resize_velocity};
+pub use resample::{downsample2, downsample2_backward, resize_grid, resize_velocity};
 pub use sample::{sample_trilinear, sample_trilinear_backward, sample_trilinear_rows, sample_trilinear_rows_backward};
 pub use smooth::{tent_smooth, tent_smooth_flat, tent_smooth_into};
 pub use transport::{advect_linear, advect_linear_backward, clamp_scale, limit_velocity, modulate, modulate_backward};

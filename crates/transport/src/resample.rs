@@ -37,6 +37,32 @@ pub fn downsample2(g: &Grid3) -> Grid3 {
     out
 }
 
+/// Backward of [`downsample2`]: the gradient w.r.t. the fine grid of `dims`
+/// voxels from the gradient w.r.t. the coarse one; each fine voxel gets its
+/// parent's gradient divided by the number of children the parent averaged.
+///
+/// # Panics
+/// If `grad` is not the size of `dims` halved (rounded up).
+pub fn downsample2_backward(dims: [usize; 3], grad: &Grid3) -> Grid3 {
+    assert_eq!(grad.dims, dims.map(|n| n.div_ceil(2)), "coarse gradient must be the fine dims halved");
+    let [nx, ny, nz] = dims;
+    let mut out = Grid3::zeros(dims);
+    if out.is_empty() {
+        return out;
+    }
+    let count = |i: usize, n: usize| (2 * i + 2).min(n) - 2 * i;
+    out.data.par_chunks_mut(nx).enumerate().for_each(|(r, row)| {
+        let (y, z) = (r % ny, r / ny);
+        let (cy, cz) = (y / 2, z / 2);
+        for (x, o) in row.iter_mut().enumerate() {
+            let cx = x / 2;
+            let children = count(cx, nx) * count(cy, ny) * count(cz, nz);
+            *o = grad.data[grad.index(cx, cy, cz)] / children as f32;
+        }
+    });
+    out
+}
+
 /// Linear-interpolation taps along one axis for resizing `from` -> `to`
 /// samples, exactly as PyTorch's `interpolate(..., align_corners=False)`
 /// computes them (source index clamped at 0, upper neighbour clamped).
@@ -117,6 +143,25 @@ pub fn resize_velocity(v: &[[f32; 3]], from: [usize; 3], to: [usize; 3]) -> Vec<
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn downsample2_backward_matches_finite_differences() {
+        use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
+        // Odd sizes: border parents average fewer children.
+        let dims = [5, 4, 3];
+        let g = Grid3::from_vec(dims, pseudo_random(60, 1));
+        let w = Grid3::from_vec([3, 2, 2], pseudo_random(12, 2));
+        let analytic = downsample2_backward(dims, &w);
+        let r = check_gradient(
+            &g.data,
+            &analytic.data,
+            |x| dot(&w.data, &downsample2(&Grid3::from_vec(dims, x.to_vec())).data),
+            1e-3,
+            60,
+            1e-4,
+        );
+        assert!(r.max_rel_err < 1e-3, "{r:?}");
+    }
+
     use super::*;
 
     #[test]
