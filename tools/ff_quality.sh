@@ -23,13 +23,14 @@ mkdir -p "$OUT"
 # Mean style loss of a file from the $EVAL cameras.
 judge() {
   "$BIN" volume --input "$1" --style "$STYLE" --mode "$MODE" --upsample 1 --iters 1 --octaves 1 \
-    --eval-cameras "$EVAL" --out "$OUT/judge_tmp.vdb" | sed -n 's/^held-out cameras [^:]*: mean style loss \([^ ]*\) .*/\1/p'
+    --eval-cameras "$EVAL" --out "$OUT/judge_tmp.vdb" | sed -n 's/^held-out cameras .*: mean style loss \([^ ]*\) .*/\1/p'
 }
+ratio() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.3f", a / b }'; }
 # Wall seconds of a command.
 timed() {
   local t0 t1
   t0=$(date +%s.%N); "$@" > "$OUT/last.log"; t1=$(date +%s.%N)
-  echo "$t1 - $t0" | bc
+  awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.2f", b - a }'
 }
 
 echo "| frame | method | style loss from $EVAL | vs input | wall s |"
@@ -39,11 +40,11 @@ for f in "$@"; do
   base=$(judge "$f")
   echo "| $name | input | $base | 1 | |"
   t=$(timed "$BIN" volume --model "$MODEL" --input "$f" --out "$OUT/${name}_ff.vdb")
-  l=$(judge "$OUT/${name}_ff.vdb"); echo "| $name | feed-forward | $l | $(echo "scale=3; $l / $base" | bc) | $t |"
+  l=$(judge "$OUT/${name}_ff.vdb"); echo "| $name | feed-forward | $l | $(ratio "$l" "$base") | $t |"
   t=$(timed "$BIN" volume --input "$f" --style "$STYLE" --mode "$MODE" --upsample 1 --out "$OUT/${name}_opt.vdb")
-  l=$(judge "$OUT/${name}_opt.vdb"); echo "| $name | optimisation, front camera | $l | $(echo "scale=3; $l / $base" | bc) | $t |"
+  l=$(judge "$OUT/${name}_opt.vdb"); echo "| $name | optimisation, front camera | $l | $(ratio "$l" "$base") | $t |"
   t=$(timed "$BIN" volume --input "$f" --style "$STYLE" --mode "$MODE" --upsample 1 --cameras omniview:16 --out "$OUT/${name}_omni.vdb")
-  l=$(judge "$OUT/${name}_omni.vdb"); echo "| $name | optimisation, omniview:16 | $l | $(echo "scale=3; $l / $base" | bc) | $t |"
+  l=$(judge "$OUT/${name}_omni.vdb"); echo "| $name | optimisation, omniview:16 | $l | $(ratio "$l" "$base") | $t |"
   for m in ff opt omni; do
     "$BIN" preview --input "$f" --compare "$OUT/${name}_$m.vdb" --turntable 4 --elevation 30 --height 256 \
       --out "$OUT/${name}_${m}_####.png" > /dev/null

@@ -73,6 +73,42 @@ pub fn apply_backward(d: &Grid3, o: &Volume, s: Stylization, grad: &[f32]) -> Vo
     }
 }
 
+/// `d*` scaled so the stylization redistributes the smoke without adding or
+/// removing any: `k d*` with `k = Σ d / Σ d*`. Returns the scaled grid and `k`.
+///
+/// Why: the Gram loss of a render can be lowered by simply having less
+/// smoke (an empty render is closer to a dark painting than bright smoke
+/// is), and a network finds that route: density mode learned `s → 0`
+/// everywhere, velocity mode thinned the smoke by reading from the empty
+/// space around it (docs/FEEDFORWARD.md, "Keeping the smoke"). Fixing the
+/// total takes that route away and leaves the look to the pattern.
+pub fn conserve_mass(d: &Grid3, dstar: &Grid3) -> (Grid3, f32) {
+    let k = mass_ratio(d.data.iter().map(|v| *v as f64).sum(), dstar.data.iter().map(|v| *v as f64).sum());
+    (Grid3::from_vec(dstar.dims, dstar.data.iter().map(|v| v * k).collect()), k)
+}
+
+/// `Σ before / Σ after`, or 1 when either is not positive (nothing to keep).
+pub fn mass_ratio(before: f64, after: f64) -> f32 {
+    if before > 0.0 && after > 0.0 {
+        (before / after) as f32
+    } else {
+        1.0
+    }
+}
+
+/// Backward of [`conserve_mass`] w.r.t. the unscaled `dstar`, given
+/// `grad = ∂L/∂(k d*)`: `k g_m − (k / Σ d*) Σ_i g_i d*_i` (`k` depends on
+/// every voxel through `Σ d*`).
+pub fn conserve_mass_backward(dstar: &Grid3, k: f32, grad: &[f32]) -> Vec<f32> {
+    let total: f64 = dstar.data.iter().map(|v| *v as f64).sum();
+    if total <= 0.0 {
+        return grad.iter().map(|g| g * k).collect();
+    }
+    let dot: f64 = grad.iter().zip(&dstar.data).map(|(g, d)| *g as f64 * *d as f64).sum();
+    let shift = (k as f64 * dot / total) as f32;
+    grad.iter().map(|g| k * g - shift).collect()
+}
+
 /// The style loss of `d` summed over `octaves` scales and its gradient:
 /// octave `k` renders `d` box-filtered down `2^k` times, with the
 /// absorption scaled up `2^k` times so each ray keeps its optical depth.
@@ -145,9 +181,11 @@ impl TrainStep {
     pub fn step(&mut self, patch: &Grid3, loss: &ViewLoss, view: &ViewSpec) -> Result<f32, ViewError> {
         let x = Volume::from_grid(patch);
         let (o, tape) = self.net.forward(&x);
-        let dstar = apply(patch, &o, self.stylization);
+        let raw = apply(patch, &o, self.stylization);
+        let (dstar, k) = conserve_mass(patch, &raw);
         let (l, grad_dstar) = octave_loss(&dstar, loss, view, self.octaves)?;
-        let grad_o = apply_backward(patch, &o, self.stylization, &grad_dstar.data);
+        let grad_raw = conserve_mass_backward(&raw, k, &grad_dstar.data);
+        let grad_o = apply_backward(patch, &o, self.stylization, &grad_raw);
         let mut grads = FeedForward::flat_grads(&self.net.backward(&tape, &grad_o));
         clip_grad_norm(&mut [&mut grads], self.clip);
         let (lr, beta1) = self.schedule.at(self.steps);
@@ -219,5 +257,27 @@ mod tests {
         assert!(back.data.iter().any(|v| *v != 0.0));
         // One octave is the plain view loss.
         assert_eq!(octave_loss(&d, &loss, &view, 1).unwrap().0, l0);
+    }
+
+    #[test]
+    fn conserving_mass_keeps_the_total_and_its_gradient_matches_finite_differences() {
+        let dims = [4, 5, 3];
+        let d = Grid3::from_vec(dims, pseudo_random(60, 7).iter().map(|v| v.abs()).collect());
+        let raw = Grid3::from_vec(dims, pseudo_random(60, 8).iter().map(|v| 0.2 + v.abs()).collect());
+        let (scaled, k) = conserve_mass(&d, &raw);
+        let sum = |g: &Grid3| g.data.iter().map(|v| *v as f64).sum::<f64>();
+        assert!((sum(&scaled) - sum(&d)).abs() < 1e-4 * sum(&d));
+        let w = pseudo_random(60, 9);
+        let analytic = conserve_mass_backward(&raw, k, &w);
+        let r = check_gradient(
+            &raw.data,
+            &analytic,
+            |x| dot(&w, &conserve_mass(&d, &Grid3::from_vec(dims, x.to_vec())).0.data),
+            // A smooth rational map: a large step keeps f32 rounding out.
+            1e-2,
+            60,
+            1e-2,
+        );
+        assert!(r.max_rel_err < 1e-2, "{r:?}");
     }
 }

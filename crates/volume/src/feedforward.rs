@@ -15,7 +15,7 @@ use nst3d_network::tiled::infer_tiles;
 use nst3d_network::{Model, Volume};
 use nst3d_sequence::{expand_pattern, FrameSpec};
 use nst3d_stylize::Mode;
-use nst3d_train::step::{apply, Stylization};
+use nst3d_train::step::{apply, mass_ratio, Stylization};
 
 use crate::output::write_stylized_grid;
 use crate::settings::VolumeSettings;
@@ -123,6 +123,7 @@ fn stylize_sparse(
     };
     // A region without smoke stays without smoke in either mode (a scale of
     // zero, or zero moved about): its tile is skipped.
+    let mut written = 0.0f64;
     let read = |from: [usize; 3], size: [usize; 3]| {
         let mut v = grid.region(at(from), size);
         if v.iter().all(|x| *x == 0.0) {
@@ -144,8 +145,15 @@ fn stylize_sparse(
                 values.extend(styled.data[row + a..row + b].iter().map(|v| v * max));
             }
         }
+        written += values.iter().filter(|v| **v > 0.0).map(|v| *v as f64).sum::<f64>();
         out.insert_region(at(t.lo), core, &values, |v| v > 0.0 || !v.is_finite());
     });
+    // The frame keeps its total density, as every training patch did
+    // (train::step::conserve_mass): the network redistributes smoke.
+    let k = mass_ratio(grid.iter_active().map(|(_, v)| v as f64).sum(), written);
+    for leaf in out.leaves_mut() {
+        leaf.values.iter_mut().for_each(|v| *v *= k);
+    }
     (out, dims.iter().product::<usize>() as u64)
 }
 

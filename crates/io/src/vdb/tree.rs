@@ -89,6 +89,11 @@ impl<T: Copy> SparseGrid<T> {
         self.leaves.values()
     }
 
+    /// Leaves in ascending origin order, to change in place.
+    pub fn leaves_mut(&mut self) -> impl Iterator<Item = &mut Leaf<T>> {
+        self.leaves.values_mut()
+    }
+
     /// Number of leaves.
     pub fn leaf_count(&self) -> usize {
         self.leaves.len()
