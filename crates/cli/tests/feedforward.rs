@@ -50,6 +50,8 @@ fn a_trained_model_stylizes_a_frame_it_never_saw() {
         "16",
         "--channels",
         "2",
+        "--mode",
+        "density",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stdout).contains("trained 3 of 3 steps"));
