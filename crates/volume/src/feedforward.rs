@@ -103,6 +103,7 @@ fn stylize_sparse(
     grid: &SparseGrid<f32>,
     (lo, hi): ([i32; 3], [i32; 3]),
     m: &ModelSettings,
+    mut progress: Option<&mut (dyn Reporter + '_)>,
 ) -> (SparseGrid<f32>, u64) {
     let max = grid.iter_active().map(|(_, v)| v).fold(0.0f32, f32::max);
     let mut out = SparseGrid::new(0.0f32);
@@ -124,7 +125,17 @@ fn stylize_sparse(
     // A region without smoke stays without smoke in either mode (a scale of
     // zero, or zero moved about): its tile is skipped.
     let mut written = 0.0f64;
+    let tile = m.tile.next_multiple_of(LEAF_DIM as usize);
+    let tiles: usize = dims.iter().map(|n| n.div_ceil(tile)).product();
+    if let Some(r) = progress.as_deref_mut() {
+        r.begin(tiles as u64);
+    }
+    let mut seen = 0;
     let read = |from: [usize; 3], size: [usize; 3]| {
+        seen += 1;
+        if let Some(r) = progress.as_deref_mut() {
+            r.step(&format!("tile {seen}/{tiles}"));
+        }
         let mut v = grid.region(at(from), size);
         if v.iter().all(|x| *x == 0.0) {
             return None;
@@ -132,7 +143,7 @@ fn stylize_sparse(
         v.iter_mut().for_each(|x| *x /= max);
         Some(Volume::from_vec(1, size, v))
     };
-    infer_tiles(&model.net, dims, m.tile.next_multiple_of(LEAF_DIM as usize), m.margin, read, |t, input, o| {
+    infer_tiles(&model.net, dims, tile, m.margin, read, |t, input, o| {
         // Applied on the whole region: a velocity reads density up to vmax
         // away, which the margin holds.
         let styled = apply(&Grid3::from_vec(t.size, input.data.clone()), o, how);
@@ -154,10 +165,14 @@ fn stylize_sparse(
     for leaf in out.leaves_mut() {
         leaf.values.iter_mut().for_each(|v| *v *= k);
     }
+    if let Some(r) = progress {
+        r.end();
+    }
     (out, dims.iter().product::<usize>() as u64)
 }
 
 /// One frame file in, one out.
+#[allow(clippy::too_many_arguments)]
 fn one_frame(
     s: &VolumeSettings,
     model: &Model,
@@ -166,6 +181,7 @@ fn one_frame(
     m: &ModelSettings,
     input: &Path,
     out: &Path,
+    progress: Option<&mut (dyn Reporter + '_)>,
 ) -> Result<Option<(u64, f64)>> {
     let file = read_vdb(input)?;
     let grid = file.grid(&s.grid).with_context(|| format!("{}: no grid named '{}'", input.display(), s.grid))?;
@@ -177,7 +193,7 @@ fn one_frame(
         bail!("{}: grid '{}' has a non-finite value at {ijk:?}", input.display(), s.grid);
     }
     let t0 = Instant::now();
-    let (styled, voxels) = stylize_sparse(model, mode, vmax, sparse, bbox, m);
+    let (styled, voxels) = stylize_sparse(model, mode, vmax, sparse, bbox, m, progress);
     let secs = t0.elapsed().as_secs_f64();
     if styled.iter_active().any(|(_, v)| !v.is_finite()) {
         bail!("{}: the network produced non-finite densities", input.display());
@@ -216,14 +232,20 @@ pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut 
         }
     };
     let (mut frames, mut skipped, mut voxels, mut seconds) = (0, 0, 0u64, 0.0);
-    reporter.begin(jobs.len() as u64);
+    // A sequence shows frames; a single frame (which may be paper-sized and
+    // take minutes) shows its tiles.
+    let per_tile = s.sequence.is_none();
+    if !per_tile {
+        reporter.begin(jobs.len() as u64);
+    }
     for (inp, out, todo) in &jobs {
         if !todo {
             skipped += 1;
             reporter.step(&format!("{} exists, kept", out.display()));
             continue;
         }
-        match one_frame(s, &model, mode, vmax, m, inp, out)? {
+        let progress = if per_tile { Some(&mut *reporter) } else { None };
+        match one_frame(s, &model, mode, vmax, m, inp, out, progress)? {
             Some((n, t)) => {
                 frames += 1;
                 voxels += n;
@@ -238,9 +260,13 @@ pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut 
                 skipped += 1;
             }
         }
-        reporter.step(&format!("{}", out.display()));
+        if !per_tile {
+            reporter.step(&format!("{}", out.display()));
+        }
     }
-    reporter.end();
+    if !per_tile {
+        reporter.end();
+    }
     let flicker = match s.sequence {
         // Scored as an optimised sequence of the model's mode would be.
         Some(_) => crate::flicker_of_outputs(&VolumeSettings { mode, ..s.clone() }, reporter)?,
@@ -283,7 +309,7 @@ mod tests {
             let model = Model { net: FeedForward::new(2, out_c, 4), info: BTreeMap::new() };
             let run = |tile: usize| {
                 let m = ModelSettings { path: PathBuf::new(), tile, margin: 32, mode: None };
-                stylize_sparse(&model, mode, vmax, &g, bbox, &m).0
+                stylize_sparse(&model, mode, vmax, &g, bbox, &m, None).0
             };
             let (whole, tiled) = (run(256), run(8));
             assert!(whole.active_voxel_count() > 1000);
