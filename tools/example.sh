@@ -19,7 +19,7 @@ done
 # tools/train_example.sh on plume48, which never saw this frame): one pass,
 # every viewpoint at once, in seconds.
 ./target/release/nst3d volume \
-  --model models/starry_velocity.safetensors \
+  --model models/starry_density.safetensors \
   --input "$DATA/volumes/smoke_000003.vdb" \
   --out out/smoke_000003_feedforward.vdb
 ./target/release/nst3d preview \

@@ -28,10 +28,10 @@ pub struct TrainArgs {
     /// the loss log `<out>.csv` and its plot `<out>.loss.png` go beside it.
     #[arg(long)]
     out: PathBuf,
-    /// velocity (moves smoke by up to vmax = 4 % of the patch; the example
-    /// model's mode) or density (a scale in [0, 2]); both keep each frame's
-    /// total density (docs/FEEDFORWARD.md, "Keeping the smoke").
-    #[arg(long, default_value = "velocity")]
+    /// density (a scale in [0, 2]; the example model's mode) or velocity
+    /// (moves smoke by up to vmax = 4 % of the patch); both keep each
+    /// frame's total density (docs/FEEDFORWARD.md, "Keeping the smoke").
+    #[arg(long, default_value = "density")]
     mode: Mode,
     /// Name of the density grid.
     #[arg(long, default_value = "density")]
