@@ -2,14 +2,10 @@
 //! per-stage breakdown with the median last, and writes the PyTorch peer's
 //! inputs with `--dump`.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
+use common::shared;
 
-fn shared(rel: &str) -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
-    assert!(p.exists(), "shared test data missing: {} (the repo expects ../shared beside it)", p.display());
-    p
-}
+use std::process::Command;
 
 #[test]
 fn strands_iter_runs_and_dumps_the_peer_inputs() {

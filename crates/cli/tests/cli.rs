@@ -1,22 +1,11 @@
 //! The `nst3d` binary end to end: real smoke frames in, VDBs that OpenVDB
 //! itself opens out, and one clean line for every kind of bad input.
 
+mod common;
+use common::{nst3d, s, shared};
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
-
-fn shared(rel: &str) -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
-    assert!(p.exists(), "shared test data missing: {} (the repo expects ../shared beside it)", p.display());
-    p
-}
-
-fn nst3d(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_nst3d")).args(args).output().expect("run nst3d")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
 
 /// Runs `nst3d volume` with fast settings on `input`, writing into `dir`.
 fn volume(input: &Path, style: &Path, dir: &Path, extra: &[&str]) -> (Output, PathBuf) {

@@ -3,21 +3,14 @@
 //! no finished frame, finished frames are skipped, a missing frame fails the
 //! job with its name; and omniview cameras stylize views they never saw.
 
+mod common;
+use common::{s, shared};
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
 use nst3d_core::Grid3;
-
-fn shared(rel: &str) -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
-    assert!(p.exists(), "shared test data missing: {} (the repo expects ../shared beside it)", p.display());
-    p
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
 
 fn plume() -> PathBuf {
     shared("volumes/plume48").join("fluid_data_####.vdb")

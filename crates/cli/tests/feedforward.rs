@@ -2,22 +2,11 @@
 //! on plume frames stylizes another frame; wrong models and settings give
 //! one clear line and exit 1 with no output left behind.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
+use common::{nst3d, s, shared};
 
-fn shared(rel: &str) -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
-    assert!(p.exists(), "shared test data missing: {} (the repo expects ../shared beside it)", p.display());
-    p
-}
-
-fn nst3d(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_nst3d")).args(args).output().expect("run nst3d")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
+use std::path::Path;
+use std::process::Output;
 
 fn fails_with(o: &Output, out: &Path, needle: &str) {
     let err = String::from_utf8_lossy(&o.stderr);

@@ -4,22 +4,15 @@
 //! stays out of the head and lowers the NNST loss; bad grooms fail with one
 //! line.
 
-use std::path::{Path, PathBuf};
+mod common;
+use common::{s, shared};
+
+use std::path::Path;
 use std::process::{Command, Output};
 
 use nst3d_io::groom::{read_groom, read_usda_curves};
 use nst3d_strands::pipeline::polyline_length;
 use nst3d_strands::MeshBvh;
-
-fn shared(rel: &str) -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
-    assert!(p.exists(), "shared test data missing: {} (the repo expects ../shared beside it)", p.display());
-    p
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
 
 /// Runs `nst3d strands` on `groom` with fast settings.
 fn strands(groom: &Path, out: &Path, extra: &[&str]) -> Output {

@@ -5,17 +5,14 @@
 //! before any stylization; a killed sequence resumes after its last
 //! finished frame and ends with the bytes of an uninterrupted run.
 
+mod common;
+use common::shared;
+
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
 
 use nst3d_io::groom::read_groom;
-
-fn shared(rel: &str) -> PathBuf {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
-    assert!(p.exists(), "shared test data missing: {} (the repo expects ../shared beside it)", p.display());
-    p
-}
 
 fn nst3d(dir: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_nst3d")).current_dir(dir).args(args).output().expect("run nst3d")

@@ -1,0 +1,23 @@
+//! Helpers every end-to-end test of the binary uses (each test file is its
+//! own crate, so each compiles what it needs of this module).
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// A file under `../shared/data`; fails loudly when the shared data is missing.
+pub fn shared(rel: &str) -> PathBuf {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
+    assert!(p.exists(), "shared test data missing: {} (the repo expects ../shared beside it)", p.display());
+    p
+}
+
+/// Runs the `nst3d` binary built for these tests.
+pub fn nst3d(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_nst3d")).args(args).output().expect("run nst3d")
+}
+
+/// A path as the `&str` an argument list wants.
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
