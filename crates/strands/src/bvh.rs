@@ -14,11 +14,14 @@
 //! independent check for closed meshes.
 
 use std::collections::HashMap;
+use std::sync::OnceLock;
+
+use rayon::prelude::*;
 
 use nst3d_core::mesh::TriMesh;
 
 use crate::StrandError;
-use nst3d_core::math::{add, cross, dist2, dot, normalize, scale, sub, V3};
+use nst3d_core::math::{add, cross, dist2, dot, norm, normalize, scale, sub, V3};
 
 const LEAF: usize = 4;
 
@@ -71,6 +74,95 @@ pub struct MeshBvh {
     face_n: Vec<V3>,
     vert_n: Vec<V3>,
     edge_n: HashMap<(u32, u32), V3>,
+    /// Built on the first [`MeshBvh::closest_point_within`].
+    gate: OnceLock<DistanceGate>,
+}
+
+/// Cells along the longest axis of [`DistanceGate`]'s box.
+const GATE_CELLS: usize = 64;
+/// [`DistanceGate`]'s box is the mesh's grown by this fraction of its
+/// diagonal on every side.
+const GATE_PAD: f32 = 0.25;
+/// Deepest possible traversal stack: the median split halves the triangles
+/// at every level, so a `u32`-indexed tree is at most 32 deep and the stack
+/// (both children pushed per level) holds at most two entries a level.
+const MAX_STACK: usize = 72;
+
+/// Exact signed distances at the centres of a coarse grid over the mesh,
+/// used as a lower bound to answer "outside and farther than τ" without a
+/// closest-point search: unsigned distance is 1-Lipschitz, so a point `p`
+/// whose nearest cell centre `c` is outside at distance `d(c)` is at least
+/// `d(c) − ‖p − c‖` from the surface, and, when that is positive, on the
+/// same side as `c` (exact for a closed mesh; on an open one the
+/// pseudo-normal sign far from the surface is not a meaningful inside/outside
+/// anyway). Most control points of a groom are hair far from the scalp, so
+/// the collision projection checks millions of points a pass at the cost of
+/// a grid lookup and searches the BVH only near the skin.
+#[derive(Clone, Debug)]
+struct DistanceGate {
+    /// The mesh's own bounding box.
+    mesh_lo: V3,
+    mesh_hi: V3,
+    lo: V3,
+    cell: f32,
+    dims: [usize; 3],
+    signed: Vec<f32>,
+}
+
+impl DistanceGate {
+    fn new(bvh: &MeshBvh) -> Self {
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        let root = &bvh.nodes[0];
+        for a in 0..3 {
+            lo[a] = lo[a].min(root.lo[a]);
+            hi[a] = hi[a].max(root.hi[a]);
+        }
+        let diag = norm(sub(hi, lo)).max(f32::MIN_POSITIVE);
+        let (mesh_lo, mesh_hi) = (lo, hi);
+        for a in 0..3 {
+            lo[a] -= GATE_PAD * diag;
+            hi[a] += GATE_PAD * diag;
+        }
+        let longest = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f32::max);
+        let cell = longest / GATE_CELLS as f32;
+        let dims: [usize; 3] = std::array::from_fn(|a| (((hi[a] - lo[a]) / cell).ceil() as usize).clamp(1, GATE_CELLS));
+        let signed = (0..dims[0] * dims[1] * dims[2])
+            .into_par_iter()
+            .with_min_len(256)
+            .map(|i| {
+                let c = [i % dims[0], (i / dims[0]) % dims[1], i / (dims[0] * dims[1])];
+                bvh.closest_point(std::array::from_fn(|a| lo[a] + (c[a] as f32 + 0.5) * cell)).signed_distance
+            })
+            .collect();
+        DistanceGate { mesh_lo, mesh_hi, lo, cell, dims, signed }
+    }
+
+    /// A lower bound on the distance of `p` to the surface when `p` is
+    /// certainly outside, else `None`.
+    fn outside_by(&self, p: V3) -> Option<f32> {
+        // Beyond the grid, the distance to the mesh's box bounds the
+        // distance to the mesh (and a point outside the box of a closed
+        // mesh is outside it).
+        let box_d2: f32 = (0..3)
+            .map(|a| {
+                let e = (self.mesh_lo[a] - p[a]).max(0.0).max(p[a] - self.mesh_hi[a]);
+                e * e
+            })
+            .sum();
+        let outside_box = box_d2.sqrt();
+        let mut idx = [0usize; 3];
+        let mut e2 = 0.0;
+        for a in 0..3 {
+            let t = ((p[a] - self.lo[a]) / self.cell).floor();
+            let i = if t.is_nan() { 0 } else { (t.max(0.0) as usize).min(self.dims[a] - 1) };
+            idx[a] = i;
+            let d = p[a] - (self.lo[a] + (i as f32 + 0.5) * self.cell);
+            e2 += d * d;
+        }
+        let s = self.signed[idx[0] + self.dims[0] * (idx[1] + self.dims[1] * idx[2])];
+        let bound = (s - e2.sqrt()).max(outside_box);
+        (bound > 0.0).then_some(bound)
+    }
 }
 
 fn edge_key(a: u32, b: u32) -> (u32, u32) {
@@ -121,7 +213,7 @@ impl MeshBvh {
         let unit = |v: [f64; 3]| normalize(v.map(|c| c as f32)).unwrap_or([0.0; 3]);
         let vert_n = vert_acc.into_iter().map(unit).collect();
         let edge_n = edge_acc.into_iter().map(|(k, v)| (k, unit(v))).collect();
-        let mut bvh = MeshBvh { verts, tris, order, nodes: Vec::new(), face_n, vert_n, edge_n };
+        let mut bvh = MeshBvh { verts, tris, order, nodes: Vec::new(), face_n, vert_n, edge_n, gate: OnceLock::new() };
         let centroids: Vec<V3> = bvh
             .tris
             .iter()
@@ -179,8 +271,14 @@ impl MeshBvh {
     /// distance (negative inside).
     pub fn closest_point(&self, p: [f32; 3]) -> ClosestHit {
         let mut best = (f32::INFINITY, 0u32, [0.0; 3], Feature::Face);
-        let mut stack = vec![(0u32, box_dist2(p, &self.nodes[0]))];
-        while let Some((id, bd)) = stack.pop() {
+        // A fixed stack: this runs for millions of points per constraint
+        // pass, and a heap allocation per query was a tenth of its time.
+        let mut stack = [(0u32, 0f32); MAX_STACK];
+        stack[0] = (0, box_dist2(p, &self.nodes[0]));
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let (id, bd) = stack[top];
             if bd > best.0 {
                 continue;
             }
@@ -200,12 +298,14 @@ impl MeshBvh {
             let (dl, dr) = (box_dist2(p, &self.nodes[l as usize]), box_dist2(p, &self.nodes[r as usize]));
             // Push the farther child first so the nearer one is searched
             // first and tightens the bound.
-            if dl <= dr {
-                stack.push((r, dr));
-                stack.push((l, dl));
-            } else {
-                stack.push((l, dl));
-                stack.push((r, dr));
+            let (near, far) = if dl <= dr { ((l, dl), (r, dr)) } else { ((r, dr), (l, dl)) };
+            if far.1 <= best.0 {
+                stack[top] = far;
+                top += 1;
+            }
+            if near.1 <= best.0 {
+                stack[top] = near;
+                top += 1;
             }
         }
         let (d2, f, x, feature) = best;
@@ -213,6 +313,18 @@ impl MeshBvh {
         let d = d2.sqrt();
         let signed_distance = if dot(sub(p, x), normal) < 0.0 { -d } else { d };
         ClosestHit { point: x, triangle: f as usize, feature, normal, signed_distance }
+    }
+
+    /// [`MeshBvh::closest_point`] for a point that only matters when it is
+    /// inside or closer than `tau` (the collision projection): `None` when a
+    /// coarse grid of distances ([`DistanceGate`], built on the first call)
+    /// shows `p` outside and at least `tau` away, without searching.
+    pub fn closest_point_within(&self, p: [f32; 3], tau: f32) -> Option<ClosestHit> {
+        let gate = self.gate.get_or_init(|| DistanceGate::new(self));
+        match gate.outside_by(p) {
+            Some(d) if d >= tau => None,
+            _ => Some(self.closest_point(p)),
+        }
     }
 
     fn pseudo_normal(&self, f: u32, feature: Feature) -> V3 {

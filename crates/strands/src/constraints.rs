@@ -43,22 +43,27 @@ pub fn preserve_lengths(strands: &mut FlatStrands, rest: &FlatStrands) -> Result
         return Err(StrandError::Invalid("length preservation: deformed and rest strands differ in layout".into()));
     }
     let offsets = strands.offsets.clone();
-    strands_mut(&mut strands.points, &offsets).into_par_iter().enumerate().for_each(|(s, pts)| {
-        let r = rest.strand(s);
-        // Deformed directions come from the positions before correction.
-        let mut prev_deformed = pts[0];
-        for k in 0..pts.len() - 1 {
-            let next_deformed = pts[k + 1];
-            let rest_seg = sub(r[k + 1], r[k]);
-            let len = norm(rest_seg);
-            let dir = normalize(sub(next_deformed, prev_deformed)).or_else(|| normalize(rest_seg)).unwrap_or([0.0; 3]);
-            let base = pts[k].map(f64::from);
-            let target = std::array::from_fn(|a| base[a] + len as f64 * dir[a] as f64);
-            pts[k + 1] = snap_to_length(pts[k], target, len as f64);
-            prev_deformed = next_deformed;
-        }
-    });
+    strands_mut(&mut strands.points, &offsets)
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(s, pts)| preserve_strand_lengths(pts, rest.strand(s)));
     Ok(())
+}
+
+/// [`preserve_lengths`] of one strand `pts` against its rest polyline `r`.
+fn preserve_strand_lengths(pts: &mut [V3], r: &[V3]) {
+    // Deformed directions come from the positions before correction.
+    let mut prev_deformed = pts[0];
+    for k in 0..pts.len() - 1 {
+        let next_deformed = pts[k + 1];
+        let rest_seg = sub(r[k + 1], r[k]);
+        let len = norm(rest_seg);
+        let dir = normalize(sub(next_deformed, prev_deformed)).or_else(|| normalize(rest_seg)).unwrap_or([0.0; 3]);
+        let base = pts[k].map(f64::from);
+        let target = std::array::from_fn(|a| base[a] + len as f64 * dir[a] as f64);
+        pts[k + 1] = snap_to_length(pts[k], target, len as f64);
+        prev_deformed = next_deformed;
+    }
 }
 
 /// Backward of [`preserve_lengths`]: the gradient w.r.t. the points it was
@@ -79,33 +84,38 @@ pub fn preserve_lengths_backward(input: &FlatStrands, rest: &FlatStrands, grad: 
     let mut out = vec![[0.0f32; 3]; grad.len()];
     let offsets = input.offsets.clone();
     strands_mut(&mut out, &offsets).into_par_iter().enumerate().for_each(|(s, gin)| {
-        let (q, r) = (input.strand(s), rest.strand(s));
-        let g = &grad[offsets[s]..offsets[s + 1]];
-        let mut acc = [0.0f64; 3];
-        for k in (0..q.len() - 1).rev() {
-            for a in 0..3 {
-                acc[a] += g[k + 1][a] as f64;
-            }
-            let u = sub(q[k + 1], q[k]);
-            let len_u = norm(u) as f64;
-            if !(len_u > 0.0) || normalize(u).is_none() {
-                continue;
-            }
-            let d = u.map(|c| c as f64 / len_u);
-            let l = norm(sub(r[k + 1], r[k])) as f64;
-            let gd: [f64; 3] = std::array::from_fn(|a| l * acc[a]);
-            let dd = d[0] * gd[0] + d[1] * gd[1] + d[2] * gd[2];
-            for a in 0..3 {
-                let gu = ((gd[a] - d[a] * dd) / len_u) as f32;
-                gin[k + 1][a] += gu;
-                gin[k][a] -= gu;
-            }
-        }
-        for a in 0..3 {
-            gin[0][a] += (acc[a] + g[0][a] as f64) as f32;
-        }
+        preserve_strand_lengths_backward(input.strand(s), rest.strand(s), &grad[offsets[s]..offsets[s + 1]], gin)
     });
     Ok(out)
+}
+
+/// [`preserve_lengths_backward`] of one strand: `q` the points it was
+/// given, `r` its rest polyline, `g` the gradient at its output; adds the
+/// gradient at `q` to `gin`.
+fn preserve_strand_lengths_backward(q: &[V3], r: &[V3], g: &[V3], gin: &mut [V3]) {
+        let mut acc = [0.0f64; 3];
+    for k in (0..q.len() - 1).rev() {
+        for a in 0..3 {
+            acc[a] += g[k + 1][a] as f64;
+        }
+        let u = sub(q[k + 1], q[k]);
+        let len_u = norm(u) as f64;
+        if !(len_u > 0.0) || normalize(u).is_none() {
+            continue;
+        }
+        let d = u.map(|c| c as f64 / len_u);
+        let l = norm(sub(r[k + 1], r[k])) as f64;
+        let gd: [f64; 3] = std::array::from_fn(|a| l * acc[a]);
+        let dd = d[0] * gd[0] + d[1] * gd[1] + d[2] * gd[2];
+        for a in 0..3 {
+            let gu = ((gd[a] - d[a] * dd) / len_u) as f32;
+            gin[k + 1][a] += gu;
+            gin[k][a] -= gu;
+        }
+    }
+    for a in 0..3 {
+        gin[0][a] += (acc[a] + g[0][a] as f64) as f32;
+    }
 }
 
 /// Rounds `target` (exactly `len` from `base`) to the `f32` point, among
@@ -211,11 +221,16 @@ impl CollisionRecord {
     /// exact on flat parts of the mesh.
     pub fn backward(&self, grad: &mut [V3]) {
         for &(i, n, c) in &self.moved {
-            let gn = c * (n[0] * grad[i][0] + n[1] * grad[i][1] + n[2] * grad[i][2]);
-            for a in 0..3 {
-                grad[i][a] -= gn * n[a];
-            }
+            cancel_normal(&mut grad[i], n, c);
         }
+    }
+}
+
+/// The backward of one point's collision push: `g ← g − c (n̂·g) n̂`.
+fn cancel_normal(g: &mut V3, n: V3, c: f32) {
+    let gn = c * (n[0] * g[0] + n[1] * g[1] + n[2] * g[2]);
+    for a in 0..3 {
+        g[a] -= gn * n[a];
     }
 }
 
@@ -238,29 +253,7 @@ pub fn project_collisions_recorded(
         .par_iter_mut()
         .zip(&is_root)
         .with_min_len(64)
-        .map(|(p, &root)| {
-            if root {
-                return None;
-            }
-            let hit = bvh.closest_point(*p);
-            let s = hit.signed_distance;
-            if s >= params.tau {
-                return None;
-            }
-            let away = sub(*p, hit.point);
-            let n = if s.abs() > 1e-7 * (1.0 + norm(*p)) {
-                normalize(scale(away, s.signum())).unwrap_or(hit.normal)
-            } else {
-                hit.normal
-            };
-            let (push, cancel) = if s < 0.0 {
-                (-s + params.kappa * params.tau, 1.0)
-            } else {
-                (params.kappa * (params.tau - s), params.kappa)
-            };
-            *p = add(*p, scale(n, push));
-            Some((n, cancel, s < 0.0))
-        })
+        .map(|(p, &root)| if root { None } else { collide_point(p, bvh, params) })
         .collect();
     let mut stats = CollisionStats::default();
     let mut record = CollisionRecord::default();
@@ -272,6 +265,23 @@ pub fn project_collisions_recorded(
         }
     }
     Ok((stats, record))
+}
+
+/// The collision projection of one point `p` (see [`project_collisions`]):
+/// its outward direction `n̂`, the fraction `c` of normal motion the push
+/// cancels and whether it was inside, or `None` when it did not move.
+fn collide_point(p: &mut V3, bvh: &MeshBvh, params: CollisionParams) -> Option<(V3, f32, bool)> {
+    let hit = bvh.closest_point_within(*p, params.tau)?;
+    let s = hit.signed_distance;
+    if s >= params.tau {
+        return None;
+    }
+    let away = sub(*p, hit.point);
+    let n = if s.abs() > 1e-7 * (1.0 + norm(*p)) { normalize(scale(away, s.signum())).unwrap_or(hit.normal) } else { hit.normal };
+    let (push, cancel) =
+        if s < 0.0 { (-s + params.kappa * params.tau, 1.0) } else { (params.kappa * (params.tau - s), params.kappa) };
+    *p = add(*p, scale(n, push));
+    Some((n, cancel, s < 0.0))
 }
 
 /// A sequence of constraint projections applied to one groom, recorded so
@@ -291,6 +301,47 @@ enum TapeStep {
     Lengths(FlatStrands),
     /// A collision pass.
     Collisions(CollisionRecord),
+    /// [`ConstraintTape::enforce`]: what happened to each strand.
+    PerStrand(Vec<StrandTape>),
+}
+
+/// The projections [`ConstraintTape::enforce`] applied to one strand.
+#[derive(Clone, Debug, Default)]
+struct StrandTape {
+    steps: Vec<StrandStep>,
+}
+
+#[derive(Clone, Debug)]
+enum StrandStep {
+    /// Length preservation; the strand's points before it.
+    Lengths(Vec<V3>),
+    /// A collision pass: per moved point its index in the strand, `n̂` and `c`.
+    Collisions(Vec<(u32, V3, f32)>),
+}
+
+/// How [`ConstraintTape::enforce`] alternates the two projections.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EnforceParams {
+    /// Most passes a strand gets; the first is the paper's (length
+    /// preservation, then the collision projection with the constraints'
+    /// own `τ` and `κ`).
+    pub passes: usize,
+    /// Collision parameters of every pass after the first.
+    pub hard: CollisionParams,
+    /// A strand stops once each of its segments is within this relative
+    /// error of its rest length.
+    pub tolerance: f32,
+}
+
+/// Largest relative error of a strand's segment lengths against its rest polyline.
+fn strand_length_error(pts: &[V3], rest: &[V3]) -> f32 {
+    pts.windows(2)
+        .zip(rest.windows(2))
+        .map(|(p, r)| {
+            let l = norm(sub(r[1], r[0]));
+            ((norm(sub(p[1], p[0])) - l) / l.max(1e-30)).abs()
+        })
+        .fold(0.0, f32::max)
 }
 
 impl ConstraintTape {
@@ -325,6 +376,77 @@ impl ConstraintTape {
         Ok(stats)
     }
 
+    /// Both constraints, strand by strand, recorded: a first pass as
+    /// [`Constraints::apply`], then, only on strands whose segments are
+    /// still off their rest lengths by more than `e.tolerance` (a strand
+    /// lying along the skin, whose collision push stretched it), length
+    /// preservation and the `e.hard` collision projection in turn, up to
+    /// `e.passes` passes. A collision pass is always a strand's last. Most
+    /// strands of a groom never touch the mesh and are done after the first
+    /// pass, so a few strands on the skin no longer make every control point
+    /// of the groom go through every pass. Returns the first pass's
+    /// statistics.
+    pub fn enforce(
+        &mut self,
+        strands: &mut FlatStrands,
+        c: &Constraints,
+        e: EnforceParams,
+    ) -> Result<CollisionStats, StrandError> {
+        if strands.offsets != c.rest.offsets {
+            return Err(StrandError::Invalid("constraints: deformed and rest strands differ in layout".into()));
+        }
+        c.collision.validate()?;
+        e.hard.validate()?;
+        let record = !self.off;
+        let offsets = strands.offsets.clone();
+        let per: Vec<(CollisionStats, StrandTape)> = strands_mut(&mut strands.points, &offsets)
+            .into_par_iter()
+            .enumerate()
+            .map(|(k, pts)| {
+                let r = c.rest.strand(k);
+                let (mut stats, mut tape) = (CollisionStats::default(), StrandTape::default());
+                for pass in 0..e.passes.max(1) {
+                    if pass > 0 && (c.collider.is_none() || strand_length_error(pts, r) < e.tolerance) {
+                        break;
+                    }
+                    if record {
+                        tape.steps.push(StrandStep::Lengths(pts.to_vec()));
+                    }
+                    preserve_strand_lengths(pts, r);
+                    let Some(bvh) = &c.collider else { continue };
+                    let params = if pass == 0 { c.collision } else { e.hard };
+                    let mut moved = Vec::new();
+                    for (i, p) in pts.iter_mut().enumerate().skip(params.skip_roots as usize) {
+                        if let Some((n, cancel, inside)) = collide_point(p, bvh, params) {
+                            if pass == 0 {
+                                stats.moved += 1;
+                                stats.inside += inside as usize;
+                            }
+                            moved.push((i as u32, n, cancel));
+                        }
+                    }
+                    if record {
+                        tape.steps.push(StrandStep::Collisions(moved));
+                    }
+                }
+                (stats, tape)
+            })
+            .collect();
+        let mut stats = CollisionStats::default();
+        let mut tapes = Vec::with_capacity(if record { per.len() } else { 0 });
+        for (s, t) in per {
+            stats.moved += s.moved;
+            stats.inside += s.inside;
+            if record {
+                tapes.push(t);
+            }
+        }
+        if record {
+            self.steps.push(TapeStep::PerStrand(tapes));
+        }
+        Ok(stats)
+    }
+
     /// Gradient w.r.t. the points before the first recorded projection from
     /// the gradient w.r.t. the points after the last.
     pub fn backward(&self, rest: &FlatStrands, grad: &[V3]) -> Result<Vec<V3>, StrandError> {
@@ -333,6 +455,30 @@ impl ConstraintTape {
             match step {
                 TapeStep::Lengths(input) => g = preserve_lengths_backward(input, rest, &g)?,
                 TapeStep::Collisions(record) => record.backward(&mut g),
+                TapeStep::PerStrand(tapes) => {
+                    if tapes.len() != rest.strand_count() || g.len() != rest.points.len() {
+                        return Err(StrandError::Invalid("constraints backward: layouts differ".into()));
+                    }
+                    let offsets = &rest.offsets;
+                    strands_mut(&mut g, offsets).into_par_iter().zip(tapes).enumerate().for_each(|(k, (gk, tape))| {
+                        let r = rest.strand(k);
+                        let mut gin = vec![[0.0f32; 3]; gk.len()];
+                        for step in tape.steps.iter().rev() {
+                            match step {
+                                StrandStep::Lengths(q) => {
+                                    gin.iter_mut().for_each(|x| *x = [0.0; 3]);
+                                    preserve_strand_lengths_backward(q, r, gk, &mut gin);
+                                    gk.copy_from_slice(&gin);
+                                }
+                                StrandStep::Collisions(moved) => {
+                                    for &(i, n, c) in moved {
+                                        cancel_normal(&mut gk[i as usize], n, c);
+                                    }
+                                }
+                            }
+                        }
+                    });
+                }
             }
         }
         Ok(g)
@@ -458,12 +604,11 @@ mod tests {
         assert!(check.max_rel_err < 2e-2, "{check:?}");
     }
 
-    #[test]
-    fn collision_gradient_matches_finite_differences_on_a_flat_face() {
-        use nst3d_core::gradcheck::{check_gradient, dot};
-        // A large box: points near its top face see a flat surface, where the
-        // neglected turning of the normal is zero.
-        let cube = nst3d_core::mesh::TriMesh {
+    /// A large box with its top face at `z = 0`: points near that face see a
+    /// flat surface, where the collision backward's neglected turning of the
+    /// normal is zero.
+    fn flat_top_box() -> nst3d_core::mesh::TriMesh {
+        nst3d_core::mesh::TriMesh {
             vertices: vec![
                 [-5.0, -5.0, -5.0],
                 [5.0, -5.0, -5.0],
@@ -489,7 +634,13 @@ mod tests {
                 [3, 4, 7],
             ],
             normals: None,
-        };
+        }
+    }
+
+    #[test]
+    fn collision_gradient_matches_finite_differences_on_a_flat_face() {
+        use nst3d_core::gradcheck::{check_gradient, dot};
+        let cube = flat_top_box();
         let bvh = MeshBvh::new(&cube).unwrap();
         let pts: Vec<V3> = vec![[0.3, 0.2, -0.3], [1.0, -0.5, 0.05], [-0.7, 0.4, 0.5], [0.1, 1.1, -0.02]];
         let s0 = FlatStrands::from_strands([pts.clone()]).unwrap();
@@ -560,5 +711,68 @@ mod tests {
             1e-2,
         );
         assert!(check.max_rel_err < 3e-2, "{check:?}");
+    }
+
+    #[test]
+    fn enforce_per_strand_equals_the_projections_on_the_whole_groom() {
+        let bvh = MeshBvh::new(&flat_top_box()).unwrap();
+        // Strands rooted on the flat top face that arc up and back down into
+        // the box, so the first collision pass stretches them and extra
+        // passes run.
+        let rest = FlatStrands::from_strands((0..4).map(|s| {
+            let (x0, y0) = (-1.0 + 0.6 * s as f32, 0.3 * s as f32);
+            (0..8)
+                .map(|k| {
+                    let t = k as f32 * 0.25;
+                    [x0 + 0.4 * t, y0 - 0.1 * t, 0.5 * t - 0.35 * t * t]
+                })
+                .collect()
+        }))
+        .unwrap();
+        let noise = pseudo_random(rest.points.len() * 3, 31);
+        let mut q = rest.clone();
+        for (p, n) in q.points.iter_mut().zip(noise.chunks(3)) {
+            for a in 0..3 {
+                p[a] += 0.03 * n[a];
+            }
+        }
+        let collision = CollisionParams { tau: 0.02, kappa: 0.5, skip_roots: true };
+        let c = Constraints { rest: rest.clone(), collider: Some(bvh.clone()), collision };
+        let hard = CollisionParams { tau: 0.001, kappa: 1.0, skip_roots: true };
+        // Every strand runs every pass, as the whole-groom sequence below.
+        let e = EnforceParams { passes: 4, hard, tolerance: 0.0 };
+        let mut tape = ConstraintTape::default();
+        let mut s = q.clone();
+        let stats = tape.enforce(&mut s, &c, e).unwrap();
+        assert!(stats.inside > 0, "the test groom must penetrate: {stats:?}");
+        let w = pseudo_random(rest.points.len() * 3, 32);
+        let analytic = tape.backward(&rest, &unflat(&w)).unwrap();
+
+        // The same projections on the whole groom at once, recorded step by
+        // step, give the same points and the same gradient; each of those
+        // has its finite-difference check above. (A finite-difference check
+        // of the repeated passes themselves is ill-posed: each hard pass
+        // leaves the points it moved exactly on the kink of the next one.)
+        let mut global = ConstraintTape::default();
+        let mut s2 = q.clone();
+        c.apply_recorded(&mut s2, &mut global).unwrap();
+        for _ in 1..e.passes {
+            global.preserve_lengths(&mut s2, &rest).unwrap();
+            global.project_collisions(&mut s2, &bvh, hard).unwrap();
+        }
+        assert_eq!(s.points, s2.points);
+        assert_eq!(analytic, global.backward(&rest, &unflat(&w)).unwrap());
+
+
+        // With a tolerance, strands that need no extra pass stop after the
+        // first and the rest go on.
+        let mut tape = ConstraintTape::default();
+        let mut s3 = q.clone();
+        tape.enforce(&mut s3, &c, EnforceParams { tolerance: 1e-3, passes: 50, ..e }).unwrap();
+        let TapeStep::PerStrand(t) = &tape.steps[0] else { panic!("enforce records per strand") };
+        assert!(t.iter().any(|t| t.steps.len() > 2), "some strand needed extra passes");
+        let roots = &s3.offsets[..s3.strand_count()];
+        let inside = (0..s3.points.len()).filter(|i| !roots.contains(i) && s3.points[*i][2] < 0.0).count();
+        assert_eq!(inside, 0, "points left inside (roots excepted)");
     }
 }

@@ -45,7 +45,7 @@ mod temporal;
 pub use bvh::{closest_point_on_triangle, ClosestHit, Feature, MeshBvh};
 pub use constraints::{
     preserve_lengths, preserve_lengths_backward, project_collisions, project_collisions_recorded, CollisionParams,
-    CollisionRecord, CollisionStats, ConstraintTape, Constraints,
+    CollisionRecord, CollisionStats, ConstraintTape, Constraints, EnforceParams,
 };
 pub use densify::{densify, DensifyParams};
 pub use field::{velocity_sample_indices, DeformationField, Kernel, RbfWeights, SampleDensity};

@@ -10,7 +10,7 @@ use nst3d_core::Image;
 use nst3d_splat::{render, SplatCamera, SplatOutput, StrandStyle, Strands};
 
 use crate::bvh::MeshBvh;
-use crate::constraints::{CollisionParams, CollisionStats, ConstraintTape, Constraints};
+use crate::constraints::{CollisionParams, CollisionStats, ConstraintTape, Constraints, EnforceParams};
 use crate::densify::{densify, DensifyParams};
 use crate::field::DeformationField;
 use crate::strands::FlatStrands;
@@ -210,7 +210,8 @@ pub const HARD_TAU_FRACTION: f32 = 0.02;
 /// points inside move, onto a shell `10⁻⁴` of the mesh diagonal outside,
 /// `κ = 1`), as position-based dynamics alternates its projections, until
 /// no point is inside and every segment is within 0.1 % of its rest length,
-/// or `passes` run out. A collision pass is always last, so no control point
+/// or `passes` run out — strand by strand ([`ConstraintTape::enforce`]), so
+/// only the strands on the skin pay for the extra passes. A collision pass is always last, so no control point
 /// is left inside the mesh; the `τ` repulsion is not repeated, since repeated
 /// it would fight length preservation forever on strands lying on the skin.
 /// Returns the first pass's statistics (what the deformation caused).
@@ -220,27 +221,9 @@ fn enforce(
     passes: usize,
     tape: &mut ConstraintTape,
 ) -> Result<CollisionStats, PipelineError> {
-    let first = c.apply_recorded(s, tape)?;
-    let Some(bvh) = &c.collider else { return Ok(first) };
     let hard =
         CollisionParams { tau: c.collision.tau * HARD_TAU_FRACTION, kappa: 1.0, skip_roots: c.collision.skip_roots };
-    for _ in 1..passes {
-        if max_segment_error(s, &c.rest) < SEGMENT_TOLERANCE {
-            break;
-        }
-        tape.preserve_lengths(s, &c.rest)?;
-        tape.project_collisions(s, bvh, hard)?;
-    }
-    Ok(first)
-}
-
-/// Largest relative segment-length error of `s` against `rest`.
-fn max_segment_error(s: &FlatStrands, rest: &FlatStrands) -> f32 {
-    s.segment_lengths()
-        .iter()
-        .zip(rest.segment_lengths())
-        .map(|(a, b)| ((a - b) / b.max(1e-30)).abs())
-        .fold(0.0, f32::max)
+    Ok(tape.enforce(s, c, EnforceParams { passes, hard, tolerance: SEGMENT_TOLERANCE })?)
 }
 
 impl StrandScene {
