@@ -16,8 +16,17 @@ use nst3d_strands::MeshBvh;
 
 /// Runs `nst3d strands` on `groom` with fast settings.
 fn strands(groom: &Path, out: &Path, extra: &[&str]) -> Output {
-    let (mesh, style) = (shared("grooms/Bangs_head.ply"), shared("styles/starry_night.jpg"));
-    let mut args = vec!["strands", "--groom", s(groom), "--mesh", s(&mesh), "--style", s(&style), "--out", s(out)];
+    let mesh = shared("grooms/Bangs_head.ply");
+    strands_on(groom, Some(&mesh), out, extra)
+}
+
+/// [`strands`] on `mesh`, or without one.
+fn strands_on(groom: &Path, mesh: Option<&Path>, out: &Path, extra: &[&str]) -> Output {
+    let style = shared("styles/starry_night.jpg");
+    let mut args = vec!["strands", "--groom", s(groom), "--style", s(&style), "--out", s(out)];
+    if let Some(m) = mesh {
+        args.extend_from_slice(&["--mesh", s(m)]);
+    }
     args.extend_from_slice(&[
         "--preset",
         "short-hair",
@@ -134,4 +143,23 @@ fn bad_grooms_give_one_line_errors() {
 
     let bad_out = dir.path().join("out.abc");
     assert_fails(&strands(&shared("grooms/Bangs_100.hair"), &bad_out, &[]), &bad_out, ".usda or .ply");
+}
+
+#[test]
+fn a_groom_without_its_mesh_is_stylized_without_collisions_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let (groom_path, out) = (shared("grooms/Bangs_100.hair"), dir.path().join("out.ply"));
+    let o = strands_on(&groom_path, None, &out, &[]);
+    let (stdout, stderr) = (String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "nst3d strands without --mesh failed: {stderr}");
+    assert_eq!(stderr.matches("no --mesh").count(), 1, "the missing mesh is said once: {stderr}");
+    assert!(stdout.contains("no mesh, no collision check"), "{stdout}");
+    let (input, result) = (read_groom(&groom_path).unwrap(), read_groom(&out).unwrap());
+    assert_eq!(input.strand_count(), result.strand_count());
+    for (a, b) in input.strands.iter().zip(&result.strands) {
+        assert_eq!(a.points.len(), b.points.len());
+        let (la, lb) = (polyline_length(&a.points), polyline_length(&b.points));
+        assert!(((lb - la) / la).abs() < 1e-3, "length {la} -> {lb}");
+    }
+    assert_ne!(input.strands, result.strands, "the groom did not change");
 }

@@ -73,7 +73,7 @@ pub fn strands_iter(a: &StrandsIterSettings, reporter: &mut dyn Reporter) -> Res
     let vgg = Vgg19::load(a.weights.as_deref())?;
     let mut params = StylizeParams::from_preset(Preset::ShortHair.params(), groom.strand_count());
     params.render_size = a.size;
-    let scene = StrandScene::new(&groom, &head, &params)?;
+    let scene = StrandScene::new(&groom, Some(&head), &params)?;
     let finest = 2;
     let (psi, delta) =
         poisson_view_angles(&scene.frame, params.preset.polar_deg, params.preset.azimuth_deg, 1, params.seed)[0];
@@ -236,7 +236,8 @@ fn dump_scene(
     npy_i64(dir, "rbf_rows.npy", &rows)?;
     npy_i64(dir, "rbf_cols.npy", &cols)?;
     npy_f32(dir, "rbf_vals.npy", &[vals.len()], &vals)?;
-    npy_f32(dir, "root_normals.npy", &[scene.root_normals.len(), 3], &flat(&scene.root_normals))?;
+    let normals = scene.root_normals.as_deref().context("the scene has no root normals (no mesh)")?;
+    npy_f32(dir, "root_normals.npy", &[normals.len(), 3], &flat(normals))?;
     let bvh = scene.constraints.collider.as_ref().context("the scene has no collider")?;
     let (mut closest, mut outward) = (Vec::with_capacity(n), Vec::with_capacity(n));
     for &p in rest {

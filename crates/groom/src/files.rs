@@ -45,7 +45,7 @@ pub struct Checks {
     pub vs_input: f64,
     /// Against the resampled rest guides (what the constraint holds).
     pub vs_rest: f32,
-    /// Written control points inside the mesh.
+    /// Written control points inside the mesh (0 without one).
     pub inside: usize,
 }
 
@@ -57,7 +57,7 @@ impl Checks {
         scene: &StrandScene,
         guides: &FlatStrands,
         written: &FlatStrands,
-        head: &TriMesh,
+        head: Option<&TriMesh>,
     ) -> Result<Self> {
         let input_lengths: Vec<f64> = groom.strands.iter().map(|s| polyline_length(&s.points)).collect();
         let vs_input = (0..written.strand_count())
@@ -68,14 +68,15 @@ impl Checks {
         let vs_rest = max_length_change(&rest_guides, guides);
         // The scene's collider is this mesh's BVH already.
         let built;
-        let bvh = match &scene.constraints.collider {
-            Some(b) => b,
-            None => {
+        let bvh = match (&scene.constraints.collider, head) {
+            (Some(b), _) => Some(b),
+            (None, Some(head)) => {
                 built = MeshBvh::new(head)?;
-                &built
+                Some(&built)
             }
+            (None, None) => None,
         };
-        let inside = written.points.iter().filter(|&&p| bvh.is_inside(p)).count();
+        let inside = bvh.map_or(0, |bvh| written.points.iter().filter(|&&p| bvh.is_inside(p)).count());
         Ok(Checks { vs_input, vs_rest, inside })
     }
 

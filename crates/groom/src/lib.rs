@@ -28,3 +28,7 @@ pub use nst3d_core::{Reporter, Silent};
 pub use sequence::{stylize_groom_sequence, GroomSequenceReport, STATE_FILE};
 pub use settings::{OutFormat, StrandSettings, Temporal};
 pub use single::{stylize_groom_file, GroomReport};
+
+/// Said once on stderr when a groom comes without its mesh.
+pub(crate) const NO_MESH: &str =
+    "no --mesh: strands are not kept out of a head (no collision handling) and all are drawn (no visibility culling)";

@@ -18,6 +18,7 @@ use nst3d_strands::{check_topology, FlatStrands, Flow, SequenceParams, SequenceS
 
 use crate::files::{frame_path, is_pattern, write_groom, write_preview, Checks};
 use crate::settings::{OutFormat, StrandSettings, Temporal};
+use crate::NO_MESH;
 
 /// Name of the saved sequence state in the work folder.
 pub const STATE_FILE: &str = "strands.state";
@@ -54,8 +55,13 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
     if let Some(p) = &s.preview {
         frame_path(p, frames[0], "--preview")?;
     }
-    let mesh_varies = is_pattern(&s.mesh);
-    let mesh_at = |f| if mesh_varies { frame_path(&s.mesh, f, "--mesh") } else { Ok(s.mesh.clone()) };
+    let mesh_varies = s.mesh.as_deref().is_some_and(is_pattern);
+    let mesh_at = |f| -> Result<Option<PathBuf>> {
+        match &s.mesh {
+            Some(m) if mesh_varies => frame_path(m, f, "--mesh").map(Some),
+            m => Ok(m.clone()),
+        }
+    };
     let flow = match s.style_flow {
         None => Flow::Animation,
         Some(v) => Flow::Style(v),
@@ -68,10 +74,13 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
         let g = read_groom(&path)?;
         check_topology(&first, f, &g).with_context(|| path.display().to_string())?;
     }
-    let fixed_mesh = if mesh_varies { None } else { Some(read_mesh(&s.mesh)?) };
+    let fixed_mesh = if mesh_varies { None } else { s.mesh.as_deref().map(read_mesh).transpose()? };
+    if s.mesh.is_none() {
+        reporter.note(NO_MESH);
+    }
     if mesh_varies {
         for &f in frames {
-            let p = mesh_at(f)?;
+            let p = mesh_at(f)?.expect("a mesh pattern");
             if !p.exists() {
                 bail!("{}: mesh of frame {f} not found", p.display());
             }
@@ -153,12 +162,13 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
     for (i, &f) in frames.iter().enumerate().skip(done) {
         let groom = read_groom(&groom_at(f)?)?;
         let frame_mesh;
-        let mesh = match &fixed_mesh {
-            Some(m) => m,
-            None => {
-                frame_mesh = read_mesh(&mesh_at(f)?)?;
-                &frame_mesh
+        let mesh = match (&fixed_mesh, mesh_at(f)?) {
+            (Some(m), _) => Some(m),
+            (None, Some(path)) => {
+                frame_mesh = read_mesh(&path)?;
+                Some(&frame_mesh)
             }
+            (None, None) => None,
         };
         let r = seq.stylize_frame(f, &groom, mesh, &mut |r| {
             reporter.step(&format!(
@@ -214,14 +224,14 @@ fn job_hash(
     s: &StrandSettings,
     frames: &[i64],
     groom_at: &dyn Fn(i64) -> Result<PathBuf>,
-    mesh_at: &dyn Fn(i64) -> Result<PathBuf>,
+    mesh_at: &dyn Fn(i64) -> Result<Option<PathBuf>>,
 ) -> Result<u64> {
     let mut a = s.clone();
     (a.force, a.work_dir) = (false, None);
     let mut stamped = Vec::with_capacity(2 * frames.len());
     for &f in frames {
         stamped.push(groom_at(f)?);
-        stamped.push(mesh_at(f)?);
+        stamped.extend(mesh_at(f)?);
     }
     let settings = format!("{a:?}|threads {}", rayon::current_num_threads());
     Ok(job_fingerprint(&settings, &[s.style.clone()], &stamped)?)

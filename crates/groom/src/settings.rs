@@ -26,8 +26,9 @@ pub struct StrandSettings {
     /// Input groom (.hair, .data, .ply, .usda, .abc); with `frames` a pattern.
     pub groom: PathBuf,
     /// Head or body mesh the strands grow from (.ply or .obj); with
-    /// `frames` it may be a pattern too (a moving head).
-    pub mesh: PathBuf,
+    /// `frames` it may be a pattern too (a moving head). `None`: the groom
+    /// has no mesh (no collision handling, no visibility culling).
+    pub mesh: Option<PathBuf>,
     /// Style painting (PNG or JPEG); its luminance is matched.
     pub style: PathBuf,
     /// Output groom, .usda or .ply (written atomically); with `frames` a pattern.
@@ -94,7 +95,7 @@ impl StrandSettings {
     ) -> Self {
         Self {
             groom: groom.into(),
-            mesh: mesh.into(),
+            mesh: Some(mesh.into()),
             style: style.into(),
             out: out.into(),
             preview: None,

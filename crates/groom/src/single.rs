@@ -17,6 +17,7 @@ use nst3d_strands::pipeline::{stylize, StrandScene};
 use nst3d_strands::FlatStrands;
 
 use crate::files::{write_groom, write_preview, Checks};
+use crate::NO_MESH;
 use crate::settings::{OutFormat, StrandSettings, Temporal};
 
 /// What a single-groom job did.
@@ -66,13 +67,18 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
         bail!("--temporal and --style-flow apply to sequences; add --frames");
     }
     let groom = read_groom(&s.groom)?;
-    let head = read_mesh(&s.mesh)?;
+    let head = s.mesh.as_deref().map(read_mesh).transpose()?;
+    if head.is_none() {
+        reporter.note(NO_MESH);
+    }
     let painting = nst3d_io::image::load_style(&s.style, 1.0)?;
     let vgg = Vgg19::load(s.weights.as_deref())?;
     let params = s.stylize_params(groom.strand_count());
 
-    let scene = StrandScene::new(&groom, &head, &params)
-        .with_context(|| format!("{} on {}", s.groom.display(), s.mesh.display()))?;
+    let scene = StrandScene::new(&groom, head.as_ref(), &params).with_context(|| match &s.mesh {
+        Some(m) => format!("{} on {}", s.groom.display(), m.display()),
+        None => s.groom.display().to_string(),
+    })?;
     let total: u32 = params.iterations.iter().sum();
     reporter.begin(total as u64);
     let result = stylize(&scene, &painting, &vgg, &params, &mut |r| {
@@ -91,7 +97,7 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
     if let Some(preview) = &s.preview {
         write_preview(preview, &scene, &result.strands, &painting)?;
     }
-    let checks = Checks::new(&groom, &scene, &result.guides, &written, &head)?;
+    let checks = Checks::new(&groom, &scene, &result.guides, &written, head.as_ref())?;
     Ok(GroomReport {
         groom: s.groom.clone(),
         strands: written.strand_count(),

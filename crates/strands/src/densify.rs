@@ -16,7 +16,7 @@ use crate::kdtree::KdTree;
 use crate::strand_rng;
 use crate::strands::{resample_polyline, FlatStrands};
 use crate::StrandError;
-use nst3d_core::math::{add, cross, dist2, norm, scale, sub, V3};
+use nst3d_core::math::{add, cross, dist2, norm, normalize, scale, sub, SplitMix64, V3};
 
 /// Densification settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -40,8 +40,16 @@ impl Default for DensifyParams {
     }
 }
 
-/// Grows `params.count` proxy strands on `scalp` between `guides`.
-pub fn densify(guides: &FlatStrands, scalp: &TriMesh, params: &DensifyParams) -> Result<FlatStrands, StrandError> {
+/// Grows `params.count` proxy strands on `scalp` between `guides`. Without
+/// a scalp (grooms exported without their mesh) a proxy's root is drawn in
+/// the disc around a random guide root, perpendicular to that guide's first
+/// segment (the hair leaves the skin along its normal, so the disc stands
+/// in for the skin's tangent plane).
+pub fn densify(
+    guides: &FlatStrands,
+    scalp: Option<&TriMesh>,
+    params: &DensifyParams,
+) -> Result<FlatStrands, StrandError> {
     if params.neighbors == 0 {
         return Err(StrandError::Parameter("densification needs at least 1 guide per proxy".into()));
     }
@@ -65,31 +73,18 @@ pub fn densify(guides: &FlatStrands, scalp: &TriMesh, params: &DensifyParams) ->
     if p < 2 {
         return Err(StrandError::Parameter(format!("{p} points per proxy strand, need at least 2")));
     }
-    // Candidate triangles: those whose bounding sphere reaches the region.
-    let nv = scalp.vertices.len();
-    let mut cand: Vec<([V3; 3], f64)> = Vec::new();
-    for t in &scalp.triangles {
-        if t.iter().any(|&i| i as usize >= nv) {
-            return Err(StrandError::Invalid(format!("scalp triangle names a vertex beyond the {nv} vertices")));
-        }
-        let v = t.map(|i| scalp.vertices[i as usize]);
-        let c = scale(add(add(v[0], v[1]), v[2]), 1.0 / 3.0);
-        let rad = v.iter().map(|&q| dist2(q, c)).fold(0.0, f32::max).sqrt();
-        let area = 0.5 * norm(cross(sub(v[1], v[0]), sub(v[2], v[0]))) as f64;
-        let near = root_tree.nearest(c).map(|(d2, _)| d2.sqrt()).unwrap_or(f32::INFINITY);
-        if area > 0.0 && near <= radius + rad {
-            cand.push((v, area));
-        }
-    }
-    if cand.is_empty() && params.count > 0 {
-        return Err(StrandError::Invalid(format!("no scalp triangle within {radius} of a guide root")));
-    }
-    let mut cdf = Vec::with_capacity(cand.len());
-    let mut acc = 0.0;
-    for (_, a) in &cand {
-        acc += a;
-        cdf.push(acc);
-    }
+    let sampler = match scalp {
+        Some(scalp) => RootSampler::on_scalp(scalp, &root_tree, radius, params.count)?,
+        None => RootSampler::AroundGuides(
+            (0..guides.strand_count())
+                .map(|s| {
+                    let g = guides.strand(s);
+                    let d = g.get(1).and_then(|&q| normalize(sub(q, g[0]))).unwrap_or([0.0, 0.0, 1.0]);
+                    (g[0], d)
+                })
+                .collect(),
+        ),
+    };
     // Guide shapes as root-relative offsets at the common point count.
     let offsets: Vec<Vec<V3>> = (0..guides.strand_count())
         .map(|s| {
@@ -111,12 +106,7 @@ pub fn densify(guides: &FlatStrands, scalp: &TriMesh, params: &DensifyParams) ->
                 params.count
             )));
         }
-        let u = rng.uniform_f64() * acc;
-        let ti = cdf.partition_point(|&c| c <= u).min(cand.len() - 1);
-        let [a, b, c] = cand[ti].0;
-        // Uniform point in a triangle (square-root warp).
-        let (r1, r2) = (rng.uniform_f32().sqrt(), rng.uniform_f32());
-        let root = add(add(scale(a, 1.0 - r1), scale(b, r1 * (1.0 - r2))), scale(c, r1 * r2));
+        let root = sampler.sample(&mut rng, radius);
         let nn = root_tree.knn(root, params.neighbors);
         if nn[0].0.sqrt() > radius {
             continue;
@@ -147,6 +137,67 @@ pub fn densify(guides: &FlatStrands, scalp: &TriMesh, params: &DensifyParams) ->
     FlatStrands::from_strands(strands)
 }
 
+/// Where proxy roots are drawn.
+enum RootSampler {
+    /// Area-uniform on the scalp triangles near a guide root: the triangle
+    /// corners and the running sum of areas.
+    OnScalp { triangles: Vec<[V3; 3]>, cdf: Vec<f64> },
+    /// In the disc of the root radius around a uniformly chosen guide root,
+    /// perpendicular to its growth direction: `(root, direction)` per guide.
+    AroundGuides(Vec<(V3, V3)>),
+}
+
+impl RootSampler {
+    fn on_scalp(scalp: &TriMesh, root_tree: &KdTree, radius: f32, count: usize) -> Result<Self, StrandError> {
+        // Candidate triangles: those whose bounding sphere reaches the region.
+        let nv = scalp.vertices.len();
+        let (mut triangles, mut cdf) = (Vec::new(), Vec::new());
+        let mut acc = 0.0;
+        for t in &scalp.triangles {
+            if t.iter().any(|&i| i as usize >= nv) {
+                return Err(StrandError::Invalid(format!("scalp triangle names a vertex beyond the {nv} vertices")));
+            }
+            let v = t.map(|i| scalp.vertices[i as usize]);
+            let c = scale(add(add(v[0], v[1]), v[2]), 1.0 / 3.0);
+            let rad = v.iter().map(|&q| dist2(q, c)).fold(0.0, f32::max).sqrt();
+            let area = 0.5 * norm(cross(sub(v[1], v[0]), sub(v[2], v[0]))) as f64;
+            let near = root_tree.nearest(c).map(|(d2, _)| d2.sqrt()).unwrap_or(f32::INFINITY);
+            if area > 0.0 && near <= radius + rad {
+                acc += area;
+                triangles.push(v);
+                cdf.push(acc);
+            }
+        }
+        if triangles.is_empty() && count > 0 {
+            return Err(StrandError::Invalid(format!("no scalp triangle within {radius} of a guide root")));
+        }
+        Ok(RootSampler::OnScalp { triangles, cdf })
+    }
+
+    fn sample(&self, rng: &mut SplitMix64, radius: f32) -> V3 {
+        match self {
+            RootSampler::OnScalp { triangles, cdf } => {
+                let u = rng.uniform_f64() * cdf.last().copied().unwrap_or(0.0);
+                let ti = cdf.partition_point(|&c| c <= u).min(triangles.len() - 1);
+                let [a, b, c] = triangles[ti];
+                // Uniform point in a triangle (square-root warp).
+                let (r1, r2) = (rng.uniform_f32().sqrt(), rng.uniform_f32());
+                add(add(scale(a, 1.0 - r1), scale(b, r1 * (1.0 - r2))), scale(c, r1 * r2))
+            }
+            RootSampler::AroundGuides(guides) => {
+                let g = ((rng.uniform_f64() * guides.len() as f64) as usize).min(guides.len() - 1);
+                let (root, d) = guides[g];
+                let helper = if d[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+                let e1 = normalize(cross(d, helper)).unwrap_or([0.0, 1.0, 0.0]);
+                let e2 = cross(d, e1);
+                // Uniform in the disc (square-root warp of the radius).
+                let (r, phi) = (radius * rng.uniform_f32().sqrt(), std::f32::consts::TAU * rng.uniform_f32());
+                add(root, add(scale(e1, r * phi.cos()), scale(e2, r * phi.sin())))
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -156,10 +207,10 @@ mod tests {
     fn proxies_are_deterministic_on_the_scalp_and_between_guides() {
         let (guides, mesh) = fur_ball(&FurBallParams { strands: 200, points: 6, ..Default::default() }).unwrap();
         let params = DensifyParams { count: 300, seed: 7, ..Default::default() };
-        let a = densify(&guides, &mesh, &params).unwrap();
-        let b = densify(&guides, &mesh, &params).unwrap();
+        let a = densify(&guides, Some(&mesh), &params).unwrap();
+        let b = densify(&guides, Some(&mesh), &params).unwrap();
         assert_eq!(a, b);
-        let c = densify(&guides, &mesh, &DensifyParams { seed: 8, ..params }).unwrap();
+        let c = densify(&guides, Some(&mesh), &DensifyParams { seed: 8, ..params }).unwrap();
         assert_ne!(a, c);
         assert_eq!(a.strand_count(), 300);
         let bvh = crate::bvh::MeshBvh::new(&mesh).unwrap();
@@ -170,6 +221,24 @@ mod tests {
             // Fur points along the normal: a blend of nearby normals still
             // points outwards.
             assert!(bvh.signed_distance(st[5]) > 0.5 * 0.2);
+        }
+    }
+
+    #[test]
+    fn without_a_scalp_proxies_root_in_the_guides_tangent_discs() {
+        let (guides, _) = fur_ball(&FurBallParams { strands: 200, points: 6, ..Default::default() }).unwrap();
+        let params = DensifyParams { count: 300, seed: 7, root_radius: Some(0.1), ..Default::default() };
+        let a = densify(&guides, None, &params).unwrap();
+        assert_eq!(a, densify(&guides, None, &params).unwrap());
+        assert_eq!(a.strand_count(), 300);
+        let roots = guides.roots();
+        for s in 0..a.strand_count() {
+            let r = a.strand(s)[0];
+            let near = roots.iter().map(|&g| dist2(g, r)).fold(f32::INFINITY, f32::min).sqrt();
+            assert!(near <= 0.1 * 1.0001, "root {r:?} is {near} from the nearest guide root");
+            // The fur ball is the unit sphere: a root in a tangent disc of
+            // radius 0.1 is within 0.005 of it.
+            assert!((norm(r) - 1.0).abs() < 0.006, "root {r:?} off the sphere's tangent planes");
         }
     }
 }

@@ -333,12 +333,12 @@ impl<'a> SequenceStylizer<'a> {
     }
 
     /// Stylizes the next frame `frame` of the animation: `groom` growing
-    /// from `mesh`, reporting every iteration to `progress`.
+    /// from `mesh` (if it has one), reporting every iteration to `progress`.
     pub fn stylize_frame(
         &mut self,
         frame: i64,
         groom: &Groom,
-        mesh: &TriMesh,
+        mesh: Option<&TriMesh>,
         progress: &mut dyn FnMut(&IterationReport),
     ) -> Result<FrameResult, SequenceError> {
         let wrap = |source: PipelineError| SequenceError::Frame { frame, source };
@@ -593,7 +593,7 @@ mod tests {
         let out = frames
             .iter()
             .enumerate()
-            .map(|(i, g)| s.stylize_frame(i as i64 + 1, g, &mesh, &mut |_| {}).unwrap())
+            .map(|(i, g)| s.stylize_frame(i as i64 + 1, g, Some(&mesh), &mut |_| {}).unwrap())
             .collect();
         (s.report(), out)
     }
@@ -659,9 +659,9 @@ mod tests {
         let mut p = params(true, true);
         p.stylize.iterations = [0, 0, 1];
         let mut s = SequenceStylizer::new(&vgg, &style, p).unwrap();
-        s.stylize_frame(1, &frames[0], &mesh, &mut |_| {}).unwrap();
+        s.stylize_frame(1, &frames[0], Some(&mesh), &mut |_| {}).unwrap();
         frames[1].strands.truncate(30);
-        let e = s.stylize_frame(2, &frames[1], &mesh, &mut |_| {}).err().unwrap();
+        let e = s.stylize_frame(2, &frames[1], Some(&mesh), &mut |_| {}).err().unwrap();
         assert!(matches!(e, SequenceError::Topology { frame: 2, .. }), "{e}");
     }
 
@@ -676,13 +676,13 @@ mod tests {
         // runs frames 3-4.
         let mut first = SequenceStylizer::new(&vgg, &style, params(true, true)).unwrap();
         for (i, g) in frames[..2].iter().enumerate() {
-            first.stylize_frame(i as i64 + 1, g, &mesh, &mut |_| {}).unwrap();
+            first.stylize_frame(i as i64 + 1, g, Some(&mesh), &mut |_| {}).unwrap();
         }
         let bytes = first.save_state(&[2.0, 0.5]);
         let mut second = SequenceStylizer::new(&vgg, &style, params(true, true)).unwrap();
         assert_eq!(second.restore_state(&bytes).unwrap(), vec![2.0, 0.5]);
         for (i, g) in frames.iter().enumerate().skip(2) {
-            let r = second.stylize_frame(i as i64 + 1, g, &mesh, &mut |_| {}).unwrap();
+            let r = second.stylize_frame(i as i64 + 1, g, Some(&mesh), &mut |_| {}).unwrap();
             assert_eq!(r.strands, whole_frames[i].strands, "frame {}", i + 1);
             assert_eq!(r.flicker, whole_frames[i].flicker);
         }

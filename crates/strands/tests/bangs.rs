@@ -28,8 +28,8 @@ fn bangs_densify_deform_constrain() {
 
     // Densify: deterministic, roots on the head near the guide roots.
     let params = DensifyParams { count: 400, points_per_strand: Some(16), seed: 1, ..Default::default() };
-    let proxies = densify(&guides, &head, &params).unwrap();
-    assert_eq!(proxies, densify(&guides, &head, &params).unwrap());
+    let proxies = densify(&guides, Some(&head), &params).unwrap();
+    assert_eq!(proxies, densify(&guides, Some(&head), &params).unwrap());
     assert_eq!(proxies.strand_count(), 400);
     let root_tree = KdTree::new(&guides.roots());
     for r in proxies.roots() {

@@ -23,7 +23,8 @@ pub struct StrandsArgs {
     groom: Option<PathBuf>,
     /// Head or body mesh the strands grow from (.ply or .obj); with --frames
     /// it may be a pattern too (a moving head), else one mesh for all frames.
-    #[arg(long, required = true)]
+    /// Without it strands are neither kept out of the head nor culled.
+    #[arg(long)]
     mesh: Option<PathBuf>,
     /// Style painting (PNG or JPEG); its luminance is matched.
     #[arg(long, required = true)]
@@ -253,7 +254,7 @@ impl StrandsArgs {
         };
         Ok(StrandSettings {
             groom: need(self.groom, "--groom")?,
-            mesh: need(self.mesh, "--mesh")?,
+            mesh: self.mesh,
             style: need(self.style, "--style")?,
             out: need(self.out, "--out")?,
             preview: self.preview,
@@ -301,7 +302,7 @@ pub fn run(args: StrandsArgs) -> Result<()> {
     println!(
         "{}: {} strands ({} control points, as in the input) stylized ({}, {} proxies, {} iterations at {}px); \
          NNST loss {:.4e} -> {:.4e} ({:+.1}%; re-matched on the result {:.4e}); \
-         max length change {:.3}% vs input ({:.4}% vs rest); {} control points inside the mesh; wrote {}",
+         max length change {:.3}% vs input ({:.4}% vs rest); {}; wrote {}",
         r.groom.display(),
         r.strands,
         r.points,
@@ -315,10 +316,19 @@ pub fn run(args: StrandsArgs) -> Result<()> {
         r.eval_after_rematched,
         100.0 * r.checks.vs_input,
         100.0 * r.checks.vs_rest,
-        r.checks.inside,
+        inside_line(s.mesh.is_some(), r.checks.inside),
         r.out.display()
     );
     Ok(())
+}
+
+/// The collision check of the summary line.
+fn inside_line(has_mesh: bool, inside: usize) -> String {
+    if has_mesh {
+        format!("{inside} control points inside the mesh")
+    } else {
+        "no mesh, no collision check".into()
+    }
 }
 
 /// `nst3d strands --frames`: the animated groom, then the sequence's mean
@@ -341,7 +351,7 @@ fn run_sequence(s: &StrandSettings) -> Result<()> {
     println!(
         "sequence: {} frames ({}; {}, {} iterations/frame at {}px); mean NNST loss {:.4e} -> {:.4e} \
          (output {:.4e}, re-matched {:.4e}); flicker {:.5} (motion-compensated), raw frame difference {:.5} \
-         (input {:.5}); max length change {:.3}% vs input ({:.4}% vs rest); {} control points inside the mesh",
+         (input {:.5}); max length change {:.3}% vs input ({:.4}% vs rest); {}",
         q.frames,
         mode,
         r.preset,
@@ -356,7 +366,7 @@ fn run_sequence(s: &StrandSettings) -> Result<()> {
         q.flicker_input_raw,
         100.0 * r.worst.vs_input,
         100.0 * r.worst.vs_rest,
-        r.worst.inside
+        inside_line(s.mesh.is_some(), r.worst.inside)
     );
     Ok(())
 }

@@ -35,8 +35,9 @@ pub struct StrandScene {
     pub field: DeformationField,
     /// Length preservation and collision against the head.
     pub constraints: Constraints,
-    /// Head normal at every strand root (visibility culling).
-    pub root_normals: Vec<[f32; 3]>,
+    /// Head normal at every strand root, for visibility culling; `None`
+    /// for a groom without a mesh (every strand is drawn).
+    pub root_normals: Option<Vec<[f32; 3]>>,
     /// The cameras' frame.
     pub frame: ViewFrame,
     /// Look of the strands.
@@ -54,8 +55,10 @@ pub struct StrandScene {
 
 impl StrandScene {
     /// Builds guides, proxies, field, constraints and view frame from a
-    /// groom and the mesh it grows from.
-    pub fn new(groom: &Groom, head: &TriMesh, params: &StylizeParams) -> Result<Self, PipelineError> {
+    /// groom and the mesh it grows from. Without a mesh there is no
+    /// collision projection and no visibility culling, proxies grow around
+    /// the guide roots, and the groom's own box sets the scale.
+    pub fn new(groom: &Groom, head: Option<&TriMesh>, params: &StylizeParams) -> Result<Self, PipelineError> {
         params.validate()?;
         let p = params.preset;
         if groom.strands.is_empty() {
@@ -74,7 +77,7 @@ impl StrandScene {
                 })
                 .collect::<Result<Vec<_>, _>>()?,
         )?;
-        let bvh = MeshBvh::new(head)?;
+        let bvh = head.map(MeshBvh::new).transpose()?;
         let mut raw = guides.clone();
         if params.proxies > 0 {
             let dp = DensifyParams {
@@ -85,20 +88,34 @@ impl StrandScene {
             };
             raw.append(&densify(&guides, head, &dp)?);
         }
-        let (lo, hi) = head.bbox().ok_or_else(|| StrandError::Invalid("the head mesh has no vertices".into()))?;
+        let (lo, hi) = match head {
+            Some(h) => h.bbox().ok_or_else(|| StrandError::Invalid("the head mesh has no vertices".into()))?,
+            None => points_bbox(&guides.points),
+        };
         let diag = norm(sub(hi, lo));
         let collision = p.collision(diag);
-        let rest = resolve_rest(&raw, &bvh, collision, diag)?;
+        let rest = match &bvh {
+            Some(bvh) => resolve_rest(&raw, bvh, collision, diag)?,
+            None => raw,
+        };
         let guide_count = guides.strand_count();
         let rest_guides = FlatStrands {
             points: rest.points[..rest.offsets[guide_count]].to_vec(),
             offsets: rest.offsets[..=guide_count].to_vec(),
         };
         let field = DeformationField::on_guides(&rest_guides, &rest, p.sample_density(), p.kernel, p.neighbors)?;
-        let root_normals: Vec<V3> = rest.roots().iter().map(|&r| bvh.closest_point(r).normal).collect();
-
-        let frame = view_frame(&rest, &root_normals[..guide_count], head)?;
-        let constraints = Constraints { rest: rest.clone(), collider: Some(bvh), collision };
+        let root_normals: Option<Vec<V3>> =
+            bvh.as_ref().map(|bvh| rest.roots().iter().map(|&r| bvh.closest_point(r).normal).collect());
+        // Without a mesh the guides' growth directions stand in for the
+        // scalp normals when choosing the front.
+        let growth: Vec<V3> = (0..guide_count)
+            .map(|k| {
+                let g = rest.strand(k);
+                g.get(1).and_then(|&q| nst3d_core::math::normalize(sub(q, g[0]))).unwrap_or([0.0; 3])
+            })
+            .collect();
+        let frame = view_frame(&rest, root_normals.as_ref().map_or(&growth[..], |n| &n[..guide_count]), head)?;
+        let constraints = Constraints { rest: rest.clone(), collider: bvh, collision };
 
         let distance = p.camera_distance * frame.radius;
         // Fit the enclosing sphere with 5 % margin.
@@ -178,7 +195,7 @@ impl StrandScene {
     }
 
     pub(super) fn strands<'a>(&'a self, s: &'a FlatStrands) -> Strands<'a> {
-        Strands { points: &s.points, offsets: &s.offsets, colors: None, root_normals: Some(&self.root_normals) }
+        Strands { points: &s.points, offsets: &s.offsets, colors: None, root_normals: self.root_normals.as_deref() }
     }
 
     /// Grey render (three equal channels in `[0, 1]`) of `strands` (same
@@ -315,6 +332,18 @@ fn resolve_rest(
     let c = Constraints { rest: raw.clone(), collider: Some(bvh.clone()), collision };
     enforce(&mut s, &c, 200, &mut ConstraintTape::off())?;
     Ok(s)
+}
+
+/// Bounding box of a point set.
+fn points_bbox(points: &[V3]) -> (V3, V3) {
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for p in points {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    (lo, hi)
 }
 
 /// Margin of [`lift_roots`] for a mesh of bounding-box diagonal `diag`.

@@ -59,7 +59,11 @@ impl StrandScene {
 }
 
 /// Centre, radius and front/up axes (see the module notes).
-pub(super) fn view_frame(rest: &FlatStrands, guide_normals: &[V3], head: &TriMesh) -> Result<ViewFrame, PipelineError> {
+pub(super) fn view_frame(
+    rest: &FlatStrands,
+    guide_normals: &[V3],
+    head: Option<&TriMesh>,
+) -> Result<ViewFrame, PipelineError> {
     let mut lo = [f32::INFINITY; 3];
     let mut hi = [f32::NEG_INFINITY; 3];
     for p in &rest.points {
@@ -80,7 +84,7 @@ pub(super) fn view_frame(rest: &FlatStrands, guide_normals: &[V3], head: &TriMes
         }
     }
     let mean: V3 = mean.map(|c| (c / guide_normals.len().max(1) as f64) as f32);
-    let head_centre = head.bbox().map(|(l, h)| std::array::from_fn(|a| 0.5 * (l[a] + h[a]))).unwrap_or(centre);
+    let head_centre = head.and_then(|h| h.bbox()).map(|(l, h)| std::array::from_fn(|a| 0.5 * (l[a] + h[a]))).unwrap_or(centre);
     let front = if norm(mean) > 0.2 { normalize(mean) } else { None }
         .or_else(|| {
             let d = sub(centre, head_centre);
