@@ -252,3 +252,43 @@ fn bad_inputs_give_one_line_errors_and_no_files() {
         assert_fails(&nst3d(&args), &dir, needle);
     }
 }
+
+/// A shared groom file.
+fn groom(rel: &str) -> PathBuf {
+    let p = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/grooms")).join(rel);
+    assert!(p.exists(), "shared test data missing: {} (the repo expects ../shared beside it)", p.display());
+    p
+}
+
+#[test]
+fn a_groom_is_drawn_alone_beside_another_and_around() {
+    let dir = tempfile::tempdir().unwrap();
+    let (hair, head) = (groom("Bangs_100.hair"), groom("Bangs_head.ply"));
+    let one = dir.path().join("bangs.png");
+    ok(&nst3d(&["--input", s(&hair), "--mesh", s(&head), "--out", s(&one), "--height", "128"]));
+    let (g, w, h) = grey(&one);
+    assert_eq!((w, h), (128, 128));
+    assert!(g.iter().filter(|&&v| v > 0.05).count() > 200, "the groom is barely drawn");
+    let c = centroid(&one);
+    assert!((c[0] - 0.5).abs() < 0.2 && (c[1] - 0.5).abs() < 0.2, "groom off centre: {c:?}");
+
+    // Before | after of two formats of the same groom: the halves agree.
+    let pair = dir.path().join("pair.png");
+    let ply = groom("Bangs_100_binary.ply");
+    ok(&nst3d(&["--input", s(&hair), "--compare", s(&ply), "--out", s(&pair), "--height", "96"]));
+    let (g, w, h) = grey(&pair);
+    assert!(w >= 192 && h == 96, "two pictures side by side: {w}x{h}");
+    let half = |x0: usize| (0..h).flat_map(|y| (0..96).map(move |x| (y, x0 + x))).map(|(y, x)| g[y * w + x]).sum::<f32>();
+    let (l, r) = (half(0), half(w - 96));
+    assert!((l - r).abs() < 0.02 * l, "same groom, different pictures: {l} vs {r}");
+
+    let turn = dir.path().join("turn_####.png");
+    let out = ok(&nst3d(&["--input", s(&hair), "--out", s(&turn), "--turntable", "3", "--height", "64"]));
+    assert!(out.contains("wrote 3 preview pictures"), "{out}");
+    assert_eq!(listing(dir.path()).iter().filter(|f| f.starts_with("turn_")).count(), 3);
+
+    // Volume-only settings on a groom are one clear line.
+    let o = nst3d(&["--input", s(&hair), "--out", s(&one), "--absorption", "1"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("apply to volumes"));
+}

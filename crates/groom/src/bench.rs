@@ -73,7 +73,7 @@ pub fn strands_iter(a: &StrandsIterSettings, reporter: &mut dyn Reporter) -> Res
     let vgg = Vgg19::load(a.weights.as_deref())?;
     let mut params = StylizeParams::from_preset(Preset::ShortHair.params(), groom.strand_count());
     params.render_size = a.size;
-    let scene = StrandScene::new(&groom, Some(&head), &params)?;
+    let scene = StrandScene::build(&groom, Some(&head), &params, &mut |m| reporter.status(m))?;
     let finest = 2;
     let (psi, delta) =
         poisson_view_angles(&scene.frame, params.preset.polar_deg, params.preset.azimuth_deg, 1, params.seed)[0];

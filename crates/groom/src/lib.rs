@@ -22,7 +22,7 @@ pub mod sequence;
 pub mod settings;
 pub mod single;
 
-pub use files::{Checks, PREVIEW_HEIGHT};
+pub use files::{is_groom_file, preview_groom, Checks, GroomPreviewSettings, PREVIEW_HEIGHT};
 pub use generate::{generate, GenerateKind, GenerateReport, GenerateSettings};
 pub use nst3d_core::{Reporter, Silent};
 pub use sequence::{stylize_groom_sequence, GroomSequenceReport, STATE_FILE};

@@ -13,7 +13,7 @@ use nst3d_core::Reporter;
 use nst3d_features::Vgg19;
 use nst3d_io::groom::read_groom;
 use nst3d_io::mesh::read_mesh;
-use nst3d_strands::pipeline::{stylize, StrandScene};
+use nst3d_strands::pipeline::{stylize, HeldOut, StrandScene};
 use nst3d_strands::FlatStrands;
 
 use crate::files::{write_groom, write_preview, Checks};
@@ -43,6 +43,8 @@ pub struct GroomReport {
     pub eval_after: f32,
     /// After, with the NNST targets matched again on the result.
     pub eval_after_rematched: f32,
+    /// The hair-only loss from views the optimizer did not use.
+    pub held_out: HeldOut,
     /// Lengths and collisions of what was written.
     pub checks: Checks,
     /// The written file.
@@ -67,6 +69,13 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
         bail!("--temporal and --style-flow apply to sequences; add --frames");
     }
     let groom = read_groom(&s.groom)?;
+    // After the read, not before it, so that a bad file is still one line on stderr.
+    reporter.status(&format!(
+        "read {}: {} strands, {} points",
+        s.groom.display(),
+        groom.strand_count(),
+        groom.point_count()
+    ));
     let head = s.mesh.as_deref().map(read_mesh).transpose()?;
     if head.is_none() {
         reporter.note(NO_MESH);
@@ -75,7 +84,7 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
     let vgg = Vgg19::load(s.weights.as_deref())?;
     let params = s.stylize_params(groom.strand_count());
 
-    let scene = StrandScene::new(&groom, head.as_ref(), &params).with_context(|| match &s.mesh {
+    let scene = StrandScene::build(&groom, head.as_ref(), &params, &mut |m| reporter.status(m)).with_context(|| match &s.mesh {
         Some(m) => format!("{} on {}", s.groom.display(), m.display()),
         None => s.groom.display().to_string(),
     })?;
@@ -109,6 +118,7 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
         eval_before: result.eval_before,
         eval_after: result.eval_after,
         eval_after_rematched: result.eval_after_rematched,
+        held_out: result.held_out.clone(),
         checks,
         out: s.out.clone(),
     })

@@ -461,6 +461,33 @@ pub fn nnst_loss_matched(feats: &[Image], matched: &NnstMatch) -> Result<(f32, V
     Ok((loss, hypercolumns_backward(feats, &h)))
 }
 
+/// [`nnst_loss_matched`]'s value over a subset of the hyper-columns: the
+/// mean of `‖h_i − T_i‖²` over the columns `i` where `columns[i]` is set
+/// (row-major on the matched grid), for measuring a stylization where it
+/// acts (the strands' hair, not the empty background every view shares).
+/// `NaN` when no column is set.
+pub fn nnst_loss_over(feats: &[Image], matched: &NnstMatch, columns: &[bool]) -> Result<f32, NnstError> {
+    let grid = common_grid(feats, &matched.params)?;
+    if grid != matched.grid() {
+        return Err(NnstError::GridMismatch { got: grid, expected: matched.grid() });
+    }
+    if columns.len() != grid.0 * grid.1 {
+        return Err(NnstError::GridMismatch { got: (columns.len(), 1), expected: grid });
+    }
+    let h = hypercolumns(feats, grid);
+    let nc = h.plane();
+    let sum: f64 = h
+        .data
+        .par_chunks(nc)
+        .zip(matched.targets.data.par_chunks(nc))
+        .map(|(hk, tk)| {
+            hk.iter().zip(tk).zip(columns).filter(|(_, &on)| on).map(|((v, t), _)| ((v - t) * (v - t)) as f64).sum::<f64>()
+        })
+        .sum();
+    let n = columns.iter().filter(|&&c| c).count();
+    Ok((sum / n as f64) as f32)
+}
+
 /// NNST loss of `content` against the style `target`, matching the
 /// hyper-columns of `content` themselves (NNST's scheme when the content is
 /// the current iterate); the matches are held constant for the gradient.

@@ -334,7 +334,7 @@ pub struct EnforceParams {
 }
 
 /// Largest relative error of a strand's segment lengths against its rest polyline.
-fn strand_length_error(pts: &[V3], rest: &[V3]) -> f32 {
+pub(crate) fn strand_length_error(pts: &[V3], rest: &[V3]) -> f32 {
     pts.windows(2)
         .zip(rest.windows(2))
         .map(|(p, r)| {

@@ -302,7 +302,7 @@ pub fn run(args: StrandsArgs) -> Result<()> {
     println!(
         "{}: {} strands ({} control points, as in the input) stylized ({}, {} proxies, {} iterations at {}px); \
          NNST loss {:.4e} -> {:.4e} ({:+.1}%; re-matched on the result {:.4e}); \
-         max length change {:.3}% vs input ({:.4}% vs rest); {}; wrote {}",
+         {}; max length change {:.3}% vs input ({:.4}% vs rest); {}; wrote {}",
         r.groom.display(),
         r.strands,
         r.points,
@@ -314,12 +314,28 @@ pub fn run(args: StrandsArgs) -> Result<()> {
         r.eval_after,
         -100.0 * r.loss_drop(),
         r.eval_after_rematched,
+        held_out_line(&r.held_out),
         100.0 * r.checks.vs_input,
         100.0 * r.checks.vs_rest,
         inside_line(s.mesh.is_some(), r.checks.inside),
         r.out.display()
     );
     Ok(())
+}
+
+/// The held-out measurement of the summary line.
+fn held_out_line(h: &nst3d_strands::pipeline::HeldOut) -> String {
+    if h.angles.is_empty() {
+        return "no held-out views".into();
+    }
+    format!(
+        "hair-only NNST loss from {} held-out views {:.4e} -> {:.4e} ({:+.1}%; re-matched {:.4e})",
+        h.angles.len(),
+        h.before,
+        h.after,
+        -100.0 * h.drop(),
+        h.after_rematched
+    )
 }
 
 /// The collision check of the summary line.

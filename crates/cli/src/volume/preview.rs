@@ -1,5 +1,7 @@
 //! `nst3d preview`: pictures of OpenVDB smoke drawn by the transmittance
-//! renderer the optimiser sees ([`nst3d_volume::preview`]).
+//! renderer the optimiser sees ([`nst3d_volume::preview`]), or of a groom
+//! drawn by the strand splatting renderer from the strand stylization's
+//! cameras ([`nst3d_groom::preview_groom`]).
 
 use std::path::PathBuf;
 
@@ -13,9 +15,13 @@ use crate::console::plural;
 /// Arguments of `nst3d preview`.
 #[derive(Args)]
 pub struct PreviewArgs {
-    /// OpenVDB file to draw (with --frames, a pattern with `####` or `%04d`).
+    /// OpenVDB file to draw (with --frames, a pattern with `####` or `%04d`),
+    /// or a groom (.hair, .data, .ply, .usda, .abc).
     #[arg(long)]
     pub input: PathBuf,
+    /// For a groom: the mesh it grows from (front direction and culling).
+    #[arg(long)]
+    pub mesh: Option<PathBuf>,
     /// A second file (e.g. the stylized result) drawn to the right of --input
     /// with the same camera and absorption; a pattern with --frames.
     #[arg(long)]
@@ -54,6 +60,26 @@ pub struct PreviewArgs {
 
 /// Runs `nst3d preview`.
 pub fn run(args: PreviewArgs) -> Result<()> {
+    if nst3d_groom::is_groom_file(&args.input) {
+        if args.frames.is_some() || args.absorption.is_some() || args.grid != "density" {
+            anyhow::bail!("--frames, --absorption and --grid apply to volumes; {} is a groom", args.input.display());
+        }
+        let settings = nst3d_groom::GroomPreviewSettings {
+            input: args.input,
+            compare: args.compare,
+            mesh: args.mesh,
+            out: args.out,
+            turntable: args.turntable,
+            elevation: args.elevation,
+            height: args.height,
+        };
+        let n = nst3d_groom::preview_groom(&settings)?;
+        println!("wrote {n} preview picture{} of the groom ({})", plural(n), settings.out.display());
+        return Ok(());
+    }
+    if args.mesh.is_some() {
+        anyhow::bail!("--mesh applies to grooms; {} is a volume", args.input.display());
+    }
     let settings = PreviewSettings {
         input: args.input,
         compare: args.compare,

@@ -95,11 +95,13 @@ pub use nst3d_optim::Adam;
 pub use nst3d_splat::SplatCamera;
 
 pub use multiscale::{
-    scale_learning_rate, stylize, stylize_with, FrameHooks, IterationClock, IterationReport, StylizeResult,
+    hair_columns, held_out_loss, scale_learning_rate, stylize, stylize_with, FrameHooks, HeldOut, IterationClock,
+    IterationReport, StylizeResult,
 };
 pub use params::StylizeParams;
 pub use scene::{
-    max_length_change, polyline_length, StrandScene, CONSTRAINT_PASSES, HARD_TAU_FRACTION, SEGMENT_TOLERANCE,
+    max_length_change, polyline_length, GroomView, StrandScene, CONSTRAINT_PASSES, HARD_TAU_FRACTION,
+    SEGMENT_TOLERANCE,
 };
 pub use step::{iteration, loss_and_gradient, StageTimes, StepReport};
 pub use views::{match_view, poisson_view_angles, style_target, ViewFrame};

@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use nst3d_core::Image;
 use nst3d_features::{Vgg19, VggLayer};
-use nst3d_loss::nnst::{nnst_loss, nnst_loss_matched, NnstMatch};
+use nst3d_loss::nnst::{nnst_loss, nnst_loss_matched, nnst_loss_over, NnstMatch, NnstTarget};
 use nst3d_optim::Adam;
 use nst3d_splat::SplatCamera;
 
@@ -54,6 +54,81 @@ pub struct StylizeResult {
     pub eval_after_rematched: f32,
     /// Evaluation view angles `(ψ, δ)`, degrees.
     pub eval_angles: Vec<(f32, f32)>,
+    /// The stylization measured where the optimizer did not look: the NNST
+    /// loss over the hair's hyper-columns from held-out views.
+    pub held_out: HeldOut,
+}
+
+/// NNST loss over the hyper-columns that cover hair (in the rest or the
+/// stylized render; the empty background, which every view shares and no
+/// deformation changes, is left out), mean over views the optimizer never
+/// used, drawn from the preset's angle ranges by another seed.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct HeldOut {
+    /// View angles `(ψ, δ)`, degrees.
+    pub angles: Vec<(f32, f32)>,
+    /// The rest groom against targets matched on itself.
+    pub before: f32,
+    /// The stylized groom against the same targets (the paper's objective).
+    pub after: f32,
+    /// The stylized groom against targets matched on its own render.
+    pub after_rematched: f32,
+}
+
+impl HeldOut {
+    /// Relative drop `1 − after / before`.
+    pub fn drop(&self) -> f32 {
+        1.0 - self.after / self.before
+    }
+}
+
+/// Seed offset of the held-out views (see [`HeldOut`]).
+const HELD_OUT_SEED: u64 = 0x4E1D_0075;
+
+/// [`HeldOut`] of `strands` (layout of [`StrandScene::rest`]) from
+/// `params.held_out_views` views against the style `finest`.
+pub fn held_out_loss(
+    scene: &StrandScene,
+    vgg: &Vgg19,
+    finest: &NnstTarget,
+    strands: &FlatStrands,
+    params: &StylizeParams,
+) -> Result<HeldOut, PipelineError> {
+    let p = params.preset;
+    let angles =
+        poisson_view_angles(&scene.frame, p.polar_deg, p.azimuth_deg, params.held_out_views, params.seed ^ HELD_OUT_SEED);
+    let (mut before, mut after, mut rematched) = (0.0f64, 0.0f64, 0.0f64);
+    for &(psi, delta) in &angles {
+        let cam = scene.camera(psi, delta)?;
+        let (img0, img1) = (scene.render(&scene.undeformed, &cam)?, scene.render(strands, &cam)?);
+        let (f0, f1) = (vgg.forward(&img0, &NNST_LAYERS, false), vgg.forward(&img1, &NNST_LAYERS, false));
+        let matched = finest.match_content(f0.taps())?;
+        let mask = hair_columns(&[&img0, &img1], scene.style.background, matched.grid());
+        before += nnst_loss_over(f0.taps(), &matched, &mask)? as f64;
+        after += nnst_loss_over(f1.taps(), &matched, &mask)? as f64;
+        rematched += nnst_loss_over(f1.taps(), &finest.match_content(f1.taps())?, &mask)? as f64;
+    }
+    let k = angles.len().max(1) as f64;
+    Ok(HeldOut { angles, before: (before / k) as f32, after: (after / k) as f32, after_rematched: (rematched / k) as f32 })
+}
+
+/// Hyper-columns (row-major on `grid`) whose cell of the image holds a
+/// pixel that differs from the background in any of `renders`.
+pub fn hair_columns(renders: &[&Image], background: [f32; 3], grid: (usize, usize)) -> Vec<bool> {
+    let mut mask = vec![false; grid.0 * grid.1];
+    for img in renders {
+        let plane = img.plane();
+        for y in 0..img.height {
+            let r = (y * grid.0 / img.height).min(grid.0 - 1);
+            for x in 0..img.width {
+                let i = y * img.width + x;
+                if (0..img.channels.min(3)).any(|c| (img.data[c * plane + i] - background[c]).abs() > 0.02) {
+                    mask[r * grid.1 + (x * grid.1 / img.width).min(grid.1 - 1)] = true;
+                }
+            }
+        }
+    }
+    mask
 }
 
 impl StylizeResult {
@@ -213,6 +288,11 @@ pub fn stylize_with(
         rematched += nnst_loss(feats.taps(), &finest)?.0 as f64;
     }
     let k = eval_angles.len() as f64;
+    let held_out = if params.held_out_views > 0 {
+        held_out_loss(scene, vgg, &finest, &strands, params)?
+    } else {
+        HeldOut::default()
+    };
     let g = scene.guide_count;
     let split = strands.offsets[g];
     let guides = FlatStrands { points: strands.points[..split].to_vec(), offsets: strands.offsets[..=g].to_vec() };
@@ -230,5 +310,6 @@ pub fn stylize_with(
         eval_after: (after / k) as f32,
         eval_after_rematched: (rematched / k) as f32,
         eval_angles,
+        held_out,
     })
 }

@@ -32,6 +32,9 @@ pub struct StylizeParams {
     /// Evaluation cameras when `views_per_scale` is 0 (otherwise the finest
     /// scale's views are the evaluation views).
     pub eval_views: usize,
+    /// Views the optimizer never uses, from which the result's
+    /// [`HeldOut`](super::HeldOut) hair-only loss is measured (0: not measured).
+    pub held_out_views: usize,
     /// Strand cross-section σ in pixels at the groom centre's depth.
     pub strand_width_px: f32,
 }
@@ -51,6 +54,7 @@ impl StylizeParams {
             weight_decay: 0.01,
             views_per_scale: 8,
             eval_views: 4,
+            held_out_views: 4,
             strand_width_px: 0.5,
         }
     }

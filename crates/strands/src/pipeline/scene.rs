@@ -4,13 +4,13 @@
 //! each with its backward.
 
 use nst3d_core::groom::{Groom, StrandSpline};
-use nst3d_core::math::{add, dot, norm, scale, sub, V3};
+use nst3d_core::math::{add, cross, dot, norm, normalize, scale, sub, V3};
 use nst3d_core::mesh::TriMesh;
 use nst3d_core::Image;
 use nst3d_splat::{render, SplatCamera, SplatOutput, StrandStyle, Strands};
 
 use crate::bvh::MeshBvh;
-use crate::constraints::{CollisionParams, CollisionStats, ConstraintTape, Constraints, EnforceParams};
+use crate::constraints::{strand_length_error, CollisionParams, CollisionStats, ConstraintTape, Constraints, EnforceParams};
 use crate::densify::{densify, DensifyParams};
 use crate::field::DeformationField;
 use crate::strands::FlatStrands;
@@ -31,6 +31,10 @@ pub struct StrandScene {
     pub undeformed: FlatStrands,
     /// How many leading strands of `rest` are guides.
     pub guide_count: usize,
+    /// The guides as re-sampled from the input, before [`resolve_rest`]
+    /// fitted them outside the mesh: the output is the input plus the
+    /// displacement from these ([`StrandScene::to_input_topology`]).
+    pub raw_guides: FlatStrands,
     /// The field of eq. 5 on the guides, acting on every rest point.
     pub field: DeformationField,
     /// Length preservation and collision against the head.
@@ -59,12 +63,24 @@ impl StrandScene {
     /// collision projection and no visibility culling, proxies grow around
     /// the guide roots, and the groom's own box sets the scale.
     pub fn new(groom: &Groom, head: Option<&TriMesh>, params: &StylizeParams) -> Result<Self, PipelineError> {
+        Self::build(groom, head, params, &mut |_| {})
+    }
+
+    /// [`StrandScene::new`], saying each stage of the set-up to `status`
+    /// as it starts (a production groom takes seconds here).
+    pub fn build(
+        groom: &Groom,
+        head: Option<&TriMesh>,
+        params: &StylizeParams,
+        status: &mut dyn FnMut(&str),
+    ) -> Result<Self, PipelineError> {
         params.validate()?;
         let p = params.preset;
         if groom.strands.is_empty() {
             return Err(StrandError::Invalid("the groom has no strands".into()).into());
         }
         let n = p.points_per_strand.max(2);
+        status(&format!("re-sampling {} guides to {n} points", groom.strands.len()));
         let guides = FlatStrands::from_strands(
             groom
                 .strands
@@ -80,6 +96,7 @@ impl StrandScene {
         let bvh = head.map(MeshBvh::new).transpose()?;
         let mut raw = guides.clone();
         if params.proxies > 0 {
+            status(&format!("growing {} proxy strands", params.proxies));
             let dp = DensifyParams {
                 count: params.proxies,
                 points_per_strand: Some(n),
@@ -95,7 +112,10 @@ impl StrandScene {
         let diag = norm(sub(hi, lo));
         let collision = p.collision(diag);
         let rest = match &bvh {
-            Some(bvh) => resolve_rest(&raw, bvh, collision, diag)?,
+            Some(bvh) => {
+                status(&format!("fitting {} control points outside the mesh", raw.points.len()));
+                resolve_rest(&raw, bvh, collision, diag)?
+            }
             None => raw,
         };
         let guide_count = guides.strand_count();
@@ -103,35 +123,20 @@ impl StrandScene {
             points: rest.points[..rest.offsets[guide_count]].to_vec(),
             offsets: rest.offsets[..=guide_count].to_vec(),
         };
+        status("building the velocity field");
         let field = DeformationField::on_guides(&rest_guides, &rest, p.sample_density(), p.kernel, p.neighbors)?;
         let root_normals: Option<Vec<V3>> =
             bvh.as_ref().map(|bvh| rest.roots().iter().map(|&r| bvh.closest_point(r).normal).collect());
-        // Without a mesh the guides' growth directions stand in for the
-        // scalp normals when choosing the front.
-        let growth: Vec<V3> = (0..guide_count)
-            .map(|k| {
-                let g = rest.strand(k);
-                g.get(1).and_then(|&q| nst3d_core::math::normalize(sub(q, g[0]))).unwrap_or([0.0; 3])
-            })
-            .collect();
+        let growth = growth_directions(&rest, guide_count);
         let frame = view_frame(&rest, root_normals.as_ref().map_or(&growth[..], |n| &n[..guide_count]), head)?;
         let constraints = Constraints { rest: rest.clone(), collider: bvh, collision };
 
-        let distance = p.camera_distance * frame.radius;
-        // Fit the enclosing sphere with 5 % margin.
-        let half = (1.0 / p.camera_distance).asin() * 1.05;
-        let fov_deg = (2.0 * half).to_degrees().min(120.0);
-        let pixel = 2.0 * distance * (0.5 * fov_deg.to_radians()).tan() / params.render_size as f32;
-        let style = StrandStyle {
-            width: params.strand_width_px * pixel,
-            visibility_threshold: p.visibility_threshold,
-            output: SplatOutput::Rgb,
-            ..StrandStyle::default()
-        };
+        let (distance, fov_deg, style) = shell(&frame, params);
         let mut scene = StrandScene {
             undeformed: rest.clone(),
             rest,
             guide_count,
+            raw_guides: guides,
             field,
             constraints,
             root_normals,
@@ -207,6 +212,36 @@ impl StrandScene {
     }
 }
 
+/// The camera shell about `frame` for `params`: the eye distance (the
+/// preset's multiple of the groom's radius), the field of view that fits the
+/// enclosing sphere with a 5 % margin, and the strands' look, their width
+/// `params.strand_width_px` pixels at the render size.
+pub(super) fn shell(frame: &ViewFrame, params: &StylizeParams) -> (f32, f32, StrandStyle) {
+    let p = params.preset;
+    let distance = p.camera_distance * frame.radius;
+    let half = (1.0 / p.camera_distance).asin() * 1.05;
+    let fov_deg = (2.0 * half).to_degrees().min(120.0);
+    let pixel = 2.0 * distance * (0.5 * fov_deg.to_radians()).tan() / params.render_size as f32;
+    let style = StrandStyle {
+        width: params.strand_width_px * pixel,
+        visibility_threshold: p.visibility_threshold,
+        output: SplatOutput::Rgb,
+        ..StrandStyle::default()
+    };
+    (distance, fov_deg, style)
+}
+
+/// Growth direction of every strand (first segment), standing in for the
+/// scalp normals when a groom has no mesh.
+fn growth_directions(s: &FlatStrands, count: usize) -> Vec<V3> {
+    (0..count)
+        .map(|k| {
+            let g = s.strand(k);
+            g.get(1).and_then(|&q| normalize(sub(q, g[0]))).unwrap_or([0.0; 3])
+        })
+        .collect()
+}
+
 /// Constraint passes per iteration (see [`enforce`]).
 pub const CONSTRAINT_PASSES: usize = 8;
 
@@ -243,6 +278,55 @@ fn enforce(
     Ok(tape.enforce(s, c, EnforceParams { passes, hard, tolerance: SEGMENT_TOLERANCE })?)
 }
 
+/// How a groom file looks from the stylization's cameras, without setting
+/// up a stylization (no proxies, no fitting): `nst3d preview` of a groom.
+#[derive(Clone, Debug)]
+pub struct GroomView {
+    /// The cameras' frame.
+    pub frame: ViewFrame,
+    /// Eye distance from the centre.
+    pub distance: f32,
+    /// Vertical field of view, degrees.
+    pub fov_deg: f32,
+    /// Look of the strands at `render_size`.
+    pub style: StrandStyle,
+    /// The size `style`'s strand width is given for.
+    pub render_size: usize,
+    /// Scalp normal at every root (culling), when there is a mesh.
+    pub root_normals: Option<Vec<V3>>,
+}
+
+impl GroomView {
+    /// The view of `strands` (growing from `head`, if given) with the
+    /// shell and look `params` would stylize it with.
+    pub fn new(strands: &FlatStrands, head: Option<&TriMesh>, params: &StylizeParams) -> Result<Self, PipelineError> {
+        let root_normals = match head {
+            Some(h) => {
+                let bvh = MeshBvh::new(h)?;
+                Some(strands.roots().iter().map(|&r| bvh.closest_point(r).normal).collect::<Vec<V3>>())
+            }
+            None => None,
+        };
+        let growth = growth_directions(strands, strands.strand_count());
+        let frame = view_frame(strands, root_normals.as_deref().unwrap_or(&growth), head)?;
+        let (distance, fov_deg, style) = shell(&frame, params);
+        Ok(GroomView { frame, distance, fov_deg, style, render_size: params.render_size, root_normals })
+    }
+
+    /// Grey render of `strands` (the layout the view was made for, or any
+    /// groom when there are no root normals) from polar `ψ` / azimuth `δ`
+    /// (degrees) at `size²` pixels; strands keep their width relative to the
+    /// picture.
+    pub fn render(&self, strands: &FlatStrands, polar_deg: f32, azimuth_deg: f32, size: usize) -> Result<Image, PipelineError> {
+        let eye = add(self.frame.centre, scale(self.frame.direction(polar_deg, azimuth_deg), self.distance));
+        let cam = SplatCamera::look_at(eye, self.frame.centre, self.frame.up, self.fov_deg, size, size)?;
+        let style = StrandStyle { width: self.style.width * self.render_size as f32 / size as f32, ..self.style };
+        let normals = self.root_normals.as_deref().filter(|n| n.len() == strands.strand_count());
+        let s = Strands { points: &strands.points, offsets: &strands.offsets, colors: None, root_normals: normals };
+        Ok(render(&s, &cam, &style)?.0)
+    }
+}
+
 impl StrandScene {
     /// The stylization of the guides `deformed` (layout of the rest guides,
     /// the leading strands of [`StrandScene::rest`]) carried back to the
@@ -265,30 +349,33 @@ impl StrandScene {
                 deformed.strand_count()
             )));
         }
+        // Each input point moves by the displacement of its place on the
+        // re-sampled guide, from the input's shape (before the rest groom
+        // was fitted outside the mesh) to the stylized one: the fitting's
+        // lifts, pushes and turns reach the output too.
         let mut out = input.clone();
-        // Roots under the scalp come out as in the rest groom.
-        if let Some(bvh) = &self.constraints.collider {
-            lift_roots(&mut out, bvh, self.lift_margin);
-        }
-        let lifted = out.clone();
         for k in 0..g {
-            let (rest, def) = (self.rest.strand(k), deformed.strand(k));
+            let (raw, def) = (self.raw_guides.strand(k), deformed.strand(k));
             for p in &mut out.points[input.range(k)] {
-                let (seg, t) = closest_on_polyline(rest, *p);
-                let j = (seg + 1).min(rest.len() - 1);
-                let d0 = sub(def[seg], rest[seg]);
-                let d1 = sub(def[j], rest[j]);
+                let (seg, t) = closest_on_polyline(raw, *p);
+                let j = (seg + 1).min(raw.len() - 1);
+                let d0 = sub(def[seg], raw[seg]);
+                let d1 = sub(def[j], raw[j]);
                 *p = add(*p, add(scale(d0, 1.0 - t), scale(d1, t)));
             }
-            // The root stays where the input has it (on the scalp).
-            out.points[input.offsets[k]] = lifted.points[input.offsets[k]];
         }
         let c = Constraints {
-            rest: lifted,
+            rest: input.clone(),
             collider: self.constraints.collider.clone(),
             collision: self.constraints.collision,
         };
         enforce(&mut out, &c, 200, &mut ConstraintTape::off())?;
+        // The projections leave roots alone; one the carried displacement
+        // left under the scalp comes out rigidly with its strand, as in the
+        // rest groom.
+        if let Some(bvh) = &self.constraints.collider {
+            lift_roots(&mut out, bvh, self.lift_margin);
+        }
         Ok(out)
     }
 }
@@ -330,8 +417,64 @@ fn resolve_rest(
     let mut s = raw.clone();
     lift_roots(&mut s, bvh, lift_margin(diag));
     let c = Constraints { rest: raw.clone(), collider: Some(bvh.clone()), collision };
+    let mut fitted = s.clone();
+    enforce(&mut fitted, &c, 200, &mut ConstraintTape::off())?;
+    // A strand the projections could not fit threads through the mesh (in
+    // one side of an ear and out of the other): pushing each point to its
+    // nearest side stretches it across. Such a strand is first turned
+    // rigidly about its root to the nearest pose with the least
+    // penetration, then fitted like the others.
+    let stuck: Vec<usize> = (0..s.strand_count())
+        .filter(|&k| strand_length_error(fitted.strand(k), raw.strand(k)) > STUCK_LENGTH_ERROR)
+        .collect();
+    if stuck.is_empty() {
+        return Ok(fitted);
+    }
+    for &k in &stuck {
+        let r = s.range(k);
+        turn_out_of_mesh(&mut s.points[r], bvh);
+    }
     enforce(&mut s, &c, 200, &mut ConstraintTape::off())?;
     Ok(s)
+}
+
+/// Relative segment-length error above which [`resolve_rest`] turns a
+/// strand out of the mesh.
+const STUCK_LENGTH_ERROR: f32 = 0.01;
+
+/// Turns the strand `pts` rigidly about its root, by the smallest of a
+/// fan of angles (7.5° steps up to 90°, 8 axes perpendicular to the root's
+/// normal) that minimises the summed depth of its points inside the mesh.
+fn turn_out_of_mesh(pts: &mut [V3], bvh: &MeshBvh) {
+    let root = pts[0];
+    let depth = |q: &[V3]| -> f32 { q.iter().skip(1).map(|&p| (-bvh.signed_distance(p)).max(0.0)).sum() };
+    let n = bvh.closest_point(root).normal;
+    let helper = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+    let Some(e1) = normalize(cross(n, helper)) else { return };
+    let e2 = cross(n, e1);
+    let mut best = (depth(pts), pts.to_vec());
+    'search: for step in 1..=12 {
+        let theta = (7.5 * step as f32).to_radians();
+        for a in 0..8 {
+            let phi = a as f32 * std::f32::consts::TAU / 8.0;
+            let axis = add(scale(e1, phi.cos()), scale(e2, phi.sin()));
+            let turned: Vec<V3> = pts.iter().map(|&p| add(root, rotate(sub(p, root), axis, theta))).collect();
+            let d = depth(&turned);
+            if d < best.0 {
+                best = (d, turned);
+            }
+        }
+        if best.0 == 0.0 {
+            break 'search;
+        }
+    }
+    pts.copy_from_slice(&best.1);
+}
+
+/// `v` rotated by `theta` about the unit `axis` (Rodrigues).
+fn rotate(v: V3, axis: V3, theta: f32) -> V3 {
+    let (c, s) = (theta.cos(), theta.sin());
+    add(add(scale(v, c), scale(cross(axis, v), s)), scale(axis, dot(axis, v) * (1.0 - c)))
 }
 
 /// Bounding box of a point set.
@@ -381,4 +524,26 @@ pub fn max_length_change(a: &FlatStrands, b: &FlatStrands) -> f32 {
 /// Length of a polyline.
 pub fn polyline_length(pts: &[[f32; 3]]) -> f64 {
     pts.windows(2).map(|w| norm(sub(w[1], w[0])) as f64).sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_strand_threading_through_the_mesh_is_turned_out_with_its_length() {
+        let sphere = crate::generators::uv_sphere(1.0, 32, 64);
+        let bvh = MeshBvh::new(&sphere).unwrap();
+        // Rooted on the sphere, entering it at 45° and leaving through the
+        // far side of the cap: each point's nearest way out differs.
+        let (root, dir) = ([1.0f32, 0.0, 0.0], [-std::f32::consts::FRAC_1_SQRT_2, 0.0, std::f32::consts::FRAC_1_SQRT_2]);
+        let raw = FlatStrands::from_strands([(0..12).map(|k| add(root, scale(dir, 0.15 * k as f32))).collect()]).unwrap();
+        assert!(raw.points[1..].iter().any(|&p| bvh.is_inside(p)));
+        let collision = CollisionParams { tau: 0.01, kappa: 0.5, skip_roots: true };
+        let fitted = resolve_rest(&raw, &bvh, collision, 2.0 * 3f32.sqrt()).unwrap();
+        let inside = fitted.points[1..].iter().filter(|&&p| bvh.is_inside(p)).count();
+        assert_eq!(inside, 0, "points left inside");
+        let change = max_length_change(&raw, &fitted);
+        assert!(change < 0.01, "length changed by {change}");
+    }
 }
