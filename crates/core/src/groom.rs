@@ -90,6 +90,38 @@ impl Groom {
         }
         Ok(())
     }
+
+    /// Gives this groom the per-point attributes of `from` (widths and
+    /// colours, or their absence), keeping its own points: how a stylized
+    /// groom, written in its input's topology, gets the input's attributes
+    /// back unchanged. `from` must have the same topology, the same number
+    /// of strands with the same number of points each, in the same order;
+    /// otherwise nothing is changed and the error names the first
+    /// difference.
+    pub fn copy_attributes_from(&mut self, from: &Groom) -> Result<(), GroomError> {
+        let mismatch = |reason: String| GroomError::TopologyMismatch { reason };
+        if self.strands.len() != from.strands.len() {
+            return Err(mismatch(format!(
+                "{} strands, the groom whose attributes it takes has {}",
+                self.strands.len(),
+                from.strands.len()
+            )));
+        }
+        if let Some((i, (a, b))) =
+            self.strands.iter().zip(&from.strands).enumerate().find(|(_, (a, b))| a.points.len() != b.points.len())
+        {
+            return Err(mismatch(format!(
+                "strand {i} has {} points, the groom whose attributes it takes has {}",
+                a.points.len(),
+                b.points.len()
+            )));
+        }
+        for (a, b) in self.strands.iter_mut().zip(&from.strands) {
+            a.widths.clone_from(&b.widths);
+            a.colors.clone_from(&b.colors);
+        }
+        Ok(())
+    }
 }
 
 /// Why a groom's values cannot be stylized: an invariant of
@@ -112,6 +144,12 @@ pub enum GroomError {
         /// What is wrong with the control points.
         reason: String,
     },
+    /// Two grooms that should have the same strands do not
+    /// ([`Groom::copy_attributes_from`]).
+    TopologyMismatch {
+        /// The first difference.
+        reason: String,
+    },
 }
 
 impl std::fmt::Display for GroomError {
@@ -122,6 +160,7 @@ impl std::fmt::Display for GroomError {
             GroomError::NoStrands => write!(f, "<groom>: groom has no strands"),
             GroomError::InvalidStrand { strand, reason } => write!(f, "<groom>: strand {strand} {reason}"),
             GroomError::Spline { reason } => write!(f, "cannot build strand spline: {reason}"),
+            GroomError::TopologyMismatch { reason } => write!(f, "<groom>: not the same strands: {reason}"),
         }
     }
 }

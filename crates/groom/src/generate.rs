@@ -108,7 +108,7 @@ pub fn generate(g: &GenerateSettings) -> Result<GenerateReport> {
     let mut written = Vec::new();
     match &g.frames {
         None => {
-            write_groom(&g.out, format, &rest)?;
+            write_groom(&g.out, format, &rest, None)?;
             written.push(g.out.clone());
         }
         Some(spec) => {
@@ -116,7 +116,7 @@ pub fn generate(g: &GenerateSettings) -> Result<GenerateReport> {
             frame_path(&g.out, spec.frames()[0], "--out")?;
             for &f in spec.frames() {
                 let out = frame_path(&g.out, f, "--out")?;
-                write_groom(&out, format, &w.at_time(&rest, f as f32 / g.fps)?)?;
+                write_groom(&out, format, &w.at_time(&rest, f as f32 / g.fps)?, None)?;
                 written.push(out);
             }
         }

@@ -11,12 +11,12 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use nst3d_core::Reporter;
 use nst3d_features::Vgg19;
-use nst3d_io::groom::read_groom;
+use nst3d_io::groom::{read_groom, read_groom_file};
 use nst3d_io::mesh::read_mesh;
 use nst3d_sequence::{default_work_dir, job_fingerprint, FrameSpec};
 use nst3d_strands::{check_topology, FlatStrands, Flow, SequenceParams, SequenceStylizer, TemporalParams};
 
-use crate::files::{frame_path, is_pattern, write_groom, write_preview, Checks};
+use crate::files::{attribute_notes, frame_path, is_pattern, write_groom, write_preview, Checks};
 use crate::settings::{OutFormat, StrandSettings, Temporal};
 use crate::NO_MESH;
 
@@ -68,7 +68,12 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
     };
 
     // Every frame's groom up front: present, readable, same topology.
-    let first = read_groom(&groom_at(frames[0])?)?;
+    let first_path = groom_at(frames[0])?;
+    let first_file = read_groom_file(&first_path)?;
+    for note in attribute_notes(&first_file, format) {
+        reporter.note(&format!("{}: {note}", first_path.display()));
+    }
+    let first = first_file.groom;
     for &f in &frames[1..] {
         let path = groom_at(f)?;
         let g = read_groom(&path)?;
@@ -160,7 +165,8 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
     let per_frame: u32 = seq.params().stylize.iterations.iter().sum();
     reporter.begin(per_frame as u64 * (frames.len() - done) as u64);
     for (i, &f) in frames.iter().enumerate().skip(done) {
-        let groom = read_groom(&groom_at(f)?)?;
+        let input = read_groom_file(&groom_at(f)?)?;
+        let groom = &input.groom;
         let frame_mesh;
         let mesh = match (&fixed_mesh, mesh_at(f)?) {
             (Some(m), _) => Some(m),
@@ -170,7 +176,7 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
             }
             (None, None) => None,
         };
-        let r = seq.stylize_frame(f, &groom, mesh, &mut |r| {
+        let r = seq.stylize_frame(f, groom, mesh, &mut |r| {
             reporter.step(&format!(
                 "frame {f} scale {}/3 iteration {}/{} loss {:.4e}",
                 r.scale + 1,
@@ -180,12 +186,12 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
             ))
         })?;
         let out = out_at(f)?;
-        let written = r.scene.to_input_topology(&FlatStrands::from_groom(&groom)?, &r.guides)?;
-        write_groom(&out, format, &written)?;
+        let written = r.scene.to_input_topology(&FlatStrands::from_groom(groom)?, &r.guides)?;
+        write_groom(&out, format, &written, Some(&input))?;
         if let Some(p) = &s.preview {
             write_preview(&frame_path(p, f, "--preview")?, &r.scene, &r.strands, &painting)?;
         }
-        worst = worst.worst(Checks::new(&groom, &r.scene, &r.guides, &written, mesh)?);
+        worst = worst.worst(Checks::new(groom, &r.scene, &r.guides, &written, mesh)?);
         reporter.result(&format!(
             "frame {f}: NNST loss {:.4e} -> {:.4e} (output {:.4e}){}; wrote {}",
             r.eval_before,

@@ -11,12 +11,12 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use nst3d_core::Reporter;
 use nst3d_features::Vgg19;
-use nst3d_io::groom::read_groom;
+use nst3d_io::groom::read_groom_file;
 use nst3d_io::mesh::read_mesh;
 use nst3d_strands::pipeline::{stylize, HeldOut, StrandScene};
 use nst3d_strands::FlatStrands;
 
-use crate::files::{write_groom, write_preview, Checks};
+use crate::files::{attribute_notes, write_groom, write_preview, Checks};
 use crate::NO_MESH;
 use crate::settings::{OutFormat, StrandSettings, Temporal};
 
@@ -68,7 +68,8 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
     if s.temporal != Temporal::EmaOneEuro || s.style_flow.is_some() {
         bail!("--temporal and --style-flow apply to sequences; add --frames");
     }
-    let groom = read_groom(&s.groom)?;
+    let input = read_groom_file(&s.groom)?;
+    let groom = &input.groom;
     // After the read, not before it, so that a bad file is still one line on stderr.
     reporter.status(&format!(
         "read {}: {} strands, {} points",
@@ -76,6 +77,9 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
         groom.strand_count(),
         groom.point_count()
     ));
+    for note in attribute_notes(&input, format) {
+        reporter.note(&format!("{}: {note}", s.groom.display()));
+    }
     let head = s.mesh.as_deref().map(read_mesh).transpose()?;
     if head.is_none() {
         reporter.note(NO_MESH);
@@ -84,7 +88,7 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
     let vgg = Vgg19::load(s.weights.as_deref())?;
     let params = s.stylize_params(groom.strand_count());
 
-    let scene = StrandScene::build(&groom, head.as_ref(), &params, &mut |m| reporter.status(m)).with_context(|| match &s.mesh {
+    let scene = StrandScene::build(groom, head.as_ref(), &params, &mut |m| reporter.status(m)).with_context(|| match &s.mesh {
         Some(m) => format!("{} on {}", s.groom.display(), m.display()),
         None => s.groom.display().to_string(),
     })?;
@@ -101,12 +105,12 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
     })?;
     reporter.end();
 
-    let written = scene.to_input_topology(&FlatStrands::from_groom(&groom)?, &result.guides)?;
-    write_groom(&s.out, format, &written)?;
+    let written = scene.to_input_topology(&FlatStrands::from_groom(groom)?, &result.guides)?;
+    write_groom(&s.out, format, &written, Some(&input))?;
     if let Some(preview) = &s.preview {
         write_preview(preview, &scene, &result.strands, &painting)?;
     }
-    let checks = Checks::new(&groom, &scene, &result.guides, &written, head.as_ref())?;
+    let checks = Checks::new(groom, &scene, &result.guides, &written, head.as_ref())?;
     Ok(GroomReport {
         groom: s.groom.clone(),
         strands: written.strand_count(),

@@ -118,6 +118,12 @@ pub enum ErrorKind {
         /// What is wrong with the control points.
         reason: String,
     },
+    /// A groom does not have the strands (count, points per strand) of the
+    /// groom or layer its attributes come from.
+    TopologyMismatch {
+        /// The first difference.
+        reason: String,
+    },
     /// An image file is missing, unreadable or not an image.
     ImageRead {
         /// What went wrong.
@@ -163,6 +169,7 @@ impl From<nst3d_core::GroomError> for ErrorKind {
             nst3d_core::GroomError::NoStrands => ErrorKind::NoStrands,
             nst3d_core::GroomError::InvalidStrand { strand, reason } => ErrorKind::InvalidStrand { strand, reason },
             nst3d_core::GroomError::Spline { reason } => ErrorKind::Spline { reason },
+            nst3d_core::GroomError::TopologyMismatch { reason } => ErrorKind::TopologyMismatch { reason },
         }
     }
 }
@@ -216,6 +223,7 @@ impl fmt::Display for ErrorKind {
             ErrorKind::NoStrands => write!(f, "groom has no strands"),
             ErrorKind::InvalidStrand { strand, reason } => write!(f, "strand {strand} {reason}"),
             ErrorKind::Spline { reason } => write!(f, "cannot build strand spline: {reason}"),
+            ErrorKind::TopologyMismatch { reason } => write!(f, "not the same strands: {reason}"),
             ErrorKind::ImageRead { reason } => write!(f, "cannot read image: {reason}"),
             ErrorKind::ImageSize { reason } => write!(f, "image: {reason}"),
             ErrorKind::ImageWrite { reason } => write!(f, "cannot write image: {reason}"),

@@ -8,6 +8,17 @@
 //! Alembic Ogawa curves ([`read_alembic_curves`]) and [`read_groom`], which
 //! picks one by content. Writers: [`write_usda_curves`], [`write_ply_strands`].
 //!
+//! Attributes: per-point widths and colours travel in [`Strand`] (cyHair
+//! thickness and colour, PLY `thickness`/`width` and `red`/`green`/`blue`,
+//! USD `widths` and `primvars:displayColor`, Alembic widths); the other
+//! primvars of a USD layer's curves travel as text beside the groom
+//! ([`read_groom_file`], [`GroomFile`], [`UsdPrimvars`]). A tool that moves
+//! the points and keeps the strands (as stylization does) gives the result
+//! the input's attributes with [`Groom::copy_attributes_from`] and writes
+//! the primvars back with [`write_usda_curves_with`]. What each writer can
+//! hold: `.usda` everything above (widths and colours per point); `.ply`
+//! widths and colours (8 bits per channel), no primvars.
+//!
 //! Conventions: points are taken as stored, in file units and axes. None of
 //! the supported binary formats carries a transform, scale or up axis (the
 //! Bangs test groom is Y-up in all of them); USD transforms (`xformOp`s on the
@@ -30,7 +41,10 @@ pub use cyhair::{read_cyhair, read_cyhair_bytes};
 pub use hairsalon::{read_hairsalon, read_hairsalon_bytes};
 pub use nst3d_core::groom::{Groom, GroomError, Strand, StrandSpline};
 pub use ply::{read_ply_strands, read_ply_strands_bytes, write_ply_strands};
-pub use usda::{read_usda_curves, read_usda_curves_bytes, write_usda_curves};
+pub use usda::{
+    read_usda_curves, read_usda_curves_bytes, read_usda_curves_file, read_usda_curves_file_bytes, write_usda_curves,
+    write_usda_curves_with, UsdPrimvar, UsdPrimvars,
+};
 
 use crate::bytes::read_file;
 use crate::{Error, ErrorKind};
@@ -46,6 +60,17 @@ pub(crate) fn checked(path: &Path, parsed: Result<Groom, ErrorKind>) -> Result<G
     let groom = parsed.map_err(Error::at(path))?;
     validate_for(&groom, path)?;
     Ok(groom)
+}
+
+/// A groom as read from a file: its strands, and what the file holds
+/// beyond [`Groom`] that a writer can put back.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GroomFile {
+    /// The strands, with their per-point widths and colours.
+    pub groom: Groom,
+    /// The other primvars of a text USD layer's curves (empty for every
+    /// other format).
+    pub usd_primvars: UsdPrimvars,
 }
 
 /// The groom formats [`read_groom`] recognises.
@@ -97,6 +122,22 @@ pub fn detect_groom_format(path: &Path, bytes: &[u8]) -> Option<GroomFormat> {
 pub fn read_groom(path: &Path) -> Result<Groom, Error> {
     let bytes = read_file(path)?;
     read_groom_bytes(path, &bytes)
+}
+
+/// [`read_groom`] plus what the file holds beyond the strands
+/// ([`GroomFile`]): for stylizing a groom and writing it back with all its
+/// attributes.
+pub fn read_groom_file(path: &Path) -> Result<GroomFile, Error> {
+    let bytes = read_file(path)?;
+    read_groom_file_bytes(path, &bytes)
+}
+
+/// [`read_groom_file`] on bytes already in memory.
+pub fn read_groom_file_bytes(path: &Path, bytes: &[u8]) -> Result<GroomFile, Error> {
+    match detect_groom_format(path, bytes) {
+        Some(GroomFormat::Usda) => read_usda_curves_file_bytes(path, bytes),
+        _ => Ok(GroomFile { groom: read_groom_bytes(path, bytes)?, usd_primvars: UsdPrimvars::default() }),
+    }
 }
 
 /// [`read_groom`] on bytes already in memory; `path` names them in errors

@@ -4,6 +4,7 @@
 //!
 //! ```text
 //! element vertex N    property float x, y, z; property uchar red, green, blue
+//!                     [property float thickness]     (hairutil's name for cyHair thickness)
 //! element strand S    property ushort nsegs          (strand i has nsegs+1 points)
 //! element edge E      property int vertex1, vertex2  (E = N - S polyline edges)
 //! ```
@@ -418,7 +419,9 @@ fn read_ascii_element(
 
 /// Reads strands from a PLY file (ascii or binary, either endianness);
 /// `red`/`green`/`blue` vertex properties become [`Strand::colors`]
-/// (divided by 255 when stored as `uchar`).
+/// (divided by 255 when stored as `uchar`), and a `thickness` (hairutil,
+/// and what [`write_ply_strands`] writes) or `width` vertex property
+/// [`Strand::widths`].
 pub fn read_ply_strands(path: &Path) -> Result<Groom, Error> {
     let bytes = read_file(path)?;
     read_ply_strands_bytes(path, &bytes)
@@ -433,10 +436,15 @@ const STRAND_ELEMENTS: [&str; 3] = ["strand", "strands", "curve"];
 const SEGMENT_COUNTS: [&str; 1] = ["nsegs"];
 const POINT_COUNTS: [&str; 5] = ["nverts", "nvertices", "npoints", "vertex_count", "count"];
 const STRAND_IDS: [&str; 4] = ["strand_id", "strand", "hair_id", "curve_id"];
+const WIDTHS: [&str; 2] = ["thickness", "width"];
 
 fn parse_strands(bytes: &[u8]) -> Result<Groom, ErrorKind> {
     let ply = parse_ply(bytes, &|el, prop| match el {
-        "vertex" => matches!(prop, "x" | "y" | "z" | "red" | "green" | "blue") || STRAND_IDS.contains(&prop),
+        "vertex" => {
+            matches!(prop, "x" | "y" | "z" | "red" | "green" | "blue")
+                || STRAND_IDS.contains(&prop)
+                || WIDTHS.contains(&prop)
+        }
         "edge" => matches!(prop, "vertex1" | "vertex2"),
         e if STRAND_ELEMENTS.contains(&e) => SEGMENT_COUNTS.contains(&prop) || POINT_COUNTS.contains(&prop),
         _ => false,
@@ -451,11 +459,12 @@ fn parse_strands(bytes: &[u8]) -> Result<Groom, ErrorKind> {
         (Some(r), Some(g), Some(b)) => {
             let uchar =
                 vertex.def.props.iter().any(|p| p.name == "red" && matches!(p.kind, PropKind::Scalar(Scalar::U8)));
-            let s = if uchar { 1.0 / 255.0 } else { 1.0 };
-            Some((0..n).map(|i| [(r[i] * s) as f32, (g[i] * s) as f32, (b[i] * s) as f32]).collect::<Vec<_>>())
+            let c = |x: f64| if uchar { byte_color(x as u8) } else { x as f32 };
+            Some((0..n).map(|i| [c(r[i]), c(g[i]), c(b[i])]).collect::<Vec<_>>())
         }
         _ => None,
     };
+    let widths: Option<Vec<f32>> = vertex.scalar_any(&WIDTHS).map(|w| w.iter().map(|&x| x as f32).collect());
     let lengths = strand_lengths(&ply, vertex, n)?;
     let mut strands = Vec::with_capacity(lengths.len());
     let mut start = 0;
@@ -463,7 +472,7 @@ fn parse_strands(bytes: &[u8]) -> Result<Groom, ErrorKind> {
         let end = start + len;
         strands.push(Strand {
             points: points[start..end].to_vec(),
-            widths: None,
+            widths: widths.as_ref().map(|w| w[start..end].to_vec()),
             colors: colors.as_ref().map(|c| c[start..end].to_vec()),
         });
         start = end;
@@ -534,9 +543,12 @@ fn runs(n: usize, starts: impl Fn(usize) -> bool) -> Vec<usize> {
 
 /// Writes `groom` as a binary little-endian PLY in hairutil's hapPLY layout
 /// (module notes), so tools that read the shared Bangs file read ours.
-/// Colours are written from [`Strand::colors`] (white where a strand has
-/// none); widths are not part of that layout and are not written. Fails if
-/// a strand has more than 65536 points (`nsegs` is a `ushort`).
+/// Colours are written from [`Strand::colors`] as `uchar`s (white where a
+/// strand has none): colours read from a `uchar` PLY come back as the same
+/// bytes, finer ones (cyHair, USD) are rounded to the nearest 1/255. Widths
+/// are written as hairutil's `float thickness` when every strand has them,
+/// exactly. Fails if a strand has more than 65536 points (`nsegs` is a
+/// `ushort`).
 pub fn write_ply_strands(path: &Path, groom: &Groom) -> Result<(), Error> {
     let werr = |reason: String| {
         Error::new(path, ErrorKind::Write(std::io::Error::new(std::io::ErrorKind::InvalidInput, reason)))
@@ -553,25 +565,29 @@ pub fn write_ply_strands(path: &Path, groom: &Groom) -> Result<(), Error> {
         return Err(werr(format!("{n} points do not fit PLY int edge indices")));
     }
     let edges = n - groom.strand_count();
-    let mut body = Vec::with_capacity(n * 15 + groom.strand_count() * 2 + edges * 8 + 400);
+    let widths = groom.strands.iter().all(|s| s.widths.is_some());
+    let mut body = Vec::with_capacity(n * 19 + groom.strand_count() * 2 + edges * 8 + 400);
     write!(
         body,
         "ply\nformat binary_little_endian 1.0\ncomment Written by nst3d (hapPLY strand layout)\n\
          element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n\
-         property uchar red\nproperty uchar green\nproperty uchar blue\n\
+         property uchar red\nproperty uchar green\nproperty uchar blue\n{}\
          element strand {}\nproperty ushort nsegs\n\
          element edge {edges}\nproperty int vertex1\nproperty int vertex2\nend_header\n",
+        if widths { "property float thickness\n" } else { "" },
         groom.strand_count()
     )
     .expect("writing to a Vec cannot fail");
-    let to_u8 = |c: f32| (c.clamp(0.0, 1.0) * 255.0).round() as u8;
     for s in &groom.strands {
         for (j, p) in s.points.iter().enumerate() {
             for c in p {
                 body.extend_from_slice(&c.to_le_bytes());
             }
             let rgb = s.colors.as_ref().map_or([1.0; 3], |c| c[j]);
-            body.extend(rgb.iter().map(|&c| to_u8(c)));
+            body.extend(rgb.iter().map(|&c| color_byte(c)));
+            if let Some(w) = s.widths.as_ref().filter(|_| widths) {
+                body.extend_from_slice(&w[j].to_le_bytes());
+            }
         }
     }
     for s in &groom.strands {
@@ -586,4 +602,28 @@ pub fn write_ply_strands(path: &Path, groom: &Groom) -> Result<(), Error> {
         start += s.points.len() as i32;
     }
     crate::atomic::write_atomic(path, |w| w.write_all(&body)).map_err(|e| Error::new(path, ErrorKind::Write(e)))
+}
+
+/// The `uchar` a colour channel is written as: the nearest of `k / 255`,
+/// so a channel read from a `uchar` PLY (`k as f64 / 255`, to `f32`) gives
+/// back its byte `k`.
+pub(crate) fn color_byte(c: f32) -> u8 {
+    (c.clamp(0.0, 1.0) * 255.0).round() as u8
+}
+
+/// The colour channel the reader makes of a `uchar` PLY byte.
+pub(crate) fn byte_color(k: u8) -> f32 {
+    (k as f64 * (1.0 / 255.0)) as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_colour_byte_survives_read_then_write() {
+        for k in 0..=255u8 {
+            assert_eq!(color_byte(byte_color(k)), k);
+        }
+    }
 }

@@ -1,6 +1,7 @@
 //! From parsed prims to strands: the prim walk (specifiers, `active`,
 //! inherited transforms) and each `BasisCurves` prim's counts, points and
-//! primvars expanded to one value per point.
+//! primvars expanded to one value per point. The walk also lists the prims
+//! it read, for [`super::primvars`].
 
 use super::parse::{Prim, Val};
 use super::xform::{local_xform, mul, transform_point, Mat4};
@@ -98,7 +99,16 @@ impl Lerp for [f32; 3] {
     }
 }
 
-fn curves_of(prim: &Prim, world: &Mat4, out: &mut Vec<Strand>) -> Result<(), ErrorKind> {
+/// A `BasisCurves` prim the walk read strands from.
+pub(super) struct CurvesPrim<'a> {
+    pub(super) prim: &'a Prim,
+    /// Points per curve.
+    pub(super) counts: Vec<usize>,
+    /// `type = "cubic"` (as the reader maps `varying` primvars).
+    pub(super) cubic: bool,
+}
+
+fn curves_of<'a>(prim: &'a Prim, world: &Mat4, out: &mut Vec<Strand>) -> Result<CurvesPrim<'a>, ErrorKind> {
     let path = &prim.name;
     let bad = |why: String| corrupt(format!("BasisCurves '{path}': {why}"));
     let counts: Vec<usize> = prim
@@ -163,22 +173,28 @@ fn curves_of(prim: &Prim, world: &Mat4, out: &mut Vec<Strand>) -> Result<(), Err
         });
         start += n;
     }
-    Ok(())
+    Ok(CurvesPrim { prim, counts, cubic })
 }
 
 /// Appends the strands of every defined, active `BasisCurves` prim under
-/// `prim` (itself included), with `parent` its inherited transform.
-pub(super) fn walk(prim: &Prim, parent: &Mat4, out: &mut Vec<Strand>) -> Result<(), ErrorKind> {
+/// `prim` (itself included), with `parent` its inherited transform, and
+/// those prims to `read`.
+pub(super) fn walk<'a>(
+    prim: &'a Prim,
+    parent: &Mat4,
+    out: &mut Vec<Strand>,
+    read: &mut Vec<CurvesPrim<'a>>,
+) -> Result<(), ErrorKind> {
     if prim.specifier != "def" || !prim.active {
         return Ok(());
     }
     let (local, reset) = local_xform(prim)?;
     let world = if reset { local } else { mul(parent, &local) };
     if prim.type_name.as_deref() == Some("BasisCurves") {
-        curves_of(prim, &world, out)?;
+        read.push(curves_of(prim, &world, out)?);
     }
     for c in &prim.children {
-        walk(c, &world, out)?;
+        walk(c, &world, out, read)?;
     }
     Ok(())
 }

@@ -1,6 +1,6 @@
 //! Tokens of a text USD layer: identifiers, numbers, strings, paths, asset
 //! paths and punctuation, each with the line it starts on so parse errors
-//! can name it.
+//! can name it, and its byte range so attributes can be copied verbatim.
 
 use crate::bytes::corrupt;
 use crate::ErrorKind;
@@ -18,14 +18,24 @@ pub(super) enum Tok {
     Punct(char),
 }
 
-/// Splits a layer into `(token, line)` pairs; comments are dropped.
-pub(super) fn tokenize(text: &str) -> Result<Vec<(Tok, usize)>, ErrorKind> {
+/// A token, the line it starts on and the bytes of the text it spans.
+#[derive(Clone, Debug, PartialEq)]
+pub(super) struct Token {
+    pub(super) tok: Tok,
+    pub(super) line: usize,
+    pub(super) span: std::ops::Range<usize>,
+}
+
+/// Splits a layer into tokens; comments are dropped.
+pub(super) fn tokenize(text: &str) -> Result<Vec<Token>, ErrorKind> {
     let b = text.as_bytes();
-    let mut toks = Vec::new();
+    let mut toks: Vec<(Tok, usize)> = Vec::new();
+    let mut spans = Vec::new();
     let mut i = 0;
     let mut line = 1;
     while i < b.len() {
         let c = b[i];
+        let (start, before) = (i, toks.len());
         match c {
             b'\n' => {
                 line += 1;
@@ -126,6 +136,9 @@ pub(super) fn tokenize(text: &str) -> Result<Vec<(Tok, usize)>, ErrorKind> {
                 )))
             }
         }
+        if toks.len() > before {
+            spans.push(start..i);
+        }
     }
-    Ok(toks)
+    Ok(toks.into_iter().zip(spans).map(|((tok, line), span)| Token { tok, line, span }).collect())
 }

@@ -7,7 +7,10 @@
 //! `active = false` are not drawn by USD either, so they are skipped).
 //! Per prim: `curveVertexCounts` and `points` (required), `widths` or
 //! `primvars:widths` and `primvars:displayColor` with their `interpolation`
-//! (constant, uniform, varying, vertex). When an attribute only has
+//! (constant, uniform, varying, vertex), expanded to one value per point.
+//! [`read_usda_curves_file`] also keeps every other `primvars:*` attribute
+//! of those prims as text ([`UsdPrimvars`], see [`mod@primvars`]) for the
+//! writer to put back unchanged. When an attribute only has
 //! `.timeSamples`, the earliest sample is used. Transforms: the
 //! `xformOpOrder` of the prim and all its ancestors is applied, with
 //! translate, scale, rotateX/Y/Z, rotateXYZ (and the other five orders),
@@ -22,19 +25,22 @@
 //!
 //! One file per job: [`lexer`] splits the text into tokens, [`parse`] builds
 //! the prim tree, [`xform`] turns `xformOp`s into matrices, [`curves`] walks
-//! the tree into strands, and [`mod@write`] writes a layer.
+//! the tree into strands, [`mod@primvars`] gathers the other primvars, and
+//! [`mod@write`] writes a layer.
 
 mod curves;
 mod lexer;
 mod parse;
+mod primvars;
 mod write;
 mod xform;
 
 use std::path::Path;
 
-pub use write::write_usda_curves;
+pub use primvars::{UsdPrimvar, UsdPrimvars};
+pub use write::{write_usda_curves, write_usda_curves_with};
 
-use super::{checked, Groom};
+use super::{checked, Groom, GroomFile};
 use crate::bytes::{corrupt, read_file};
 use crate::{Error, ErrorKind};
 
@@ -47,18 +53,33 @@ pub fn read_usda_curves(path: &Path) -> Result<Groom, Error> {
 
 /// [`read_usda_curves`] on bytes in memory; `path` only names them in errors.
 pub fn read_usda_curves_bytes(path: &Path, bytes: &[u8]) -> Result<Groom, Error> {
-    checked(path, decode(bytes))
+    checked(path, decode(bytes, false).map(|(g, _)| g))
 }
 
-/// The layer's strands, before the file is named in errors or the groom
-/// is validated.
-fn decode(bytes: &[u8]) -> Result<Groom, ErrorKind> {
+/// [`read_usda_curves`] plus the curves' other primvars, as text
+/// ([`UsdPrimvars`]), so that [`write_usda_curves_with`] can write them back.
+pub fn read_usda_curves_file(path: &Path) -> Result<GroomFile, Error> {
+    let bytes = read_file(path)?;
+    read_usda_curves_file_bytes(path, &bytes)
+}
+
+/// [`read_usda_curves_file`] on bytes in memory; `path` only names them in
+/// errors.
+pub fn read_usda_curves_file_bytes(path: &Path, bytes: &[u8]) -> Result<GroomFile, Error> {
+    let (groom, usd_primvars) = decode(bytes, true).map_err(Error::at(path))?;
+    Ok(GroomFile { groom: checked(path, Ok(groom))?, usd_primvars })
+}
+
+/// The layer's strands (and, if `with_primvars`, the other primvars),
+/// before the file is named in errors or the groom is validated.
+fn decode(bytes: &[u8], with_primvars: bool) -> Result<(Groom, UsdPrimvars), ErrorKind> {
     if !bytes.starts_with(b"#usda ") {
         return Err(corrupt("not a text USD layer (no '#usda' header)"));
     }
     let text = std::str::from_utf8(bytes).map_err(|e| corrupt(format!("USD layer is not UTF-8 ({e})")))?;
     let root = parse::layer(text)?;
-    let mut strands = Vec::new();
-    curves::walk(&root, &xform::IDENTITY, &mut strands)?;
-    Ok(Groom { strands })
+    let (mut strands, mut read) = (Vec::new(), Vec::new());
+    curves::walk(&root, &xform::IDENTITY, &mut strands, &mut read)?;
+    let primvars = if with_primvars { primvars::gather(text, &read) } else { UsdPrimvars::default() };
+    Ok((Groom { strands }, primvars))
 }

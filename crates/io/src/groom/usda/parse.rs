@@ -1,8 +1,12 @@
 //! The layer's structure: prims with their specifier, type, attributes
-//! (value, time samples, `interpolation`) and children. Only what the curves
-//! reader looks at is kept; everything else is parsed and skipped.
+//! (value, time samples, `interpolation`, and where each attribute's
+//! statement lies in the text, so a primvar can be copied verbatim) and
+//! children. Only what the curves reader looks at is kept; everything else
+//! is parsed and skipped.
 
-use super::lexer::{tokenize, Tok};
+use std::ops::Range;
+
+use super::lexer::{tokenize, Tok, Token};
 use crate::bytes::corrupt;
 use crate::ErrorKind;
 
@@ -54,16 +58,28 @@ impl Val {
 const MAX_DEPTH: usize = 64;
 
 struct Parser {
-    toks: Vec<(Tok, usize)>,
+    toks: Vec<Token>,
     i: usize,
 }
 
-/// An attribute: value (if authored) and its `interpolation` metadata.
+/// An attribute: value (if authored) and its `interpolation` metadata, and
+/// the byte ranges of its statement in the layer's text.
 #[derive(Debug)]
 pub(super) struct Attr {
-    name: String,
+    pub(super) name: String,
     value: Option<Val>,
-    interpolation: Option<String>,
+    pub(super) interpolation: Option<String>,
+    /// The declared type (`float[]`, `color3f`), `None` for a bare
+    /// `name = value` statement.
+    pub(super) type_name: Option<String>,
+    /// The whole statement, qualifiers to metadata.
+    pub(super) span: Range<usize>,
+    /// Qualifiers, type and name.
+    pub(super) head: Range<usize>,
+    /// The value after `=`, if authored.
+    pub(super) value_span: Option<Range<usize>>,
+    /// The `( ... )` metadata, if any.
+    pub(super) meta_span: Option<Range<usize>>,
 }
 
 /// A prim and its subtree.
@@ -75,7 +91,7 @@ pub(super) struct Prim {
     pub(super) name: String,
     /// False when the prim's metadata says `active = false`.
     pub(super) active: bool,
-    attrs: Vec<Attr>,
+    pub(super) attrs: Vec<Attr>,
     pub(super) children: Vec<Prim>,
 }
 
@@ -104,21 +120,32 @@ impl Prim {
 
 impl Parser {
     fn line(&self) -> usize {
-        self.toks.get(self.i).or(self.toks.last()).map_or(0, |t| t.1)
+        self.toks.get(self.i).or(self.toks.last()).map_or(0, |t| t.line)
     }
 
     fn peek(&self) -> Option<&Tok> {
-        self.toks.get(self.i).map(|t| &t.0)
+        self.toks.get(self.i).map(|t| &t.tok)
     }
 
     fn peek_at(&self, k: usize) -> Option<&Tok> {
-        self.toks.get(self.i + k).map(|t| &t.0)
+        self.toks.get(self.i + k).map(|t| &t.tok)
+    }
+
+    /// Where the next token starts in the text (the end of the text after
+    /// the last token).
+    fn here(&self) -> usize {
+        self.toks.get(self.i).map_or_else(|| self.toks.last().map_or(0, |t| t.span.end), |t| t.span.start)
+    }
+
+    /// Where the last consumed token ends in the text.
+    fn consumed_end(&self) -> usize {
+        self.i.checked_sub(1).and_then(|k| self.toks.get(k)).map_or(0, |t| t.span.end)
     }
 
     fn next(&mut self) -> Result<Tok, ErrorKind> {
-        let t = self.toks.get(self.i).map(|t| t.0.clone()).ok_or(ErrorKind::Truncated {
+        let t = self.toks.get(self.i).map(|t| t.tok.clone()).ok_or(ErrorKind::Truncated {
             what: "USD layer (ends inside a block)",
-            offset: self.toks.last().map_or(0, |t| t.1),
+            offset: self.toks.last().map_or(0, |t| t.line),
             needed: 1,
         })?;
         self.i += 1;
@@ -323,6 +350,7 @@ impl Parser {
     /// `[qualifiers] type[[]] name [= value] [(meta)]`, or `[qualifier]
     /// name = value` for list edits like `reorder nameChildren = [...]`.
     fn attribute(&mut self, depth: usize) -> Result<Attr, ErrorKind> {
+        let start = self.here();
         while let Some(Tok::Ident(q)) = self.peek() {
             if matches!(
                 q.as_str(),
@@ -338,30 +366,49 @@ impl Parser {
             Tok::Ident(s) => s,
             _ => return Err(self.err("expected an attribute")),
         };
-        let name = if self.is_punct('=') {
-            first
+        let (name, type_name) = if self.is_punct('=') {
+            (first, None)
         } else {
+            let mut type_name = first;
             if self.is_punct('[') {
                 self.i += 1;
                 self.expect(']')?;
+                type_name.push_str("[]");
             }
             match self.next()? {
-                Tok::Ident(s) => s,
-                other => return Err(self.err(format!("expected an attribute name after '{first}', found {other:?}"))),
+                Tok::Ident(s) => (s, Some(type_name)),
+                other => {
+                    return Err(self.err(format!("expected an attribute name after '{type_name}', found {other:?}")))
+                }
             }
         };
-        let mut attr = Attr { name, value: None, interpolation: None };
+        let head = start..self.consumed_end();
+        let mut attr = Attr {
+            name,
+            value: None,
+            interpolation: None,
+            type_name,
+            span: head.clone(),
+            head,
+            value_span: None,
+            meta_span: None,
+        };
         if self.is_punct('=') {
             self.i += 1;
+            let from = self.here();
             attr.value = Some(self.value(depth + 1)?);
+            attr.value_span = Some(from..self.consumed_end());
         }
         if self.is_punct('(') {
+            let from = self.here();
             for (k, v) in self.metadata(depth)? {
                 if k == "interpolation" {
                     attr.interpolation = v.as_str().map(str::to_string);
                 }
             }
+            attr.meta_span = Some(from..self.consumed_end());
         }
+        attr.span.end = self.consumed_end();
         Ok(attr)
     }
 }

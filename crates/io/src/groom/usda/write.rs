@@ -3,6 +3,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
+use super::primvars::{UsdPrimvars, HELD};
 use crate::groom::{validate_for, Groom};
 use crate::{Error, ErrorKind};
 
@@ -16,10 +17,54 @@ use crate::{Error, ErrorKind};
 /// "pinned"` is not read by every DCC). `widths` (vertex interpolation)
 /// are written when every strand has widths, `primvars:displayColor`
 /// likewise for colours; `extent` bounds points padded by half the widest
-/// width. Floats are printed in shortest round-trip form, so reading the
+/// width. Both are written per point whatever the input's interpolation
+/// was: the readers expand constant, uniform and varying values to one per
+/// point, and the same value repeated on every point of a strand draws the
+/// same. Floats are printed in shortest round-trip form, so reading the
 /// layer back gives the same `f32`s.
 pub fn write_usda_curves(path: &Path, groom: &Groom) -> Result<(), Error> {
+    write_usda_curves_with(path, groom, &UsdPrimvars::default())
+}
+
+/// [`write_usda_curves`], plus the input layer's other primvars
+/// ([`UsdPrimvars`], as read by
+/// [`read_usda_curves_file`](crate::groom::read_usda_curves_file)) written
+/// after the colours, each declaration as it was. Fails without writing
+/// when the groom's curves are not those the primvars were read from (same
+/// number, same points each), or when a primvar is one the writer writes
+/// from the strands (`primvars:displayColor`, `primvars:widths`) or is not
+/// a `primvars:` attribute. The declarations are not otherwise checked:
+/// they are the input layer's text.
+pub fn write_usda_curves_with(path: &Path, groom: &Groom, primvars: &UsdPrimvars) -> Result<(), Error> {
     validate_for(groom, path)?;
+    let mismatch = |reason: String| Error::new(path, ErrorKind::TopologyMismatch { reason });
+    if !primvars.primvars.is_empty() {
+        let counts: Vec<usize> = groom.strands.iter().map(|st| st.points.len()).collect();
+        if counts.len() != primvars.curve_points.len() {
+            return Err(mismatch(format!(
+                "{} strands, the layer its primvars come from has {} curves",
+                counts.len(),
+                primvars.curve_points.len()
+            )));
+        }
+        if let Some(i) = counts.iter().zip(&primvars.curve_points).position(|(a, b)| a != b) {
+            return Err(mismatch(format!(
+                "strand {i} has {} points, curve {i} of the layer its primvars come from has {}",
+                counts[i], primvars.curve_points[i]
+            )));
+        }
+    }
+    if let Some(p) =
+        primvars.primvars.iter().find(|p| !p.name.starts_with("primvars:") || HELD.contains(&p.name.as_str()))
+    {
+        return Err(Error::new(
+            path,
+            ErrorKind::Write(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!("'{}' is not a primvar the writer can pass through", p.name),
+            )),
+        ));
+    }
     let mut s = String::with_capacity(64 + groom.point_count() * 40);
     let f3 = |s: &mut String, p: &[f32; 3]| {
         let _ = write!(s, "({}, {}, {})", p[0], p[1], p[2]);
@@ -71,6 +116,11 @@ pub fn write_usda_curves(path: &Path, groom: &Groom) -> Result<(), Error> {
             f3(&mut s, c);
         }
         s.push_str("] (\n        interpolation = \"vertex\"\n    )\n");
+    }
+    for p in &primvars.primvars {
+        s.push_str("    ");
+        s.push_str(&p.declaration);
+        s.push('\n');
     }
     s.push_str("}\n");
     crate::atomic::write_atomic(path, |w| w.write_all(s.as_bytes())).map_err(|e| Error::new(path, ErrorKind::Write(e)))

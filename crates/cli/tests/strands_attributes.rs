@@ -1,0 +1,149 @@
+//! `nst3d strands` keeps the input's attributes (issue 12 item 4): the
+//! stylized groom moves the points and writes back the input's per-point
+//! widths and colours and, in `.usda`, the input layer's other primvars,
+//! unchanged; a `.ply` output keeps uchar colours byte for byte and widths
+//! as `thickness`, and says once what it cannot hold. Bangs and its head at
+//! the small, fast settings of `strands.rs`.
+
+mod common;
+use common::{s, shared};
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use nst3d_io::groom::{read_groom_file, read_ply_strands, write_ply_strands, write_usda_curves, Groom};
+
+/// `nst3d strands` on `groom` with the head mesh, fast settings.
+fn strands(groom: &Path, out: &Path) -> Output {
+    let (mesh, style) = (shared("grooms/Bangs_head.ply"), shared("styles/starry_night.jpg"));
+    let args = [
+        "strands",
+        "--groom",
+        s(groom),
+        "--mesh",
+        s(&mesh),
+        "--style",
+        s(&style),
+        "--out",
+        s(out),
+        "--preset",
+        "short-hair",
+        "--iters",
+        "9",
+        "--render-size",
+        "96",
+        "--proxies",
+        "40",
+        "--views-per-scale",
+        "1",
+        "--lr-scale",
+        "0.1",
+    ];
+    let o = Command::new(env!("CARGO_BIN_EXE_nst3d")).args(args).output().expect("run nst3d");
+    assert!(o.status.success(), "nst3d strands failed: {}", String::from_utf8_lossy(&o.stderr));
+    o
+}
+
+/// Largest distance a point moved between two grooms of the same strands.
+fn max_move(a: &Groom, b: &Groom) -> f32 {
+    assert_eq!(a.strand_count(), b.strand_count());
+    let pairs = a.strands.iter().zip(&b.strands).flat_map(|(x, y)| {
+        assert_eq!(x.points.len(), y.points.len(), "points per strand");
+        x.points.iter().zip(&y.points)
+    });
+    pairs.map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f32>().sqrt()).fold(0.0, f32::max)
+}
+
+/// Bangs with distinct widths and colours on every point.
+fn bangs_with_attributes() -> Groom {
+    let mut g = nst3d_io::groom::read_groom(&shared("grooms/Bangs_100.hair")).unwrap();
+    for (i, st) in g.strands.iter_mut().enumerate() {
+        let n = st.points.len();
+        st.widths = Some((0..n).map(|j| 0.004 - 0.003 * j as f32 / n as f32 + 1e-6 * i as f32).collect());
+        st.colors = Some((0..n).map(|j| [i as f32 / 99.0, j as f32 / n as f32, 0.3 + 0.001 * i as f32]).collect());
+    }
+    g
+}
+
+#[test]
+fn usda_groom_keeps_widths_colours_and_primvars() {
+    let dir = tempfile::tempdir().unwrap();
+    // The input: Bangs as a USD layer with widths, displayColor and two
+    // primvars nst3d knows nothing about (uniform floats, vertex colours).
+    let groom = bangs_with_attributes();
+    let input = dir.path().join("bangs.usda");
+    write_usda_curves(&input, &groom).unwrap();
+    let foo: Vec<String> = (0..groom.strand_count()).map(|i| format!("{}", 0.25 * i as f32 - 3.0)).collect();
+    let bar: Vec<String> =
+        (0..groom.point_count()).map(|k| format!("({}, 0.5, {})", k % 11, 1e-3 * k as f32)).collect();
+    let layer = std::fs::read_to_string(&input).unwrap();
+    let extra = format!(
+        "    float[] primvars:foo = [{}] (interpolation = \"uniform\")\n    \
+         color3f[] primvars:bar = [{}] (\n        interpolation = \"vertex\"\n    )\n}}\n",
+        foo.join(", "),
+        bar.join(", ")
+    );
+    std::fs::write(&input, layer.strip_suffix("}\n").unwrap().to_string() + &extra).unwrap();
+    let before = read_groom_file(&input).unwrap();
+    assert_eq!(before.groom, groom);
+    assert_eq!(before.usd_primvars.primvars.len(), 2);
+
+    let out = dir.path().join("out.usda");
+    let o = strands(&input, &out);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!stderr.contains("not kept") && !stderr.contains("cannot hold"), "{stderr}");
+    let after = read_groom_file(&out).unwrap_or_else(|e| panic!("{e}"));
+    let moved = max_move(&groom, &after.groom);
+    assert!(moved > 0.1, "the points did not move (max {moved})");
+    for (i, (a, b)) in groom.strands.iter().zip(&after.groom.strands).enumerate() {
+        assert_eq!(a.widths, b.widths, "strand {i}: widths");
+        assert_eq!(a.colors, b.colors, "strand {i}: colours");
+    }
+    assert_eq!(after.usd_primvars.primvars, before.usd_primvars.primvars, "primvars:foo and primvars:bar");
+
+    // The same groom to .ply: widths exact, colours to 8 bits, and the
+    // primvars it cannot hold said once on stderr.
+    let out = dir.path().join("out.ply");
+    let o = strands(&input, &out);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(stderr.matches("cannot hold primvars:foo, primvars:bar").count(), 1, "{stderr}");
+    assert_eq!(stderr.matches("rounded to 8 bits").count(), 1, "{stderr}");
+    let ply = read_ply_strands(&out).unwrap();
+    assert!(max_move(&groom, &ply) > 0.1);
+    for (a, b) in groom.strands.iter().zip(&ply.strands) {
+        assert_eq!(a.widths, b.widths);
+        for (ca, cb) in a.colors.as_ref().unwrap().iter().zip(b.colors.as_ref().unwrap()) {
+            assert!((0..3).all(|k| (ca[k] - cb[k]).abs() <= 0.5 / 255.0 + 1e-7), "{ca:?} -> {cb:?}");
+        }
+    }
+}
+
+#[test]
+fn ply_groom_keeps_colour_bytes_and_thickness() {
+    let dir = tempfile::tempdir().unwrap();
+    // hairutil's Bangs PLY (uchar colours) with a thickness per point.
+    let mut groom = read_ply_strands(&shared("grooms/Bangs_100_binary.ply")).unwrap();
+    assert!(groom.strands.iter().all(|s| s.colors.is_some()));
+    for (i, st) in groom.strands.iter_mut().enumerate() {
+        st.widths = Some((0..st.points.len()).map(|j| 0.001 * (1 + (i + j) % 5) as f32).collect());
+    }
+    let input = dir.path().join("bangs.ply");
+    write_ply_strands(&input, &groom).unwrap();
+    let out = dir.path().join("out.ply");
+    let o = strands(&input, &out);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!stderr.contains("rounded") && !stderr.contains("cannot hold"), "{stderr}");
+
+    // Same layout in and out: x y z (3 floats), red green blue (uchar),
+    // thickness (float) per vertex. Colour and thickness bytes are equal.
+    let (a, b) = (std::fs::read(&input).unwrap(), std::fs::read(&out).unwrap());
+    let body = |x: &[u8]| x[x.windows(11).position(|w| w == b"end_header\n").unwrap() + 11..].to_vec();
+    let (a, b) = (body(&a), body(&b));
+    let n = groom.point_count();
+    for v in 0..n {
+        let r = v * 19..(v + 1) * 19;
+        assert_eq!(a[r.clone()][12..], b[r][12..], "vertex {v}: colour or thickness bytes differ");
+    }
+    let result = read_ply_strands(&out).unwrap();
+    assert!(max_move(&groom, &result) > 0.1, "the points did not move");
+}
