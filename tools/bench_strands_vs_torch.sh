@@ -7,7 +7,8 @@
 # ratios and peak memory. The machine is shared: CPU time (user + sys over
 # the timed iterations) is disturbed less by neighbours than wall time.
 #
-#   bash tools/bench_strands_vs_torch.sh [SIZE] [ROUNDS] [ITERS]   (defaults: 600, 3, 3)
+#   bash tools/bench_strands_vs_torch.sh [SIZE] [ROUNDS] [ITERS] [nst3d bench strands-iter args...]
+#   (defaults: 600, 3, 3, the Bangs groom; e.g. `... 600 3 2 --groom G --mesh M` for another groom)
 #
 # The first nst3d run writes the scene, camera and matched targets to
 # $DUMP (default /tmp/nst3d_strands_dump) and the peer reads them, so both
@@ -18,13 +19,14 @@ cd "$(dirname "$0")/.."
 SIZE=${1:-600}
 ROUNDS=${2:-3}
 ITERS=${3:-3}
+EXTRA=("${@:4}")
 DUMP=${DUMP:-/tmp/nst3d_strands_dump}
 . tools/bench_common.sh
 log=$(mktemp -d)
 ours=(); theirs=(); ours_cpu=(); theirs_cpu=()
 for r in $(seq "$ROUNDS"); do
   dump=(); [ "$r" = 1 ] && dump=(--dump "$DUMP")
-  /usr/bin/time -v ./target/release/nst3d --threads 2 bench strands-iter --size "$SIZE" --iters "$ITERS" "${dump[@]}" \
+  /usr/bin/time -v ./target/release/nst3d --threads 2 bench strands-iter --size "$SIZE" --iters "$ITERS" "${dump[@]}" "${EXTRA[@]}" \
     >"$log/nst3d.$r" 2>"$log/nst3d_time.$r"
   /usr/bin/time -v "$PY" tools/bench/strands_iter_torch.py "$DUMP" --threads 2 --iters "$ITERS" \
     >"$log/torch.$r" 2>"$log/torch_time.$r"

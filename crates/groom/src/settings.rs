@@ -81,6 +81,9 @@ pub struct StrandSettings {
     pub scale_iters: Option<[u32; 3]>,
     /// Strand cross-section sigma in pixels (default: the pipeline's).
     pub strand_width: Option<f32>,
+    /// Match each scale's targets on the groom the coarser scales left
+    /// (`StylizeParams::rematch`); `None`: the pipeline's default.
+    pub rematch: Option<bool>,
     /// VGG-19 weights file; `None`: `$NST3D_VGG19`, else the user cache.
     pub weights: Option<PathBuf>,
 }
@@ -116,11 +119,12 @@ impl StrandSettings {
             render_size: None,
             proxies: None,
             seed: 0,
-            lr_scale: 0.3,
+            lr_scale: 1.0,
             views_per_scale: 8,
             eval_views: 4,
             scale_iters: None,
             strand_width: None,
+            rematch: None,
             weights: None,
         }
     }
@@ -171,6 +175,9 @@ impl StrandSettings {
         }
         if let Some(w) = self.strand_width {
             params.strand_width_px = w;
+        }
+        if let Some(r) = self.rematch {
+            params.rematch = r;
         }
         params
     }

@@ -93,9 +93,9 @@ const MAX_STACK: usize = 72;
 /// closest-point search: unsigned distance is 1-Lipschitz, so a point `p`
 /// whose nearest cell centre `c` is outside at distance `d(c)` is at least
 /// `d(c) − ‖p − c‖` from the surface, and, when that is positive, on the
-/// same side as `c` (exact for a closed mesh; on an open one the
-/// pseudo-normal sign far from the surface is not a meaningful inside/outside
-/// anyway). Most control points of a groom are hair far from the scalp, so
+/// same side as `c` (exact for a closed mesh; on others a centre counts as
+/// outside only where the pseudo-normal and the ray parity agree, see
+/// [`DistanceGate::new`]). Most control points of a groom are hair far from the scalp, so
 /// the collision projection checks millions of points a pass at the cost of
 /// a grid lookup and searches the BVH only near the skin.
 #[derive(Clone, Debug)]
@@ -131,7 +131,19 @@ impl DistanceGate {
             .with_min_len(256)
             .map(|i| {
                 let c = [i % dims[0], (i / dims[0]) % dims[1], i / (dims[0] * dims[1])];
-                bvh.closest_point(std::array::from_fn(|a| lo[a] + (c[a] as f32 + 0.5) * cell)).signed_distance
+                let centre = std::array::from_fn(|a| lo[a] + (c[a] as f32 + 0.5) * cell);
+                let s = bvh.closest_point(centre).signed_distance;
+                // A centre is trusted as outside only when the ray's parity
+                // agrees with the pseudo-normal: on a mesh with overlapping
+                // parts (eyes set into a head) or holes the pseudo-normal's
+                // sign can be wrong away from the surface, and a wrong
+                // "outside" here would let a point under the skin skip the
+                // collision projection. A disagreement costs only a search.
+                if s > 0.0 && bvh.inside_by_ray_parity(centre) {
+                    -s
+                } else {
+                    s
+                }
             })
             .collect();
         DistanceGate { mesh_lo, mesh_hi, lo, cell, dims, signed }
@@ -497,6 +509,40 @@ mod tests {
                 dist2(p, closest_point_on_triangle(p, a, b, c).0)
             })
             .fold(f32::INFINITY, f32::min)
+    }
+
+    /// The distance gate never lets a point that is inside skip the
+    /// search. The monkey's mesh (Suzanne with eyes set into the head) has
+    /// regions where the pseudo-normal's sign at a grid centre says outside
+    /// while the points around it are inside by both tests; before the gate
+    /// checked ray parity, a control point 0.06 under the skin there was
+    /// never pushed out.
+    #[test]
+    fn the_gate_never_skips_a_point_inside() {
+        let bvh = MeshBvh::new(&data("grooms/monkey_curly_mesh.obj")).unwrap();
+        let tau = 0.02;
+        let known = [0.08534093, -0.73407567, 0.3623508];
+        assert!(bvh.closest_point(known).signed_distance < 0.0 && bvh.inside_by_ray_parity(known));
+        assert!(bvh.closest_point_within(known, 0.0).is_some(), "the gate skips a point under the skin");
+        let (lo, hi) = (bvh.nodes[0].lo, bvh.nodes[0].hi);
+        let r = pseudo_random(3 * 40_000, 5);
+        let mut skipped = 0;
+        for c in r.chunks(3) {
+            let p: V3 = std::array::from_fn(|a| lo[a] + (0.5 + 0.55 * c[a]) * (hi[a] - lo[a]));
+            let exact = bvh.closest_point(p);
+            match bvh.closest_point_within(p, tau) {
+                None => {
+                    skipped += 1;
+                    assert!(exact.signed_distance.abs() >= tau, "skipped {p:?} at distance {}", exact.signed_distance);
+                    assert!(
+                        !(exact.signed_distance < 0.0 && bvh.inside_by_ray_parity(p)),
+                        "skipped {p:?}, inside by both tests"
+                    );
+                }
+                Some(h) => assert_eq!(h.signed_distance, exact.signed_distance),
+            }
+        }
+        assert!(skipped > 10_000, "the gate should still skip most far points ({skipped} of 40000)");
     }
 
     #[test]

@@ -96,7 +96,7 @@ pub struct StrandsArgs {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Multiplier on the preset's learning rates (scaled by the groom's radius).
-    #[arg(long, default_value_t = 0.3)]
+    #[arg(long, default_value_t = 1.0)]
     lr_scale: f32,
     /// Cameras per scale whose matches are cached (0: a new camera every iteration).
     #[arg(long, default_value_t = 8)]
@@ -110,6 +110,10 @@ pub struct StrandsArgs {
     /// Strand cross-section sigma in pixels at the groom centre's depth (default: the pipeline's).
     #[arg(long)]
     strand_width: Option<f32>,
+    /// Match each scale's NNST targets on the groom as the coarser scales left it
+    /// (true, the default), or every scale on the rest groom as the paper writes eq. 2 (false).
+    #[arg(long, action = clap::ArgAction::Set)]
+    rematch: Option<bool>,
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).
     #[arg(long)]
     weights: Option<PathBuf>,
@@ -283,6 +287,7 @@ impl StrandsArgs {
             eval_views: self.eval_views,
             scale_iters,
             strand_width: self.strand_width,
+            rematch: self.rematch,
             weights: self.weights,
         })
     }

@@ -34,9 +34,14 @@
 //! of 16 seeded random candidates from those already taken), so every prefix
 //! of the sequence covers the ranges evenly and a seed fixes it.
 //!
-//! Loss: eq. 2–3 as the paper states them. The targets `T` of a view are
-//! matched on the *undeformed* render `R_θ(x₀)` against the style image
-//! resized for the scale; the loss is `‖Φ(R_θ(x)) − T‖²` averaged over
+//! Loss: eq. 2–3. The coarsest scale's targets `T` of a view are matched
+//! on the *undeformed* render `R_θ(x₀)` against the style image resized for
+//! the scale, as the paper writes eq. 2; each finer scale's are matched on
+//! the groom as the coarser scales left it ([`StylizeParams::rematch`], on
+//! by default, `--rematch false` for the paper's reading), as NNST itself
+//! re-matches each scale on its current output. Matched on `x₀`, a coarse
+//! scale's deformation is pulled back by the next scale's targets, which
+//! still describe the rest groom (docs/STRANDS.md, "Monkey"); the loss is `‖Φ(R_θ(x)) − T‖²` averaged over
 //! hyper-columns (relu1_1, relu2_1, relu3_1, relu4_1, NNST's grid of a
 //! quarter resolution). Gradients flow NNST → VGG backward → splat backward →
 //! back through every constraint projection of the iterate (the recorded
@@ -53,13 +58,17 @@
 //! cache pays; the default is 8 cached views per scale.
 //!
 //! Step size: the preset's `η` read as `η·R` (see Units) times
-//! [`StylizeParams::lr_scale`], 0.3 by default: larger steps find another
-//! stylization rather than the one the targets were matched for on `x₀`.
+//! [`StylizeParams::lr_scale`], 1 by default (Table 1's rates as published;
+//! it was 0.3 while targets were matched on `x₀` for every scale, where
+//! larger steps found another stylization than the one matched).
 //!
 //! The measurements behind both defaults are in `docs/STRANDS.md`
 //! ("Measurements behind the pipeline's defaults").
 //!
-//! Evaluation: the optimized views — the finest scale's cached cameras (or,
+//! Evaluation, held out: [`HeldOut`], the hair-only NNST loss from views
+//! the optimizer never used, before and after (see [`held_out_loss`]).
+//!
+//! Evaluation, optimized: the optimized views — the finest scale's cached cameras (or,
 //! with a new camera per iteration, [`StylizeParams::eval_views`] fixed
 //! cameras from the same distribution, separately seeded) — matched on the
 //! undeformed groom against the finest scale's style. The initial loss is the NNST loss
@@ -104,7 +113,7 @@ pub use scene::{
     SEGMENT_TOLERANCE,
 };
 pub use step::{iteration, loss_and_gradient, StageTimes, StepReport};
-pub use views::{match_view, poisson_view_angles, style_target, ViewFrame};
+pub use views::{match_view, match_view_on, poisson_view_angles, style_target, ViewFrame};
 
 use crate::StrandError;
 

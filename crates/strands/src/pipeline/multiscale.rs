@@ -14,7 +14,7 @@ use crate::strands::FlatStrands;
 use crate::StrandError;
 
 use super::step::{flatten, iteration, unflatten};
-use super::views::{match_view, poisson_view_angles, style_target};
+use super::views::{match_view, match_view_on, poisson_view_angles, style_target};
 use super::{PipelineError, StrandScene, StylizeParams, NNST_LAYERS};
 
 /// What one optimization iteration reports.
@@ -229,6 +229,9 @@ pub fn stylize_with(
         let views = &angles[first..first + per_scale[l]];
         first += per_scale[l];
         let sstyle = style_target(vgg, style, params.style_height(l))?;
+        // Where this scale's targets are matched: the rest groom (eq. 2), or
+        // with `rematch` the groom as the coarser scales left it.
+        let base = if params.rematch && l > 0 && iters > 0 { Some(scene.deform(&unflatten(&v))?.0) } else { None };
         if iters > 0 {
             adam.lr = scale_learning_rate(scene, params, l);
             let mut cache: HashMap<usize, (SplatCamera, NnstMatch)> = HashMap::new();
@@ -236,7 +239,7 @@ pub fn stylize_with(
                 let k = m as usize % views.len();
                 if !cache.contains_key(&k) {
                     let cam = scene.camera(views[k].0, views[k].1)?;
-                    let (matched, _) = match_view(scene, vgg, &sstyle, &cam)?;
+                    let (matched, _) = match_view_on(scene, base.as_ref().unwrap_or(&scene.undeformed), vgg, &sstyle, &cam)?;
                     cache.insert(k, (cam, matched));
                 }
                 let (cam, matched) = &cache[&k];

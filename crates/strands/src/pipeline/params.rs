@@ -37,6 +37,11 @@ pub struct StylizeParams {
     pub held_out_views: usize,
     /// Strand cross-section σ in pixels at the groom centre's depth.
     pub strand_width_px: f32,
+    /// Match each scale's NNST targets on the groom as the previous scales
+    /// left it, as NNST matches each scale on its current output, instead
+    /// of on the rest groom `R(x₀)` for every scale as the paper's eq. 2
+    /// is written (see the module notes and docs/STRANDS.md).
+    pub rematch: bool,
 }
 
 impl StylizeParams {
@@ -50,12 +55,13 @@ impl StylizeParams {
             iterations: preset.iterations,
             proxies: (ratio * guides as f64).round() as usize,
             seed: 0,
-            lr_scale: 0.3,
+            lr_scale: 1.0,
             weight_decay: 0.01,
             views_per_scale: 8,
             eval_views: 4,
             held_out_views: 4,
             strand_width_px: 0.5,
+            rematch: true,
         }
     }
 

@@ -353,28 +353,64 @@ impl StrandScene {
         // re-sampled guide, from the input's shape (before the rest groom
         // was fitted outside the mesh) to the stylized one: the fitting's
         // lifts, pushes and turns reach the output too.
-        let mut out = input.clone();
-        for k in 0..g {
+        let carry = |out: &mut FlatStrands, k: usize, f: f32| {
             let (raw, def) = (self.raw_guides.strand(k), deformed.strand(k));
-            for p in &mut out.points[input.range(k)] {
-                let (seg, t) = closest_on_polyline(raw, *p);
+            let r = input.range(k);
+            for (p, &q) in out.points[r.clone()].iter_mut().zip(&input.points[r]) {
+                let (seg, t) = closest_on_polyline(raw, q);
                 let j = (seg + 1).min(raw.len() - 1);
                 let d0 = sub(def[seg], raw[seg]);
                 let d1 = sub(def[j], raw[j]);
-                *p = add(*p, add(scale(d0, 1.0 - t), scale(d1, t)));
+                *p = add(q, scale(add(scale(d0, 1.0 - t), scale(d1, t)), f));
             }
+        };
+        let mut out = input.clone();
+        for k in 0..g {
+            carry(&mut out, k, 1.0);
         }
         let c = Constraints {
             rest: input.clone(),
             collider: self.constraints.collider.clone(),
             collision: self.constraints.collision,
         };
-        enforce(&mut out, &c, 200, &mut ConstraintTape::off())?;
-        // The projections leave roots alone; one the carried displacement
-        // left under the scalp comes out rigidly with its strand, as in the
-        // rest groom.
-        if let Some(bvh) = &self.constraints.collider {
-            lift_roots(&mut out, bvh, self.lift_margin);
+        match &self.constraints.collider {
+            Some(bvh) => {
+                // The projections leave roots alone; one the carried
+                // displacement left under the scalp comes out rigidly with
+                // its strand, as in the rest groom.
+                fit_outside(&mut out, &c, bvh)?;
+                lift_roots(&mut out, bvh, self.lift_margin);
+                // A strand the stylization pushed through a thin part of the
+                // mesh (turning cannot free it), or one whose fit left a
+                // point under the skin, keeps a smaller share of its
+                // displacement, halved until it fits, rather than leaving
+                // stretched or inside: at worst the input fitted outside.
+                let inside = |p: &V3| bvh.closest_point_within(*p, 0.0).is_some_and(|h| h.signed_distance < 0.0);
+                let mut f = 1.0;
+                loop {
+                    let stuck: Vec<usize> = (0..g)
+                        .filter(|&k| {
+                            strand_length_error(out.strand(k), input.strand(k)) > STUCK_LENGTH_ERROR
+                                || out.strand(k)[1..].iter().any(inside)
+                        })
+                        .collect();
+                    if stuck.is_empty() {
+                        break;
+                    }
+                    f = if f > 1.0 / 64.0 { 0.5 * f } else { 0.0 };
+                    for &k in &stuck {
+                        carry(&mut out, k, f);
+                    }
+                    fit_outside(&mut out, &c, bvh)?;
+                    lift_roots(&mut out, bvh, self.lift_margin);
+                    if f == 0.0 {
+                        break;
+                    }
+                }
+            }
+            None => {
+                enforce(&mut out, &c, 200, &mut ConstraintTape::off())?;
+            }
         }
         Ok(out)
     }
@@ -417,25 +453,33 @@ fn resolve_rest(
     let mut s = raw.clone();
     lift_roots(&mut s, bvh, lift_margin(diag));
     let c = Constraints { rest: raw.clone(), collider: Some(bvh.clone()), collision };
+    fit_outside(&mut s, &c, bvh)?;
+    Ok(s)
+}
+
+/// The constraints enforced to convergence on `s` (lengths of `c.rest`,
+/// outside `bvh`). A strand the projections could not fit threads through
+/// the mesh (in one side of an ear and out of the other, or pushed through
+/// a thin part by the stylization): pushing each point to its nearest side
+/// stretches it across. Such a strand is first turned rigidly about its
+/// root to the nearest pose with the least penetration, then fitted like
+/// the others.
+fn fit_outside(s: &mut FlatStrands, c: &Constraints, bvh: &MeshBvh) -> Result<(), PipelineError> {
     let mut fitted = s.clone();
-    enforce(&mut fitted, &c, 200, &mut ConstraintTape::off())?;
-    // A strand the projections could not fit threads through the mesh (in
-    // one side of an ear and out of the other): pushing each point to its
-    // nearest side stretches it across. Such a strand is first turned
-    // rigidly about its root to the nearest pose with the least
-    // penetration, then fitted like the others.
+    enforce(&mut fitted, c, 200, &mut ConstraintTape::off())?;
     let stuck: Vec<usize> = (0..s.strand_count())
-        .filter(|&k| strand_length_error(fitted.strand(k), raw.strand(k)) > STUCK_LENGTH_ERROR)
+        .filter(|&k| strand_length_error(fitted.strand(k), c.rest.strand(k)) > STUCK_LENGTH_ERROR)
         .collect();
     if stuck.is_empty() {
-        return Ok(fitted);
+        *s = fitted;
+        return Ok(());
     }
     for &k in &stuck {
         let r = s.range(k);
         turn_out_of_mesh(&mut s.points[r], bvh);
     }
-    enforce(&mut s, &c, 200, &mut ConstraintTape::off())?;
-    Ok(s)
+    enforce(s, c, 200, &mut ConstraintTape::off())?;
+    Ok(())
 }
 
 /// Relative segment-length error above which [`resolve_rest`] turns a

@@ -150,7 +150,20 @@ pub fn match_view(
     style: &NnstTarget,
     cam: &SplatCamera,
 ) -> Result<(NnstMatch, f32), PipelineError> {
-    let img = scene.render(&scene.undeformed, cam)?;
+    match_view_on(scene, &scene.undeformed, vgg, style, cam)
+}
+
+/// [`match_view`] on the render of `strands` (layout of
+/// [`StrandScene::rest`]) instead of the undeformed groom: the targets of a
+/// scale re-matched on what the previous scales made.
+pub fn match_view_on(
+    scene: &StrandScene,
+    strands: &FlatStrands,
+    vgg: &Vgg19,
+    style: &NnstTarget,
+    cam: &SplatCamera,
+) -> Result<(NnstMatch, f32), PipelineError> {
+    let img = scene.render(strands, cam)?;
     let feats = vgg.forward(&img, &NNST_LAYERS, false);
     let m = style.match_content(feats.taps())?;
     let (loss, _) = nnst_loss_matched(feats.taps(), &m)?;
