@@ -278,7 +278,8 @@ fn a_groom_is_drawn_alone_beside_another_and_around() {
     ok(&nst3d(&["--input", s(&hair), "--compare", s(&ply), "--out", s(&pair), "--height", "96"]));
     let (g, w, h) = grey(&pair);
     assert!(w >= 192 && h == 96, "two pictures side by side: {w}x{h}");
-    let half = |x0: usize| (0..h).flat_map(|y| (0..96).map(move |x| (y, x0 + x))).map(|(y, x)| g[y * w + x]).sum::<f32>();
+    let half =
+        |x0: usize| (0..h).flat_map(|y| (0..96).map(move |x| (y, x0 + x))).map(|(y, x)| g[y * w + x]).sum::<f32>();
     let (l, r) = (half(0), half(w - 96));
     assert!((l - r).abs() < 0.02 * l, "same groom, different pictures: {l} vs {r}");
 

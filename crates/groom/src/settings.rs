@@ -82,7 +82,8 @@ pub struct StrandSettings {
     /// Strand cross-section sigma in pixels (default: the pipeline's).
     pub strand_width: Option<f32>,
     /// Match each scale's targets on the groom the coarser scales left
-    /// (`StylizeParams::rematch`); `None`: the pipeline's default.
+    /// (`StylizeParams::rematch`); `None`: yes for one groom, no for a
+    /// sequence (see [`StrandSettings::stylize_params`]).
     pub rematch: Option<bool>,
     /// VGG-19 weights file; `None`: `$NST3D_VGG19`, else the user cache.
     pub weights: Option<PathBuf>,
@@ -176,9 +177,12 @@ impl StrandSettings {
         if let Some(w) = self.strand_width {
             params.strand_width_px = w;
         }
-        if let Some(r) = self.rematch {
-            params.rematch = r;
-        }
+        // A sequence matches every scale on each frame's own rest groom by
+        // default: those targets move only with the animation, while targets
+        // re-matched on the stylization so far follow it, and the fur ball
+        // in the wind flickered 0.56x of per-frame stylization with them
+        // against 0.46x without (docs/STRANDS.md).
+        params.rematch = self.rematch.unwrap_or(self.frames.is_none());
         params
     }
 

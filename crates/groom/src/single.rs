@@ -17,8 +17,8 @@ use nst3d_strands::pipeline::{stylize, HeldOut, StrandScene};
 use nst3d_strands::FlatStrands;
 
 use crate::files::{attribute_notes, write_groom, write_preview, Checks};
-use crate::NO_MESH;
 use crate::settings::{OutFormat, StrandSettings, Temporal};
+use crate::NO_MESH;
 
 /// What a single-groom job did.
 #[derive(Clone, Debug)]
@@ -88,10 +88,13 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
     let vgg = Vgg19::load(s.weights.as_deref())?;
     let params = s.stylize_params(groom.strand_count());
 
-    let scene = StrandScene::build(groom, head.as_ref(), &params, &mut |m| reporter.status(m)).with_context(|| match &s.mesh {
-        Some(m) => format!("{} on {}", s.groom.display(), m.display()),
-        None => s.groom.display().to_string(),
-    })?;
+    let scene =
+        StrandScene::build(groom, head.as_ref(), &params, &mut |m| reporter.status(m)).with_context(|| {
+            match &s.mesh {
+                Some(m) => format!("{} on {}", s.groom.display(), m.display()),
+                None => s.groom.display().to_string(),
+            }
+        })?;
     let total: u32 = params.iterations.iter().sum();
     reporter.begin(total as u64);
     let result = stylize(&scene, &painting, &vgg, &params, &mut |r| {

@@ -481,7 +481,12 @@ pub fn nnst_loss_over(feats: &[Image], matched: &NnstMatch, columns: &[bool]) ->
         .par_chunks(nc)
         .zip(matched.targets.data.par_chunks(nc))
         .map(|(hk, tk)| {
-            hk.iter().zip(tk).zip(columns).filter(|(_, &on)| on).map(|((v, t), _)| ((v - t) * (v - t)) as f64).sum::<f64>()
+            hk.iter()
+                .zip(tk)
+                .zip(columns)
+                .filter(|(_, &on)| on)
+                .map(|((v, t), _)| ((v - t) * (v - t)) as f64)
+                .sum::<f64>()
         })
         .sum();
     let n = columns.iter().filter(|&&c| c).count();

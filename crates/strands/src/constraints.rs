@@ -93,7 +93,7 @@ pub fn preserve_lengths_backward(input: &FlatStrands, rest: &FlatStrands, grad: 
 /// given, `r` its rest polyline, `g` the gradient at its output; adds the
 /// gradient at `q` to `gin`.
 fn preserve_strand_lengths_backward(q: &[V3], r: &[V3], g: &[V3], gin: &mut [V3]) {
-        let mut acc = [0.0f64; 3];
+    let mut acc = [0.0f64; 3];
     for k in (0..q.len() - 1).rev() {
         for a in 0..3 {
             acc[a] += g[k + 1][a] as f64;
@@ -277,7 +277,11 @@ fn collide_point(p: &mut V3, bvh: &MeshBvh, params: CollisionParams) -> Option<(
         return None;
     }
     let away = sub(*p, hit.point);
-    let n = if s.abs() > 1e-7 * (1.0 + norm(*p)) { normalize(scale(away, s.signum())).unwrap_or(hit.normal) } else { hit.normal };
+    let n = if s.abs() > 1e-7 * (1.0 + norm(*p)) {
+        normalize(scale(away, s.signum())).unwrap_or(hit.normal)
+    } else {
+        hit.normal
+    };
     let (push, cancel) =
         if s < 0.0 { (-s + params.kappa * params.tau, 1.0) } else { (params.kappa * (params.tau - s), params.kappa) };
     *p = add(*p, scale(n, push));
@@ -762,7 +766,6 @@ mod tests {
         }
         assert_eq!(s.points, s2.points);
         assert_eq!(analytic, global.backward(&rest, &unflat(&w)).unwrap());
-
 
         // With a tolerance, strands that need no extra pass stop after the
         // first and the rest go on.

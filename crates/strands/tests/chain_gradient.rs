@@ -63,7 +63,12 @@ fn check_chain(with_head: bool) {
     let loss = |x: &[f32]| loss_and_gradient(&scene, &vgg, &cam, &matched, x).unwrap().0.loss as f64;
     let (report, grad) = loss_and_gradient(&scene, &vgg, &cam, &matched, &v).unwrap();
     assert!(report.loss > 0.0 && grad.iter().all(|g| g.is_finite()));
-    assert_eq!(report.stats.moved > 0, with_head, "collision projection active iff there is a head: {:?}", report.stats);
+    assert_eq!(
+        report.stats.moved > 0,
+        with_head,
+        "collision projection active iff there is a head: {:?}",
+        report.stats
+    );
 
     // The collision projection is piecewise smooth (a point enters or
     // leaves the skin's band), so the step stays small.

@@ -111,7 +111,8 @@ pub struct StrandsArgs {
     #[arg(long)]
     strand_width: Option<f32>,
     /// Match each scale's NNST targets on the groom as the coarser scales left it
-    /// (true, the default), or every scale on the rest groom as the paper writes eq. 2 (false).
+    /// (true; the default for one groom), or every scale on the rest groom as the paper
+    /// writes eq. 2 (false; the default with --frames, which flickers less).
     #[arg(long, action = clap::ArgAction::Set)]
     rematch: Option<bool>,
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).

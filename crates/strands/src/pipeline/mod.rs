@@ -109,8 +109,7 @@ pub use multiscale::{
 };
 pub use params::StylizeParams;
 pub use scene::{
-    max_length_change, polyline_length, GroomView, StrandScene, CONSTRAINT_PASSES, HARD_TAU_FRACTION,
-    SEGMENT_TOLERANCE,
+    max_length_change, polyline_length, GroomView, StrandScene, CONSTRAINT_PASSES, HARD_TAU_FRACTION, SEGMENT_TOLERANCE,
 };
 pub use step::{iteration, loss_and_gradient, StageTimes, StepReport};
 pub use views::{match_view, match_view_on, poisson_view_angles, style_target, ViewFrame};

@@ -95,8 +95,13 @@ pub fn held_out_loss(
     params: &StylizeParams,
 ) -> Result<HeldOut, PipelineError> {
     let p = params.preset;
-    let angles =
-        poisson_view_angles(&scene.frame, p.polar_deg, p.azimuth_deg, params.held_out_views, params.seed ^ HELD_OUT_SEED);
+    let angles = poisson_view_angles(
+        &scene.frame,
+        p.polar_deg,
+        p.azimuth_deg,
+        params.held_out_views,
+        params.seed ^ HELD_OUT_SEED,
+    );
     let (mut before, mut after, mut rematched) = (0.0f64, 0.0f64, 0.0f64);
     for &(psi, delta) in &angles {
         let cam = scene.camera(psi, delta)?;
@@ -109,7 +114,12 @@ pub fn held_out_loss(
         rematched += nnst_loss_over(f1.taps(), &finest.match_content(f1.taps())?, &mask)? as f64;
     }
     let k = angles.len().max(1) as f64;
-    Ok(HeldOut { angles, before: (before / k) as f32, after: (after / k) as f32, after_rematched: (rematched / k) as f32 })
+    Ok(HeldOut {
+        angles,
+        before: (before / k) as f32,
+        after: (after / k) as f32,
+        after_rematched: (rematched / k) as f32,
+    })
 }
 
 /// Hyper-columns (row-major on `grid`) whose cell of the image holds a
@@ -239,7 +249,8 @@ pub fn stylize_with(
                 let k = m as usize % views.len();
                 if !cache.contains_key(&k) {
                     let cam = scene.camera(views[k].0, views[k].1)?;
-                    let (matched, _) = match_view_on(scene, base.as_ref().unwrap_or(&scene.undeformed), vgg, &sstyle, &cam)?;
+                    let (matched, _) =
+                        match_view_on(scene, base.as_ref().unwrap_or(&scene.undeformed), vgg, &sstyle, &cam)?;
                     cache.insert(k, (cam, matched));
                 }
                 let (cam, matched) = &cache[&k];

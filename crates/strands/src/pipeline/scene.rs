@@ -10,7 +10,9 @@ use nst3d_core::Image;
 use nst3d_splat::{render, SplatCamera, SplatOutput, StrandStyle, Strands};
 
 use crate::bvh::MeshBvh;
-use crate::constraints::{strand_length_error, CollisionParams, CollisionStats, ConstraintTape, Constraints, EnforceParams};
+use crate::constraints::{
+    strand_length_error, CollisionParams, CollisionStats, ConstraintTape, Constraints, EnforceParams,
+};
 use crate::densify::{densify, DensifyParams};
 use crate::field::DeformationField;
 use crate::strands::FlatStrands;
@@ -317,7 +319,13 @@ impl GroomView {
     /// groom when there are no root normals) from polar `ψ` / azimuth `δ`
     /// (degrees) at `size²` pixels; strands keep their width relative to the
     /// picture.
-    pub fn render(&self, strands: &FlatStrands, polar_deg: f32, azimuth_deg: f32, size: usize) -> Result<Image, PipelineError> {
+    pub fn render(
+        &self,
+        strands: &FlatStrands,
+        polar_deg: f32,
+        azimuth_deg: f32,
+        size: usize,
+    ) -> Result<Image, PipelineError> {
         let eye = add(self.frame.centre, scale(self.frame.direction(polar_deg, azimuth_deg), self.distance));
         let cam = SplatCamera::look_at(eye, self.frame.centre, self.frame.up, self.fov_deg, size, size)?;
         let style = StrandStyle { width: self.style.width * self.render_size as f32 / size as f32, ..self.style };
@@ -580,8 +588,10 @@ mod tests {
         let bvh = MeshBvh::new(&sphere).unwrap();
         // Rooted on the sphere, entering it at 45° and leaving through the
         // far side of the cap: each point's nearest way out differs.
-        let (root, dir) = ([1.0f32, 0.0, 0.0], [-std::f32::consts::FRAC_1_SQRT_2, 0.0, std::f32::consts::FRAC_1_SQRT_2]);
-        let raw = FlatStrands::from_strands([(0..12).map(|k| add(root, scale(dir, 0.15 * k as f32))).collect()]).unwrap();
+        let (root, dir) =
+            ([1.0f32, 0.0, 0.0], [-std::f32::consts::FRAC_1_SQRT_2, 0.0, std::f32::consts::FRAC_1_SQRT_2]);
+        let raw =
+            FlatStrands::from_strands([(0..12).map(|k| add(root, scale(dir, 0.15 * k as f32))).collect()]).unwrap();
         assert!(raw.points[1..].iter().any(|&p| bvh.is_inside(p)));
         let collision = CollisionParams { tau: 0.01, kappa: 0.5, skip_roots: true };
         let fitted = resolve_rest(&raw, &bvh, collision, 2.0 * 3f32.sqrt()).unwrap();

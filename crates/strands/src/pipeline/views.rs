@@ -84,7 +84,8 @@ pub(super) fn view_frame(
         }
     }
     let mean: V3 = mean.map(|c| (c / guide_normals.len().max(1) as f64) as f32);
-    let head_centre = head.and_then(|h| h.bbox()).map(|(l, h)| std::array::from_fn(|a| 0.5 * (l[a] + h[a]))).unwrap_or(centre);
+    let head_centre =
+        head.and_then(|h| h.bbox()).map(|(l, h)| std::array::from_fn(|a| 0.5 * (l[a] + h[a]))).unwrap_or(centre);
     let front = if norm(mean) > 0.2 { normalize(mean) } else { None }
         .or_else(|| {
             let d = sub(centre, head_centre);
