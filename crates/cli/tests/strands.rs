@@ -5,10 +5,10 @@
 //! line.
 
 mod common;
-use common::{s, shared};
+use common::{s, shared, small_strands};
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use nst3d_io::groom::{read_groom, read_usda_curves};
 use nst3d_strands::pipeline::polyline_length;
@@ -17,32 +17,7 @@ use nst3d_strands::MeshBvh;
 /// Runs `nst3d strands` on `groom` with fast settings.
 fn strands(groom: &Path, out: &Path, extra: &[&str]) -> Output {
     let mesh = shared("grooms/Bangs_head.ply");
-    strands_on(groom, Some(&mesh), out, extra)
-}
-
-/// [`strands`] on `mesh`, or without one.
-fn strands_on(groom: &Path, mesh: Option<&Path>, out: &Path, extra: &[&str]) -> Output {
-    let style = shared("styles/starry_night.jpg");
-    let mut args = vec!["strands", "--groom", s(groom), "--style", s(&style), "--out", s(out)];
-    if let Some(m) = mesh {
-        args.extend_from_slice(&["--mesh", s(m)]);
-    }
-    args.extend_from_slice(&[
-        "--preset",
-        "short-hair",
-        "--iters",
-        "9",
-        "--render-size",
-        "96",
-        "--proxies",
-        "40",
-        "--views-per-scale",
-        "1",
-        "--lr-scale",
-        "0.1",
-    ]);
-    args.extend_from_slice(extra);
-    Command::new(env!("CARGO_BIN_EXE_nst3d")).args(&args).output().expect("run nst3d")
+    small_strands(groom, Some(&mesh), out, extra)
 }
 
 /// The two numbers of "NNST loss A -> B" in the summary line.
@@ -149,7 +124,7 @@ fn bad_grooms_give_one_line_errors() {
 fn a_groom_without_its_mesh_is_stylized_without_collisions_and_says_so() {
     let dir = tempfile::tempdir().unwrap();
     let (groom_path, out) = (shared("grooms/Bangs_100.hair"), dir.path().join("out.ply"));
-    let o = strands_on(&groom_path, None, &out, &[]);
+    let o = small_strands(&groom_path, None, &out, &[]);
     let (stdout, stderr) = (String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
     assert!(o.status.success(), "nst3d strands without --mesh failed: {stderr}");
     assert_eq!(stderr.matches("no --mesh").count(), 1, "the missing mesh is said once: {stderr}");

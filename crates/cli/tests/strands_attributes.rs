@@ -6,40 +6,16 @@
 //! the small, fast settings of `strands.rs`.
 
 mod common;
-use common::{s, shared};
+use common::{shared, small_strands};
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use nst3d_io::groom::{read_groom_file, read_ply_strands, write_ply_strands, write_usda_curves, Groom};
 
-/// `nst3d strands` on `groom` with the head mesh, fast settings.
+/// `nst3d strands` on `groom` with the head mesh, fast settings; must succeed.
 fn strands(groom: &Path, out: &Path) -> Output {
-    let (mesh, style) = (shared("grooms/Bangs_head.ply"), shared("styles/starry_night.jpg"));
-    let args = [
-        "strands",
-        "--groom",
-        s(groom),
-        "--mesh",
-        s(&mesh),
-        "--style",
-        s(&style),
-        "--out",
-        s(out),
-        "--preset",
-        "short-hair",
-        "--iters",
-        "9",
-        "--render-size",
-        "96",
-        "--proxies",
-        "40",
-        "--views-per-scale",
-        "1",
-        "--lr-scale",
-        "0.1",
-    ];
-    let o = Command::new(env!("CARGO_BIN_EXE_nst3d")).args(args).output().expect("run nst3d");
+    let o = small_strands(groom, Some(&shared("grooms/Bangs_head.ply")), out, &[]);
     assert!(o.status.success(), "nst3d strands failed: {}", String::from_utf8_lossy(&o.stderr));
     o
 }

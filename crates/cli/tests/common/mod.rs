@@ -21,3 +21,30 @@ pub fn nst3d(args: &[&str]) -> Output {
 pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
+
+/// `nst3d strands` on `groom` (with `mesh`, or without one) at the small,
+/// fast settings the end-to-end groom tests share (96² render, 9
+/// iterations, 40 proxies, one view per scale), plus `extra`.
+pub fn small_strands(groom: &Path, mesh: Option<&Path>, out: &Path, extra: &[&str]) -> Output {
+    let style = shared("styles/starry_night.jpg");
+    let mut args = vec!["strands", "--groom", s(groom), "--style", s(&style), "--out", s(out)];
+    if let Some(m) = mesh {
+        args.extend_from_slice(&["--mesh", s(m)]);
+    }
+    args.extend_from_slice(&[
+        "--preset",
+        "short-hair",
+        "--iters",
+        "9",
+        "--render-size",
+        "96",
+        "--proxies",
+        "40",
+        "--views-per-scale",
+        "1",
+        "--lr-scale",
+        "0.1",
+    ]);
+    args.extend_from_slice(extra);
+    nst3d(&args)
+}
