@@ -71,23 +71,7 @@ fn main() {
         Command::Train(args) => train::run(args),
     };
     if let Err(e) = result {
-        eprintln!("nst3d: error: {}", one_line(&e));
+        eprintln!("nst3d: error: {}", nst3d_core::report::one_line(e.as_ref()));
         std::process::exit(1);
     }
-}
-
-/// The error and its causes on one line. Library errors often repeat their
-/// cause in their own message; a cause already said is not said twice.
-fn one_line(e: &anyhow::Error) -> String {
-    let mut msg = String::new();
-    for cause in e.chain() {
-        let s = cause.to_string();
-        if !msg.contains(&s) {
-            if !msg.is_empty() {
-                msg.push_str(": ");
-            }
-            msg.push_str(&s);
-        }
-    }
-    msg.replace('\n', " ")
 }

@@ -119,3 +119,27 @@ pub fn run(args: TrainArgs) -> Result<()> {
     );
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: TrainArgs,
+    }
+
+    /// The library's defaults (what the Python package uses) are the command line's.
+    #[test]
+    fn library_defaults_are_the_command_lines() {
+        let a = Cli::parse_from(["nst3d", "--input", "a.vdb", "--style", "p.jpg", "--out", "m.safetensors"]).args;
+        let d = TrainSettings::new(vec![], "p.jpg", "m.safetensors");
+        assert_eq!(
+            (a.grid, a.style_scale, a.channels, a.patch, a.octaves, a.steps, a.minutes, a.theta, a.phi, a.seed),
+            (d.grid, d.style_scale, d.channels, d.patch, d.octaves, d.steps, d.minutes, d.theta_deg, d.phi_deg, d.seed)
+        );
+        assert_eq!((a.checkpoint_every, matches!(a.mode, Mode::Velocity)), (d.checkpoint_every, d.velocity));
+    }
+}

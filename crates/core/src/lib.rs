@@ -15,6 +15,7 @@ pub mod linalg;
 pub mod math;
 pub mod mesh;
 pub mod report;
+pub mod stop;
 
 pub use grid::Grid3;
 pub use groom::{Groom, GroomError, Strand, StrandSpline};

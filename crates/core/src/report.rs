@@ -43,3 +43,23 @@ pub trait Reporter {
 pub struct Silent;
 
 impl Reporter for Silent {}
+
+/// An error and its causes on one line: the message a user sees (the
+/// command line after `nst3d: error:`, the Python package in its
+/// exception). Library errors often repeat their cause in their own
+/// message; a cause already said is not said twice.
+pub fn one_line(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut msg = String::new();
+    let mut cause = Some(e);
+    while let Some(c) = cause {
+        let s = c.to_string();
+        if !msg.contains(&s) {
+            if !msg.is_empty() {
+                msg.push_str(": ");
+            }
+            msg.push_str(&s);
+        }
+        cause = c.source();
+    }
+    msg.replace('\n', " ")
+}

@@ -27,7 +27,7 @@ pub use generate::{generate, GenerateKind, GenerateReport, GenerateSettings};
 pub use nst3d_core::{Reporter, Silent};
 pub use sequence::{stylize_groom_sequence, GroomSequenceReport, STATE_FILE};
 pub use settings::{OutFormat, StrandSettings, Temporal};
-pub use single::{stylize_groom_file, GroomReport};
+pub use single::{stylize_groom, stylize_groom_file, GroomReport, StylizedGroom};
 
 /// Said once on stderr when a groom comes without its mesh.
 pub(crate) const NO_MESH: &str =

@@ -9,7 +9,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use nst3d_core::Reporter;
+use nst3d_core::{Groom, Reporter, TriMesh};
 use nst3d_features::Vgg19;
 use nst3d_io::groom::read_groom_file;
 use nst3d_io::mesh::read_mesh;
@@ -81,6 +81,32 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
         reporter.note(&format!("{}: {note}", s.groom.display()));
     }
     let head = s.mesh.as_deref().map(read_mesh).transpose()?;
+    let r = stylize_groom(s, groom, head.as_ref(), reporter)?;
+    write_groom(&s.out, format, &r.strands, Some(&input))?;
+    Ok(r.report)
+}
+
+/// A groom stylized in memory: what [`stylize_groom`] returns.
+#[derive(Clone, Debug)]
+pub struct StylizedGroom {
+    /// The stylized guides in the input's topology (same strands, same
+    /// point counts, in the same order).
+    pub strands: FlatStrands,
+    /// What the job did (`groom` and `out` are the settings' paths).
+    pub report: GroomReport,
+}
+
+/// Stylizes `groom` grown on `head` (if any) with the settings of a single
+/// groom; `s.groom`, `s.mesh` and `s.out` are not read or written (a front
+/// end with the groom in memory passes it here), `s.preview` is written
+/// when set.
+pub fn stylize_groom(
+    s: &StrandSettings,
+    groom: &Groom,
+    head: Option<&TriMesh>,
+    reporter: &mut dyn Reporter,
+) -> Result<StylizedGroom> {
+    s.check()?;
     if head.is_none() {
         reporter.note(NO_MESH);
     }
@@ -89,11 +115,9 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
     let params = s.stylize_params(groom.strand_count());
 
     let scene =
-        StrandScene::build(groom, head.as_ref(), &params, &mut |m| reporter.status(m)).with_context(|| {
-            match &s.mesh {
-                Some(m) => format!("{} on {}", s.groom.display(), m.display()),
-                None => s.groom.display().to_string(),
-            }
+        StrandScene::build(groom, head, &params, &mut |m| reporter.status(m)).with_context(|| match &s.mesh {
+            Some(m) => format!("{} on {}", s.groom.display(), m.display()),
+            None => s.groom.display().to_string(),
         })?;
     let total: u32 = params.iterations.iter().sum();
     reporter.begin(total as u64);
@@ -109,12 +133,11 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
     reporter.end();
 
     let written = scene.to_input_topology(&FlatStrands::from_groom(groom)?, &result.guides)?;
-    write_groom(&s.out, format, &written, Some(&input))?;
     if let Some(preview) = &s.preview {
         write_preview(preview, &scene, &result.strands, &painting)?;
     }
-    let checks = Checks::new(groom, &scene, &result.guides, &written, head.as_ref())?;
-    Ok(GroomReport {
+    let checks = Checks::new(groom, &scene, &result.guides, &written, head)?;
+    let report = GroomReport {
         groom: s.groom.clone(),
         strands: written.strand_count(),
         points: written.points.len(),
@@ -128,5 +151,6 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
         held_out: result.held_out.clone(),
         checks,
         out: s.out.clone(),
-    })
+    };
+    Ok(StylizedGroom { strands: written, report })
 }

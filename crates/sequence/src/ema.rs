@@ -31,6 +31,10 @@ pub enum SequenceError {
     /// The work folder's saved state cannot be used (the message says why).
     #[error("work folder: {0}")]
     Checkpoint(String),
+    /// The caller asked the job to stop ([`nst3d_core::stop`]); every
+    /// committed sweep stays on disk.
+    #[error(transparent)]
+    Interrupted(#[from] nst3d_core::stop::Interrupted),
 }
 
 /// The simulation, frame by frame, on one common dense domain.
@@ -284,6 +288,7 @@ pub fn stylize_sequence_with(
                 st.v.copy_from_slice(v);
                 st.step = step;
                 progress(&SweepProgress { octave: k, iteration: it + 1, frame: t, loss: total });
+                nst3d_core::stop::check()?;
                 // Forward sweeps carry v̂_t along u_t to t+1; backward sweeps
                 // carry v̂_t back to t-1 along −u_{t−1}.
                 carried = if params.alpha > 0.0 {

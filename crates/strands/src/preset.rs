@@ -38,6 +38,33 @@ pub enum Preset {
     Grass,
 }
 
+impl Preset {
+    /// The name front ends use (`nst3d strands --preset`, the Python package).
+    pub fn key(self) -> &'static str {
+        match self {
+            Preset::ShortHair => "short-hair",
+            Preset::ShortHair360 => "short-hair-360",
+            Preset::LongHair => "long-hair",
+            Preset::Cat => "cat",
+            Preset::FurBall => "fur-ball",
+            Preset::Grass => "grass",
+        }
+    }
+}
+
+impl std::str::FromStr for Preset {
+    type Err = String;
+
+    /// A preset by its [`Preset::key`]; `_` may stand for `-`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let want = s.replace('_', "-");
+        Preset::ALL.into_iter().find(|p| p.key() == want).ok_or_else(|| {
+            let keys: Vec<&str> = Preset::ALL.iter().map(|p| p.key()).collect();
+            format!("unknown preset '{s}' (presets: {})", keys.join(", "))
+        })
+    }
+}
+
 /// Temporal coherency parameters of the animated examples (Sec. 3.3).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TemporalParams {

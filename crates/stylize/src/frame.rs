@@ -162,6 +162,7 @@ pub fn stylize_frame_views(
             adam.step(f.params_mut(), &grad);
             f.constrain(&params.limits, vmax_here);
             progress(&Progress { octave: k, octaves, iteration: it + 1, iterations: params.iterations, loss: l });
+            nst3d_core::stop::check()?;
         }
         field = Some((f, level.dims));
     }

@@ -21,6 +21,9 @@ pub enum ViewError {
     /// The style layers and weights do not fit together.
     #[error(transparent)]
     Loss(#[from] nst3d_loss::LossError),
+    /// The caller asked the job to stop ([`nst3d_core::stop`]).
+    #[error(transparent)]
+    Interrupted(#[from] nst3d_core::stop::Interrupted),
 }
 
 /// Which VGG layers carry the style and how much each counts.

@@ -57,6 +57,31 @@ pub struct TrainSettings {
     pub checkpoint_every: u64,
 }
 
+impl TrainSettings {
+    /// The command line's defaults (`nst3d train`) for training on `frames`
+    /// with `style` into `out`.
+    pub fn new(frames: Vec<PathBuf>, style: impl Into<PathBuf>, out: impl Into<PathBuf>) -> Self {
+        Self {
+            frames,
+            grid: "density".into(),
+            style: style.into(),
+            style_scale: 0.5,
+            weights: None,
+            velocity: false,
+            channels: 16,
+            patch: 32,
+            octaves: 2,
+            steps: 2000,
+            minutes: None,
+            theta_deg: 180.0,
+            phi_deg: 90.0,
+            seed: 0,
+            out: out.into(),
+            checkpoint_every: 50,
+        }
+    }
+}
+
 /// What a training run did.
 #[derive(Clone, Debug)]
 pub struct TrainReport {
@@ -299,10 +324,13 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         losses.push(l);
         reporter.step(&format!("step {}/{} loss {l:.4e}", trainer.steps(), s.steps));
         let out_of_time = s.minutes.is_some_and(|m| t0.elapsed().as_secs_f64() >= 60.0 * m);
-        if trainer.steps() % s.checkpoint_every == 0 || trainer.steps() == s.steps || out_of_time {
+        // A stopped run checkpoints first, so rerunning it resumes at this step.
+        let stop = nst3d_core::stop::requested();
+        if trainer.steps() % s.checkpoint_every == 0 || trainer.steps() == s.steps || out_of_time || stop {
             save_checkpoint(&ckpt, s, &trainer, &rng, &losses)?;
             write_outputs(s, &trainer, &losses, &style_sha, [style_img.width, style_img.height])?;
         }
+        nst3d_core::stop::check()?;
         if out_of_time {
             break;
         }

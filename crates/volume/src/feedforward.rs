@@ -33,6 +33,18 @@ pub struct ModelSettings {
     pub mode: Option<Mode>,
 }
 
+impl ModelSettings {
+    /// `--tile`'s default: a 128³ tile keeps memory near 1 GB at width 16.
+    pub const DEFAULT_TILE: usize = 128;
+    /// `--tile-margin`'s default: 32 voxels cover the network's reach.
+    pub const DEFAULT_MARGIN: usize = 32;
+
+    /// The command line's defaults for the model file `path`.
+    pub fn new(path: impl Into<PathBuf>) -> Self {
+        Self { path: path.into(), tile: Self::DEFAULT_TILE, margin: Self::DEFAULT_MARGIN, mode: None }
+    }
+}
+
 /// What a feed-forward job did.
 #[derive(Clone, Debug)]
 pub struct ModelReport {
@@ -88,6 +100,62 @@ fn load_model(m: &ModelSettings) -> Result<(Model, Mode, f32)> {
     Ok((model, mode, vmax))
 }
 
+/// A trained network loaded once, to stylize grids in memory (a front end
+/// such as the Python binding keeps it between calls).
+#[derive(Clone, Debug)]
+pub struct LoadedModel {
+    model: Model,
+    mode: Mode,
+    vmax: f32,
+    settings: ModelSettings,
+}
+
+impl LoadedModel {
+    /// Reads and checks the model file `m.path`.
+    pub fn load(m: &ModelSettings) -> Result<Self> {
+        let (model, mode, vmax) = load_model(m)?;
+        Ok(Self { model, mode, vmax, settings: m.clone() })
+    }
+
+    /// The model's mode.
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    /// The model's metadata (the trainer's keys: style, patch, steps...).
+    pub fn info(&self) -> &std::collections::BTreeMap<String, String> {
+        &self.model.info
+    }
+
+    /// Stylizes the dense grid `density` tile by tile, exactly as a frame
+    /// file is (the same tiles, normalisation and mass conservation), and
+    /// returns the result over the same box: smoke a velocity carries
+    /// outside the box is not kept. An empty grid comes back unchanged.
+    /// `origin` is the index of the grid's voxel (0,0,0): the network's
+    /// stride lattice and the tiles are fixed in index space, so the same
+    /// voxels give the file's result only at the file's index.
+    pub fn stylize(
+        &self,
+        density: &Grid3,
+        origin: [i32; 3],
+        progress: Option<&mut (dyn Reporter + '_)>,
+    ) -> Result<Grid3> {
+        if let Some(v) = density.data.iter().find(|v| !v.is_finite()) {
+            bail!("the density holds a non-finite value ({v})");
+        }
+        let grid = VdbGrid::from_dense("density", nst3d_io::vdb::Transform::uniform(1.0), origin, density, 0.0);
+        let GridValues::Float(sparse) = &grid.values else { unreachable!("from_dense makes a float grid") };
+        let Some(bbox) = grid.active_bbox() else { return Ok(density.clone()) };
+        let (styled, _) = stylize_sparse(&self.model, self.mode, self.vmax, sparse, bbox, &self.settings, progress);
+        nst3d_core::stop::check()?;
+        let out = styled.region(origin, density.dims);
+        if out.iter().any(|v| !v.is_finite()) {
+            bail!("the network produced non-finite densities");
+        }
+        Ok(Grid3::from_vec(density.dims, out))
+    }
+}
+
 /// Stylizes one frame's density grid with the network, tile by tile,
 /// straight from the sparse grid into a sparse result: densities are
 /// normalised to `[0, 1]` by the frame's largest active value (as in
@@ -135,6 +203,11 @@ fn stylize_sparse(
         seen += 1;
         if let Some(r) = progress.as_deref_mut() {
             r.step(&format!("tile {seen}/{tiles}"));
+        }
+        // Asked to stop: the remaining tiles are skipped and the frame is
+        // not written (one_frame checks before it writes).
+        if nst3d_core::stop::requested() {
+            return None;
         }
         let mut v = grid.region(at(from), size);
         if v.iter().all(|x| *x == 0.0) {
@@ -194,6 +267,7 @@ fn one_frame(
     }
     let t0 = Instant::now();
     let (styled, voxels) = stylize_sparse(model, mode, vmax, sparse, bbox, m, progress);
+    nst3d_core::stop::check()?;
     let secs = t0.elapsed().as_secs_f64();
     if styled.iter_active().any(|(_, v)| !v.is_finite()) {
         bail!("{}: the network produced non-finite densities", input.display());

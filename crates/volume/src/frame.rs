@@ -9,9 +9,10 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
+use nst3d_core::Grid3;
 use nst3d_core::Reporter;
 use nst3d_io::image::{resize_to_height, side_by_side, write_png};
-use nst3d_io::vdb::read_vdb;
+use nst3d_io::vdb::{read_vdb, Transform};
 use nst3d_stylize::{stylize_frame_views, Mode, ViewLoss};
 
 use crate::cameras::{CameraSet, Cameras, Lens};
@@ -58,6 +59,53 @@ impl FrameReport {
     }
 }
 
+/// A dense grid stylized in memory: the result of [`stylize_grid`].
+#[derive(Clone, Debug)]
+pub struct StylizedGrid {
+    /// The stylized density over the (refined) box plus `margin` voxels on
+    /// every side, so smoke a velocity carried outwards is kept.
+    pub density: Grid3,
+    /// Empty voxels added on every side before stylizing.
+    pub margin: usize,
+    /// How many times finer than the input it was stylized.
+    pub upsample: usize,
+    /// The (refined) input box's size in voxels, without the margin.
+    pub dims: [usize; 3],
+    /// Index of the input's voxel (0,0,0) after refinement.
+    pub origin: [i32; 3],
+    /// The transform of the refined index space.
+    pub transform: Transform,
+    /// Cameras in Θ.
+    pub cameras: usize,
+    /// Style loss summed over Θ before optimisation.
+    pub loss_before: f32,
+    /// And after.
+    pub loss_after: f32,
+    /// Mean style loss over the evaluation cameras before and after, when asked for.
+    pub held_out: Option<(f32, f32)>,
+}
+
+impl StylizedGrid {
+    /// The result over the (refined) input box only, without the margin:
+    /// the array a caller that passed a box gets back in the same place.
+    pub fn cropped(&self) -> Grid3 {
+        crop(&self.density, [self.margin; 3], self.dims)
+    }
+}
+
+/// The box of `dims` voxels starting at voxel `from` of `g`.
+fn crop(g: &Grid3, from: [usize; 3], dims: [usize; 3]) -> Grid3 {
+    let mut out = Grid3::zeros(dims);
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            let src = g.index(from[0], from[1] + y, from[2] + z);
+            let dst = out.index(0, y, z);
+            out.data[dst..dst + dims[0]].copy_from_slice(&g.data[src..src + dims[0]]);
+        }
+    }
+    out
+}
+
 /// Stylizes the single frame `s.input` into `s.out` (and `s.preview`).
 pub fn stylize_frame_file(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Result<FrameReport> {
     s.check()?;
@@ -67,28 +115,68 @@ pub fn stylize_frame_file(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Re
         let names: Vec<&str> = file.grids.iter().map(|g| g.name.as_str()).collect();
         format!("{}: no grid named '{}' (grids: {})", s.input.display(), s.grid, names.join(", "))
     })?;
-    let (mut bx, dense) = grid.to_dense()?;
-    let k = s.upsample.factor(bx.dims);
-    let (dense, transform) = match k {
-        1 => (dense, grid.transform.clone()),
+    let (bx, dense) = grid.to_dense()?;
+    let r = stylize_grid(s, dense, &grid.transform, bx.origin, &grid.name, reporter)?;
+    let origin = r.origin.map(|o| o - r.margin as i32);
+    for dropped in write_stylized(&s.out, &file, &grid.name, &r.transform, origin, &r.density)? {
+        reporter.note(&format!("{dropped} is not copied to the output"));
+    }
+    Ok(FrameReport {
+        input: s.input.clone(),
+        grid: grid.name.clone(),
+        dims: r.dims,
+        upsample: r.upsample,
+        mode: s.mode,
+        cameras: r.cameras,
+        loss_before: r.loss_before,
+        loss_after: r.loss_after,
+        held_out: r.held_out,
+        out: s.out.clone(),
+    })
+}
+
+/// Stylizes one dense grid in memory with the settings of a single frame
+/// (`s.input` and `s.out` are not used; `s.preview` is written when set):
+/// `dense` is a box whose voxel (0,0,0) is index `origin` of a grid with
+/// `transform` (camera files are placed with it; an array with no file
+/// behind it passes [`Transform::uniform`]`(1.0)` and the origin 0).
+/// `name` is the grid's name in messages.
+pub fn stylize_grid(
+    s: &VolumeSettings,
+    dense: Grid3,
+    transform: &Transform,
+    origin: [i32; 3],
+    name: &str,
+    reporter: &mut dyn Reporter,
+) -> Result<StylizedGrid> {
+    s.check()?;
+    if dense.is_empty() || dense.data.iter().all(|v| *v == 0.0) {
+        bail!("grid '{name}' is empty: there is no smoke to stylize");
+    }
+    if let Some(v) = dense.data.iter().find(|v| !v.is_finite()) {
+        bail!("grid '{name}' holds a non-finite density ({v})");
+    }
+    let dims = dense.dims;
+    let k = s.upsample.factor(dims);
+    let (dense, transform, origin) = match k {
+        1 => (dense, transform.clone(), origin),
         _ => {
-            let refined = (refine_density(&dense, k), refine_transform(&grid.transform, k));
+            let refined = refine_density(&dense, k);
             reporter.note(&format!(
-                "grid '{}' is {}x{}x{} voxels, too few for strokes; it is stylized and written {k}x finer ({}x{}x{}; --upsample 1 keeps the file's resolution)",
-                grid.name, bx.dims[0], bx.dims[1], bx.dims[2], refined.0.dims[0], refined.0.dims[1], refined.0.dims[2]
+                "grid '{name}' is {}x{}x{} voxels, too few for strokes; it is stylized and written {k}x finer ({}x{}x{}; --upsample 1 keeps the file's resolution)",
+                dims[0], dims[1], dims[2], refined.dims[0], refined.dims[1], refined.dims[2]
             ));
-            bx.origin = refine_origin(bx.origin, k)?;
-            bx.dims = refined.0.dims;
-            refined
+            (refined, refine_transform(transform, k), refine_origin(origin, k)?)
         }
     };
+    let dims = dense.dims;
     let (style, vgg) = load_style_and_vgg(s)?;
 
-    let vmax = s.vmax_for(*bx.dims.iter().max().unwrap_or(&1));
+    let vmax = s.vmax_for(*dims.iter().max().unwrap_or(&1));
     let margin = s.margin(vmax);
     let padded = pad(&dense, margin);
-    let origin = bx.origin.map(|o| o - margin as i32);
-    let cameras = Cameras::of(s)?.at(0.0, padded.dims, &transform, origin);
+    let padded_origin = origin.map(|o| o - margin as i32);
+    let cameras = Cameras::of(s)?.at(0.0, padded.dims, &transform, padded_origin);
     let gamma = absorption_for(s.absorption, cameras.iter().map(|c| (&padded, c)))?;
     let views = views_of(&cameras, gamma, s.equalize);
     let view = views[0].clone();
@@ -120,9 +208,6 @@ pub fn stylize_frame_file(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Re
         bail!("stylization produced non-finite densities (try a smaller --lr)");
     }
 
-    for dropped in write_stylized(&s.out, &file, &grid.name, &transform, origin, &result.density)? {
-        reporter.note(&format!("{dropped} is not copied to the output"));
-    }
     if let Some(preview) = &s.preview {
         // Before | after | the painting, all scaled to one readable height.
         let h = PREVIEW_HEIGHT;
@@ -135,16 +220,16 @@ pub fn stylize_frame_file(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Re
         true => None,
         false => Some((held_out_before, mean_loss(&loss, &result.density, &held_out)?)),
     };
-    Ok(FrameReport {
-        input: s.input.clone(),
-        grid: grid.name.clone(),
-        dims: bx.dims,
-        upsample: k,
-        mode: s.mode,
+    Ok(StylizedGrid {
         cameras: views.len(),
         loss_before: result.loss_before,
         loss_after: result.loss_after,
+        density: result.density,
+        margin,
+        upsample: k,
+        dims,
+        origin,
+        transform,
         held_out,
-        out: s.out.clone(),
     })
 }

@@ -251,6 +251,19 @@ impl VolumeSettings {
     }
 }
 
+/// `--strength`: a named look or a positive number.
+pub fn parse_strength(s: &str) -> Result<f32, String> {
+    match s {
+        "subtle" => Ok(0.5),
+        "default" => Ok(1.0),
+        "strong" => Ok(1.5),
+        _ => match s.parse::<f32>() {
+            Ok(v) if v.is_finite() && v > 0.0 && v <= 10.0 => Ok(v),
+            _ => Err(format!("'{s}' is not subtle, default, strong or a number in (0, 10]")),
+        },
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -62,10 +62,10 @@ pub struct VolumeArgs {
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// --model: tile side in voxels (memory follows it; Sec. 5.2).
-    #[arg(long, default_value_t = 128)]
+    #[arg(long, default_value_t = ModelSettings::DEFAULT_TILE)]
     pub tile: usize,
     /// --model: context around each tile, in voxels (32 covers the network's reach).
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = ModelSettings::DEFAULT_MARGIN)]
     pub tile_margin: usize,
     /// Octaves (coarse-to-fine levels).
     #[arg(long, default_value_t = 2)]
@@ -93,7 +93,7 @@ pub struct VolumeArgs {
     /// a number. Below 1 it shrinks --vmax and the density range around 1 by
     /// that factor (the smoke keeps its shape); above 1 it runs that many
     /// times the iterations (docs/VOLUME_LOOK.md, "Art-directable strength").
-    #[arg(long, default_value = "default", value_parser = parse_strength)]
+    #[arg(long, default_value = "default", value_parser = nst3d_volume::settings::parse_strength)]
     pub strength: f32,
     /// Match the painting's colour statistics too (by default only its
     /// luminance: the renderer draws grey smoke, which cannot reach colour Grams).
@@ -238,19 +238,6 @@ impl VolumeArgs {
                 mode: self.mode,
             }),
         }
-    }
-}
-
-/// `--strength`: a named look or a positive number.
-fn parse_strength(s: &str) -> Result<f32, String> {
-    match s {
-        "subtle" => Ok(0.5),
-        "default" => Ok(1.0),
-        "strong" => Ok(1.5),
-        _ => match s.parse::<f32>() {
-            Ok(v) if v.is_finite() && v > 0.0 && v <= 10.0 => Ok(v),
-            _ => Err(format!("'{s}' is not subtle, default, strong or a number in (0, 10]")),
-        },
     }
 }
 

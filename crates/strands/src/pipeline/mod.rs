@@ -140,4 +140,7 @@ pub enum PipelineError {
     /// The optimization diverged.
     #[error("stylization diverged: {0}")]
     Diverged(String),
+    /// The caller asked the job to stop ([`nst3d_core::stop`]).
+    #[error(transparent)]
+    Interrupted(#[from] nst3d_core::stop::Interrupted),
 }

@@ -274,6 +274,7 @@ pub fn stylize_with(
                     loss: step.loss,
                     inside: step.stats.inside,
                 });
+                nst3d_core::stop::check()?;
             }
         }
         finest = Some(sstyle);

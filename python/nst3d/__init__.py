@@ -1,0 +1,490 @@
+"""nst3d: neural style transfer for smoke volumes and hair grooms, on the CPU.
+
+The same jobs as the ``nst3d`` command line, with the same settings and
+defaults, run by the same Rust library (no subprocess, no network):
+
+- :func:`stylize_volume` — a dense density array (numpy) in, a stylized one out;
+- :func:`stylize_vdb` — an OpenVDB file or a ``####`` sequence to files;
+- :func:`stylize_groom` — strand points (numpy) in, stylized points out;
+- :func:`stylize_groom_file` — a groom file or animated groom to files;
+- :func:`train` and :class:`Model` — the feed-forward network.
+
+Keyword arguments are the command line's flags with ``_`` for ``-``
+(``nst3d volume --help``, ``nst3d strands --help``); ``None`` keeps the
+command line's default. Long jobs report through ``progress(done, total,
+message)`` and log their notes to the ``"nst3d"`` :mod:`logging` logger.
+The GIL is released while a job computes; Ctrl-C (or an exception raised
+by ``progress``) stops it after the iteration in progress and is raised
+again. A failed job raises :class:`Nst3dError` with the command line's
+one-line message.
+
+Arrays are indexed like OpenVDB's ``copyToArray``: ``density[i, j, k]`` is
+the voxel at index (x=i, y=j, z=k), so an array from ``pyopenvdb`` goes in
+as it is and the result goes back with ``copyFromArray``. Grids are z-up
+by default (Blender); pass ``up="y"`` for Houdini and Maya.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _nst3d
+from ._nst3d import Nst3dError, __version__, set_threads, threads
+
+__all__ = [
+    "Nst3dError",
+    "Model",
+    "__version__",
+    "bench_volume_iter",
+    "print_progress",
+    "read_groom",
+    "read_mesh",
+    "set_threads",
+    "stylize_groom",
+    "stylize_groom_file",
+    "stylize_vdb",
+    "stylize_volume",
+    "threads",
+    "train",
+]
+
+PathLike = Union[str, "os.PathLike[str]"]
+Progress = Callable[[int, int, str], Any]
+
+_log = logging.getLogger("nst3d")
+_LEVELS = {"note": logging.INFO, "status": logging.INFO, "result": logging.INFO, "warning": logging.WARNING}
+
+
+def _to_log(level: str, message: str) -> None:
+    _log.log(_LEVELS.get(level, logging.INFO), message)
+
+
+def print_progress(done: int, total: int, message: str) -> None:
+    """A ready-made ``progress`` callback: one line per step on stderr."""
+    import sys
+
+    if total and done:
+        print(f"[{done}/{total}] {message}", file=sys.stderr, flush=True)
+
+
+def _options(**kw: Any) -> Dict[str, Any]:
+    """The options the caller gave, paths as strings, sequences as lists."""
+    out: Dict[str, Any] = {}
+    for k, v in kw.items():
+        if v is None:
+            continue
+        if isinstance(v, os.PathLike):
+            v = os.fspath(v)
+        elif isinstance(v, tuple):
+            v = list(v)
+        out[k] = v
+    return out
+
+
+def _grid_bytes(density: "np.ndarray") -> Tuple[bytes, Tuple[int, int, int]]:
+    a = np.asarray(density)
+    if a.ndim != 3:
+        raise ValueError(f"density must be a 3D array, got shape {a.shape}")
+    if not np.issubdtype(a.dtype, np.floating):
+        raise TypeError(f"density must hold floats, got {a.dtype}")
+    # [i, j, k] = (x, y, z) → x fastest, as the library's grids are.
+    raw = np.ascontiguousarray(a.transpose(2, 1, 0), dtype="<f4").tobytes()
+    return raw, (int(a.shape[0]), int(a.shape[1]), int(a.shape[2]))
+
+
+def _grid_array(raw: bytes, dims: Sequence[int]) -> "np.ndarray":
+    nx, ny, nz = (int(d) for d in dims)
+    return np.ascontiguousarray(np.frombuffer(raw, dtype="<f4").reshape(nz, ny, nx).transpose(2, 1, 0))
+
+
+def stylize_volume(
+    density: "np.ndarray",
+    style: PathLike,
+    *,
+    mode: Optional[str] = None,
+    octaves: Optional[int] = None,
+    iters: Optional[int] = None,
+    lr: Optional[float] = None,
+    vmax: Optional[float] = None,
+    smin: Optional[float] = None,
+    smax: Optional[float] = None,
+    style_scale: Optional[float] = None,
+    strength: Union[str, float, None] = None,
+    style_color: Optional[bool] = None,
+    layers: Optional[Sequence[str]] = None,
+    absorption: Optional[float] = None,
+    equalize: Optional[bool] = None,
+    projection: Optional[str] = None,
+    fov: Optional[float] = None,
+    up: Optional[str] = None,
+    weights: Optional[PathLike] = None,
+    cameras: Optional[str] = None,
+    camera_seed: Optional[int] = None,
+    eval_cameras: Optional[str] = None,
+    upsample: Union[str, int, None] = None,
+    preview: Optional[PathLike] = None,
+    progress: Optional[Progress] = None,
+    report: Optional[Dict[str, Any]] = None,
+) -> "np.ndarray":
+    """Stylizes one density grid with a painting (volumetric paper, Sec. 3).
+
+    ``density`` is a 3D float array indexed ``[x, y, z]`` (see the module
+    docstring); the result has the same shape, or ``upsample`` times it when
+    a small grid is refined (``upsample="auto"``, the default, refines a
+    grid whose largest side is under 32 voxels; ``upsample=1`` never does).
+    Smoke a velocity carries outside the array's box is not kept: leave a
+    margin of empty voxels around the smoke if it matters.
+
+    ``mode`` is ``"velocity"`` (default: the smoke is moved by an optimised
+    velocity field) or ``"density"`` (scaled by an optimised field); the
+    other options are ``nst3d volume``'s (``cameras="omniview:16"`` for
+    views all around, ``strength="subtle"`` or ``"strong"``...). When
+    ``report`` is a dict it receives the losses before and after.
+    """
+    raw, dims = _grid_bytes(density)
+    opts = _options(
+        mode=mode, octaves=octaves, iters=iters, lr=lr, vmax=vmax, smin=smin, smax=smax,
+        style_scale=style_scale, strength=strength, style_color=style_color, layers=layers,
+        absorption=absorption, equalize=equalize, projection=projection, fov=fov, up=up,
+        weights=weights, cameras=cameras, camera_seed=camera_seed, eval_cameras=eval_cameras,
+        upsample=upsample, preview=preview,
+    )
+    out, rep = _nst3d.stylize_volume(raw, dims, os.fspath(style), opts, progress, _to_log)
+    if report is not None:
+        report.update(rep)
+    return _grid_array(out, rep["dims"])
+
+
+def stylize_vdb(
+    input: PathLike,
+    out: PathLike,
+    style: Optional[PathLike] = None,
+    *,
+    grid: Optional[str] = None,
+    frames: Optional[str] = None,
+    ema: Optional[float] = None,
+    ema_settle: Optional[bool] = None,
+    velocity_grid: Optional[str] = None,
+    velocity_scale: Optional[float] = None,
+    chunk: Optional[str] = None,
+    warmup: Optional[int] = None,
+    force: Optional[bool] = None,
+    work_dir: Optional[PathLike] = None,
+    model: Optional[PathLike] = None,
+    tile: Optional[int] = None,
+    tile_margin: Optional[int] = None,
+    mode: Optional[str] = None,
+    octaves: Optional[int] = None,
+    iters: Optional[int] = None,
+    lr: Optional[float] = None,
+    vmax: Optional[float] = None,
+    smin: Optional[float] = None,
+    smax: Optional[float] = None,
+    style_scale: Optional[float] = None,
+    strength: Union[str, float, None] = None,
+    style_color: Optional[bool] = None,
+    layers: Optional[Sequence[str]] = None,
+    absorption: Optional[float] = None,
+    equalize: Optional[bool] = None,
+    projection: Optional[str] = None,
+    fov: Optional[float] = None,
+    up: Optional[str] = None,
+    weights: Optional[PathLike] = None,
+    cameras: Optional[str] = None,
+    camera_file: Optional[PathLike] = None,
+    camera_seed: Optional[int] = None,
+    eval_cameras: Optional[str] = None,
+    upsample: Union[str, int, None] = None,
+    preview: Optional[PathLike] = None,
+    progress: Optional[Progress] = None,
+) -> Dict[str, Any]:
+    """Stylizes an OpenVDB file into ``out``, exactly as ``nst3d volume``.
+
+    With ``frames`` (e.g. ``"1-120"``) ``input`` and ``out`` are patterns
+    with ``####`` and the whole simulation is stylized with the EMA of
+    Algorithm 1 (``ema``), resumable (``force`` starts over) and in farm
+    chunks (``chunk="41-80"``, ``warmup``). With ``model`` a trained network
+    stylizes each frame instead (``style`` is then not needed). Every other
+    grid of the file is kept; outputs are written atomically. Returns the
+    report as a dict (``kind`` is ``"frame"``, ``"sequence"`` or ``"model"``).
+    """
+    opts = _options(
+        grid=grid, frames=frames, ema=ema, ema_settle=ema_settle, velocity_grid=velocity_grid,
+        velocity_scale=velocity_scale, chunk=chunk, warmup=warmup, force=force, work_dir=work_dir,
+        model=model, tile=tile, tile_margin=tile_margin, mode=mode, octaves=octaves, iters=iters,
+        lr=lr, vmax=vmax, smin=smin, smax=smax, style_scale=style_scale, strength=strength,
+        style_color=style_color, layers=layers, absorption=absorption, equalize=equalize,
+        projection=projection, fov=fov, up=up, weights=weights, cameras=cameras,
+        camera_file=camera_file, camera_seed=camera_seed, eval_cameras=eval_cameras,
+        upsample=upsample, preview=preview,
+    )
+    if style is None and model is None:
+        raise ValueError("stylize_vdb needs a style painting (or a trained model)")
+    style_path = os.fspath(style) if style is not None else ""
+    return _nst3d.stylize_vdb(os.fspath(input), os.fspath(out), style_path, opts, progress, _to_log)
+
+
+def stylize_groom(
+    points: "np.ndarray",
+    counts: Sequence[int],
+    style: PathLike,
+    *,
+    mesh: Union[PathLike, Tuple["np.ndarray", "np.ndarray"], None] = None,
+    preset: Optional[str] = None,
+    iters: Optional[int] = None,
+    scale_iters: Optional[Sequence[int]] = None,
+    render_size: Optional[int] = None,
+    proxies: Optional[int] = None,
+    seed: Optional[int] = None,
+    lr_scale: Optional[float] = None,
+    views_per_scale: Optional[int] = None,
+    eval_views: Optional[int] = None,
+    strand_width: Optional[float] = None,
+    rematch: Optional[bool] = None,
+    weights: Optional[PathLike] = None,
+    preview: Optional[PathLike] = None,
+    progress: Optional[Progress] = None,
+    report: Optional[Dict[str, Any]] = None,
+) -> "np.ndarray":
+    """Stylizes a groom (strand paper, Alg. 1) and returns its new points.
+
+    ``points`` is an ``(N, 3)`` float array of every control point, strand
+    after strand, root first; ``counts`` the points of each strand (at least
+    2 each, summing to N). ``mesh`` is the scalp or body mesh the strands
+    grow from — a ``.ply``/``.obj`` path or ``(vertices (V, 3), triangles
+    (T, 3))`` — kept out of by the collision constraint; without it there
+    is no collision handling. The result has the same shape and order, with
+    every strand's length kept. ``preset`` is a Table 1 example
+    (``"short-hair"`` default, ``"short-hair-360"``, ``"long-hair"``,
+    ``"cat"``, ``"fur-ball"``, ``"grass"``); the other options are
+    ``nst3d strands``'s.
+    """
+    p = np.ascontiguousarray(points, dtype="<f4")
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"points must be an (N, 3) array, got shape {p.shape}")
+    c = [int(n) for n in np.asarray(counts).ravel()]
+    opts = _options(
+        preset=preset, iters=iters, scale_iters=scale_iters, render_size=render_size, proxies=proxies,
+        seed=seed, lr_scale=lr_scale, views_per_scale=views_per_scale, eval_views=eval_views,
+        strand_width=strand_width, rematch=rematch, weights=weights, preview=preview,
+    )
+    mesh_file = None
+    mesh_arrays = None
+    if isinstance(mesh, (str, os.PathLike)):
+        mesh_file = os.fspath(mesh)
+    elif mesh is not None:
+        verts, tris = mesh
+        v = np.ascontiguousarray(verts, dtype="<f4")
+        t = np.ascontiguousarray(tris, dtype=np.int64)
+        if v.ndim != 2 or v.shape[1] != 3 or t.ndim != 2 or t.shape[1] != 3:
+            raise ValueError("mesh must be (vertices (V, 3), triangles (T, 3))")
+        if t.size and (t.min() < 0 or t.max() >= len(v)):
+            raise ValueError("mesh: a triangle index is outside the vertices")
+        mesh_arrays = (v.tobytes(), [int(i) for i in t.ravel()])
+    out, rep = _nst3d.stylize_groom(
+        p.tobytes(), c, os.fspath(style), opts, mesh_file, mesh_arrays, progress, _to_log
+    )
+    if report is not None:
+        report.update(rep)
+    return np.frombuffer(out, dtype="<f4").reshape(-1, 3).copy()
+
+
+def stylize_groom_file(
+    groom: PathLike,
+    out: PathLike,
+    style: PathLike,
+    *,
+    mesh: Optional[PathLike] = None,
+    preset: Optional[str] = None,
+    frames: Optional[str] = None,
+    force: Optional[bool] = None,
+    work_dir: Optional[PathLike] = None,
+    temporal: Optional[str] = None,
+    ema_sigma: Optional[float] = None,
+    ema_nu: Optional[float] = None,
+    ema_clock: Optional[str] = None,
+    one_euro_alpha: Optional[float] = None,
+    one_euro_beta: Optional[float] = None,
+    one_euro_fmin: Optional[float] = None,
+    fps: Optional[float] = None,
+    style_flow: Optional[Sequence[float]] = None,
+    iters: Optional[int] = None,
+    scale_iters: Optional[Sequence[int]] = None,
+    render_size: Optional[int] = None,
+    proxies: Optional[int] = None,
+    seed: Optional[int] = None,
+    lr_scale: Optional[float] = None,
+    views_per_scale: Optional[int] = None,
+    eval_views: Optional[int] = None,
+    strand_width: Optional[float] = None,
+    rematch: Optional[bool] = None,
+    weights: Optional[PathLike] = None,
+    preview: Optional[PathLike] = None,
+    progress: Optional[Progress] = None,
+) -> Dict[str, Any]:
+    """Stylizes a groom file (``.hair .data .ply .usda .abc``) into ``out``
+    (``.usda`` or ``.ply``, same topology, colours, widths and USD primvars),
+    exactly as ``nst3d strands``.
+
+    With ``frames`` (e.g. ``"1-24"``) ``groom``, ``out`` (and ``mesh``,
+    ``preview``) are ``####`` patterns of an animated groom, stylized with
+    the EMA and 1€ filter of Sec. 3.3 (``temporal``), resumable after a kill.
+    Returns the report as a dict.
+    """
+    opts = _options(
+        preset=preset, frames=frames, force=force, work_dir=work_dir, temporal=temporal,
+        ema_sigma=ema_sigma, ema_nu=ema_nu, ema_clock=ema_clock, one_euro_alpha=one_euro_alpha,
+        one_euro_beta=one_euro_beta, one_euro_fmin=one_euro_fmin, fps=fps, style_flow=style_flow,
+        iters=iters, scale_iters=scale_iters, render_size=render_size, proxies=proxies, seed=seed,
+        lr_scale=lr_scale, views_per_scale=views_per_scale, eval_views=eval_views,
+        strand_width=strand_width, rematch=rematch, weights=weights, preview=preview,
+    )
+    return _nst3d.stylize_groom_file(
+        os.fspath(groom), os.fspath(out), os.fspath(style), opts,
+        os.fspath(mesh) if mesh is not None else None, progress, _to_log,
+    )
+
+
+def train(
+    input: Union[PathLike, Sequence[PathLike]],
+    style: PathLike,
+    out: PathLike,
+    *,
+    frames: Optional[str] = None,
+    mode: Optional[str] = None,
+    grid: Optional[str] = None,
+    channels: Optional[int] = None,
+    patch: Optional[int] = None,
+    steps: Optional[int] = None,
+    minutes: Optional[float] = None,
+    theta: Optional[float] = None,
+    phi: Optional[float] = None,
+    style_scale: Optional[float] = None,
+    octaves: Optional[int] = None,
+    seed: Optional[int] = None,
+    checkpoint_every: Optional[int] = None,
+    weights: Optional[PathLike] = None,
+    progress: Optional[Progress] = None,
+) -> Dict[str, Any]:
+    """Trains the feed-forward network (volumetric paper Sec. 4) for one
+    painting into ``out`` (``.safetensors``), exactly as ``nst3d train``.
+
+    ``input`` is a VDB file, a list of files, or a ``####`` pattern with
+    ``frames`` (``"1-40"``). A checkpoint is written beside ``out``; calling
+    again with the same arguments resumes (``minutes`` bounds one call).
+    """
+    if frames is not None:
+        pattern = os.fspath(input)  # type: ignore[arg-type]
+        files = [_expand(pattern, f) for f in _frame_numbers(frames)]
+    elif isinstance(input, (str, os.PathLike)):
+        files = [os.fspath(input)]
+    else:
+        files = [os.fspath(p) for p in input]
+    opts = _options(
+        mode=mode, grid=grid, channels=channels, patch=patch, steps=steps, minutes=minutes,
+        theta=theta, phi=phi, style_scale=style_scale, octaves=octaves, seed=seed,
+        checkpoint_every=checkpoint_every, weights=weights,
+    )
+    return _nst3d.train(files, os.fspath(style), os.fspath(out), opts, progress, _to_log)
+
+
+def _frame_numbers(spec: str) -> list:
+    """``1-40``, ``1-3,5,7-20:2``: the command line's frame lists."""
+    frames = []
+    for part in spec.split(","):
+        step = 1
+        if ":" in part:
+            part, s = part.split(":")
+            step = int(s)
+        if "-" in part[1:]:
+            i = part.index("-", 1)
+            a, b = int(part[:i]), int(part[i + 1:])
+            frames.extend(range(a, b + 1, step))
+        else:
+            frames.append(int(part))
+    if not frames:
+        raise ValueError(f"no frames in '{spec}'")
+    return frames
+
+
+def _expand(pattern: str, frame: int) -> str:
+    import re
+
+    m = re.search(r"#+", pattern)
+    if m:
+        return pattern[: m.start()] + str(frame).zfill(len(m.group())) + pattern[m.end():]
+    if "%0" in pattern or "%d" in pattern:
+        return pattern % frame
+    raise ValueError(f"'{pattern}' has no #### or %04d for the frame number")
+
+
+class Model:
+    """A trained feed-forward network (from :func:`train` or ``nst3d train``),
+    loaded once and applied to any number of grids."""
+
+    def __init__(self, native: Any) -> None:
+        self._m = native
+
+    @classmethod
+    def load(
+        cls,
+        path: PathLike,
+        *,
+        tile: Optional[int] = None,
+        tile_margin: Optional[int] = None,
+        mode: Optional[str] = None,
+    ) -> "Model":
+        """Reads and checks ``path``; ``tile`` and ``tile_margin`` (voxels)
+        bound the memory of one pass as ``nst3d volume --model`` does;
+        ``mode`` refuses a model of the other mode."""
+        opts = _options(tile=tile, tile_margin=tile_margin, mode=mode)
+        return cls(_nst3d.Model.load(os.fspath(path), opts))
+
+    @property
+    def mode(self) -> str:
+        """``"density"`` or ``"velocity"``."""
+        return self._m.mode
+
+    @property
+    def info(self) -> Dict[str, str]:
+        """The model's metadata (style, patch, steps, ...)."""
+        return dict(self._m.info)
+
+    def stylize(
+        self,
+        density: "np.ndarray",
+        *,
+        origin: Sequence[int] = (0, 0, 0),
+        progress: Optional[Progress] = None,
+    ) -> "np.ndarray":
+        """Stylizes a density array (indexed ``[x, y, z]``) in one pass, tile
+        by tile; returns an array of the same shape. ``origin`` is the
+        OpenVDB index of ``density[0, 0, 0]``: the network's tiles are fixed
+        in index space, so the array's index origin gives exactly the
+        result ``stylize_vdb(model=...)`` writes for that file."""
+        raw, dims = _grid_bytes(density)
+        o = [int(v) for v in origin]
+        return _grid_array(self._m.stylize(raw, dims, o, progress, _to_log), dims)
+
+
+def read_groom(path: PathLike) -> Tuple["np.ndarray", "np.ndarray"]:
+    """Reads a groom file (``.hair .data .ply .usda .abc``): ``(points (N, 3)
+    float32, counts (S,) int64)``, the arrays :func:`stylize_groom` takes."""
+    raw, counts = _nst3d.read_groom(os.fspath(path))
+    return np.frombuffer(raw, dtype="<f4").reshape(-1, 3).copy(), np.asarray(counts, dtype=np.int64)
+
+
+def read_mesh(path: PathLike) -> Tuple["np.ndarray", "np.ndarray"]:
+    """Reads a triangle mesh (``.ply`` or ``.obj``): ``(vertices (V, 3)
+    float32, triangles (T, 3) int64)``."""
+    raw, tris = _nst3d.read_mesh(os.fspath(path))
+    return np.frombuffer(raw, dtype="<f4").reshape(-1, 3).copy(), np.asarray(tris, dtype=np.int64).reshape(-1, 3)
+
+
+def bench_volume_iter(n: int = 128, mode: str = "velocity", iters: int = 6) -> Tuple[list, float]:
+    """``nst3d bench volume-iter``'s work: milliseconds of each iteration and their median."""
+    return _nst3d.bench_volume_iter(n, mode, iters)
