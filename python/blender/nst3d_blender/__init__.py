@@ -1,0 +1,387 @@
+"""nst3d for Blender: stylize a smoke domain's OpenVDB cache, or a hair
+Curves object, with a painting, from the Physics / Object properties.
+
+The work is done by the ``nst3d`` Python package (the same Rust library as
+the ``nst3d`` command line), which must be importable by Blender's Python:
+install the wheel into it (``<blender python> -m pip install nst3d-*.whl``)
+or point the add-on preferences at a folder that holds the package.
+
+- **Stylize smoke** (Physics tab of a Fluid domain with an OpenVDB cache):
+  the cache's ``fluid_data_####.vdb`` frames are stylized into a new cache
+  folder (every other grid kept) and loaded as a Volume object beside the
+  domain, at the domain's place.
+- **Stylize hair** (Object tab of a hair Curves object): the strands are
+  stylized and written back into the object, with its surface mesh (if
+  any) as the collision head.
+
+In the UI the job runs in a background thread with a progress bar in the
+panel and the window's progress cursor; ``bpy.app.background`` runs it in
+place (headless tests, farm scripts).
+"""
+
+import os
+import sys
+import threading
+
+import bpy
+from bpy.props import EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+
+bl_info = {
+    "name": "nst3d: stylize smoke and hair with a painting",
+    "author": "nst3d",
+    "version": (0, 1, 0),
+    "blender": (3, 4, 0),
+    "location": "Properties > Physics (smoke domain), Properties > Object (hair curves)",
+    "description": "Neural style transfer for smoke volumes and hair grooms (nst3d)",
+    "category": "Physics",
+}
+
+
+def _nst3d():
+    """The nst3d package, found on sys.path or in the add-on's preferences."""
+    prefs = bpy.context.preferences.addons.get(__name__)
+    extra = prefs.preferences.package_path if prefs else ""
+    if extra and bpy.path.abspath(extra) not in sys.path:
+        sys.path.append(bpy.path.abspath(extra))
+    try:
+        import nst3d
+    except ImportError as e:
+        raise RuntimeError(
+            "the nst3d Python package is not importable by Blender's Python "
+            "(install its wheel into Blender's Python, or set its folder in the add-on preferences)"
+        ) from e
+    return nst3d
+
+
+class Nst3dPreferences(bpy.types.AddonPreferences):
+    bl_idname = __name__
+    package_path: StringProperty(
+        name="nst3d package folder",
+        description="A folder holding the nst3d package, if Blender's Python does not have it",
+        subtype="DIR_PATH",
+    )
+
+    def draw(self, context):
+        self.layout.prop(self, "package_path")
+
+
+_MODES = [("velocity", "Velocity", "Move the smoke (the look follows the painting's strokes)"),
+          ("density", "Density", "Scale the smoke in place (keeps its silhouette)")]
+_STRENGTHS = [("subtle", "Subtle", ""), ("default", "Default", ""), ("strong", "Strong", "")]
+_PRESETS = [("short-hair", "Short hair", ""), ("short-hair-360", "Short hair 360", ""),
+            ("long-hair", "Long hair", ""), ("cat", "Cat fur", ""), ("fur-ball", "Fur ball", ""),
+            ("grass", "Grass", "")]
+
+
+class Nst3dSettings(bpy.types.PropertyGroup):
+    style: StringProperty(name="Painting", subtype="FILE_PATH", description="The style painting (PNG or JPEG)")
+    mode: EnumProperty(name="Mode", items=_MODES, default="velocity")
+    strength: EnumProperty(name="Strength", items=_STRENGTHS, default="default")
+    frame_start: IntProperty(name="Start", default=1, min=0)
+    frame_end: IntProperty(name="End", default=1, min=0)
+    cameras: StringProperty(name="Cameras", default="front",
+                            description="front, omniview:N (all around) or ring:N[:ELEV]")
+    iters: IntProperty(name="Iterations", default=20, min=1, description="Iterations per octave")
+    output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="",
+                               description="New cache folder (default: the cache's data folder + _nst3d)")
+    preset: EnumProperty(name="Preset", items=_PRESETS, default="short-hair")
+    progress: FloatProperty(name="Progress", default=0.0, min=0.0, max=1.0, subtype="FACTOR")
+    message: StringProperty(name="Status", default="")
+
+
+def _domain(obj):
+    """The fluid domain settings of a gas domain, else None."""
+    if obj is None:
+        return None
+    for m in obj.modifiers:
+        if m.type == "FLUID" and m.fluid_type == "DOMAIN" and m.domain_settings.domain_type == "GAS":
+            return m.domain_settings
+    return None
+
+
+def _cache_frames(ds):
+    """(pattern, out folder, frame numbers present) of a domain's OpenVDB cache."""
+    data = os.path.join(bpy.path.abspath(ds.cache_directory), "data")
+    if ds.cache_data_format != "OPENVDB":
+        raise RuntimeError("the domain's cache is not OpenVDB (Cache > Format: OpenVDB)")
+    if not os.path.isdir(data):
+        raise RuntimeError(f"no baked cache in {data}: bake the domain first")
+    present = sorted(int(f[11:15]) for f in os.listdir(data) if f.startswith("fluid_data_") and f.endswith(".vdb"))
+    return os.path.join(data, "fluid_data_####.vdb"), present
+
+
+class _Job:
+    """A job in a background thread; the modal operator polls it."""
+
+    def __init__(self, fn):
+        self.done, self.total, self.message = 0, 0, ""
+        self.result, self.error = None, None
+        self.thread = threading.Thread(target=self._run, args=(fn,), daemon=True)
+
+    def progress(self, done, total, message):
+        self.done, self.total, self.message = done, total, message
+
+    def _run(self, fn):
+        try:
+            self.result = fn(self.progress)
+        except BaseException as e:  # reported in Blender's UI, never lost
+            self.error = e
+
+
+class _Nst3dOperator:
+    """Runs `self.work(progress)` in place (background) or in a thread with a timer."""
+
+    _job = None
+    _timer = None
+
+    def execute(self, context):
+        try:
+            work = self.prepare(context)
+        except Exception as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        wm = context.window_manager
+        if bpy.app.background:
+            wm.progress_begin(0, 1)
+
+            def progress(done, total, message):
+                if total:
+                    wm.progress_update(done / total)
+                    print(f"nst3d: [{done}/{total}] {message}", flush=True)
+
+            try:
+                result = work(progress)
+            except Exception as e:
+                self.report({"ERROR"}, str(e))
+                return {"CANCELLED"}
+            finally:
+                wm.progress_end()
+            return self.finish(context, result)
+        self._job = _Job(work)
+        self._job.thread.start()
+        self._timer = wm.event_timer_add(0.25, window=context.window)
+        wm.progress_begin(0, 1)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        job, s = self._job, self.settings(context)
+        if job.total:
+            s.progress = job.done / job.total
+            s.message = job.message
+            context.window_manager.progress_update(s.progress)
+        for area in context.screen.areas:
+            area.tag_redraw()
+        if job.thread.is_alive():
+            return {"RUNNING_MODAL"}
+        context.window_manager.event_timer_remove(self._timer)
+        context.window_manager.progress_end()
+        if job.error is not None:
+            s.message = f"failed: {job.error}"
+            self.report({"ERROR"}, str(job.error))
+            return {"CANCELLED"}
+        s.message = "done"
+        return self.finish(context, job.result)
+
+
+class NST3D_OT_stylize_smoke(_Nst3dOperator, bpy.types.Operator):
+    """Stylize the domain's OpenVDB cache with a painting and load the result as a Volume object"""
+
+    bl_idname = "nst3d.stylize_smoke"
+    bl_label = "Stylize smoke"
+    bl_options = {"REGISTER"}
+
+    @classmethod
+    def poll(cls, context):
+        return _domain(context.object) is not None
+
+    def settings(self, context):
+        return context.object.nst3d
+
+    def prepare(self, context):
+        nst3d = _nst3d()
+        obj = context.object
+        s = obj.nst3d
+        ds = _domain(obj)
+        pattern, present = _cache_frames(ds)
+        frames = [f for f in range(s.frame_start, s.frame_end + 1) if f in present]
+        if not frames:
+            raise RuntimeError(f"no cached frame in {s.frame_start}-{s.frame_end} (cached: {present[:1]}..{present[-1:]})")
+        style = bpy.path.abspath(s.style)
+        if not os.path.isfile(style):
+            raise RuntimeError(f"choose a painting (not found: {style or 'none'})")
+        out_dir = bpy.path.abspath(s.output_dir) if s.output_dir else os.path.dirname(pattern) + "_nst3d"
+        os.makedirs(out_dir, exist_ok=True)
+        out = os.path.join(out_dir, "fluid_data_####.vdb")
+        self._obj_name, self._frames, self._out = obj.name, frames, out
+        opts = dict(mode=s.mode, strength=s.strength, cameras=s.cameras, iters=s.iters)
+
+        def work(progress):
+            if len(frames) == 1:
+                f = frames[0]
+                return nst3d.stylize_vdb(_frame(pattern, f), _frame(out, f), style, progress=progress, **opts)
+            spec = ",".join(str(f) for f in frames)
+            return nst3d.stylize_vdb(pattern, out, style, frames=spec, progress=progress, **opts)
+
+        return work
+
+    def finish(self, context, result):
+        domain = bpy.data.objects[self._obj_name]
+        vobj = load_volume(domain, self._out, self._frames, domain.name + "_nst3d")
+        self.report({"INFO"}, f"stylized {len(self._frames)} frame(s) into {os.path.dirname(self._out)}; loaded {vobj.name}")
+        return {"FINISHED"}
+
+
+def _frame(pattern, f):
+    return pattern.replace("####", f"{f:04d}")
+
+
+def load_volume(domain, pattern, frames, name):
+    """A Volume object reading the frames `pattern` holds, placed as Blender
+    places the domain's own cache, linked beside the domain. Mantaflow writes
+    its grids in the domain's object space with index (0, 0, 0) at the
+    domain's lower corner, so the object gets the domain's matrix moved to
+    that corner."""
+    vol = bpy.data.volumes.new(name)
+    vol.filepath = _frame(pattern, frames[0])
+    if len(frames) > 1:
+        vol.is_sequence = True
+        vol.frame_start = frames[0]
+        vol.frame_duration = frames[-1] - frames[0] + 1
+    obj = bpy.data.objects.new(name, vol)
+    from mathutils import Matrix, Vector
+
+    corner = Vector([min(c[i] for c in domain.bound_box) for i in range(3)])
+    obj.matrix_world = domain.matrix_world @ Matrix.Translation(corner)
+    cols = domain.users_collection or [bpy.context.scene.collection]
+    cols[0].objects.link(obj)
+    return obj
+
+
+def _hair_curves(obj):
+    return obj is not None and obj.type == "CURVES"
+
+
+class NST3D_OT_stylize_hair(_Nst3dOperator, bpy.types.Operator):
+    """Stylize the strands of this hair Curves object with a painting, in place"""
+
+    bl_idname = "nst3d.stylize_hair"
+    bl_label = "Stylize hair"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return _hair_curves(context.object)
+
+    def settings(self, context):
+        return context.object.nst3d
+
+    def prepare(self, context):
+        import numpy as np
+
+        nst3d = _nst3d()
+        obj = context.object
+        s = obj.nst3d
+        style = bpy.path.abspath(s.style)
+        if not os.path.isfile(style):
+            raise RuntimeError(f"choose a painting (not found: {style or 'none'})")
+        curves = obj.data
+        n = len(curves.points)
+        if n == 0:
+            raise RuntimeError(f"{obj.name} has no strands")
+        points = np.empty(n * 3, dtype=np.float32)
+        curves.attributes["position"].data.foreach_get("vector", points)
+        counts = np.array([c.points_length for c in curves.curves], dtype=np.int64)
+        mesh = None
+        surface = curves.surface
+        if surface is not None and surface.type == "MESH":
+            m = surface.data
+            verts = np.empty(len(m.vertices) * 3, dtype=np.float32)
+            m.vertices.foreach_get("co", verts)
+            m.calc_loop_triangles()
+            tris = np.empty(len(m.loop_triangles) * 3, dtype=np.int64)
+            m.loop_triangles.foreach_get("vertices", tris)
+            # The curves live in the object's space, the surface in its own.
+            to_curves = obj.matrix_world.inverted() @ surface.matrix_world
+            v = verts.reshape(-1, 3)
+            rot = np.array(to_curves.to_3x3(), dtype=np.float32)
+            v = v @ rot.T + np.array(to_curves.translation, dtype=np.float32)
+            mesh = (v.astype(np.float32), tris.reshape(-1, 3))
+        self._obj_name = obj.name
+        preset = s.preset
+
+        def work(progress):
+            return nst3d.stylize_groom(points.reshape(-1, 3), counts, style, mesh=mesh, preset=preset, progress=progress)
+
+        return work
+
+    def finish(self, context, result):
+        obj = bpy.data.objects[self._obj_name]
+        obj.data.attributes["position"].data.foreach_set("vector", result.ravel())
+        obj.data.update_tag()
+        self.report({"INFO"}, f"stylized {len(obj.data.curves)} strands of {obj.name}")
+        return {"FINISHED"}
+
+
+def _draw_common(layout, s, smoke):
+    layout.prop(s, "style")
+    if smoke:
+        layout.prop(s, "mode")
+        layout.prop(s, "strength")
+        row = layout.row(align=True)
+        row.prop(s, "frame_start")
+        row.prop(s, "frame_end")
+        layout.prop(s, "cameras")
+        layout.prop(s, "iters")
+        layout.prop(s, "output_dir")
+    else:
+        layout.prop(s, "preset")
+    if s.message:
+        layout.prop(s, "progress", text=s.message[:60])
+
+
+class NST3D_PT_smoke(bpy.types.Panel):
+    bl_label = "Stylize smoke (nst3d)"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "physics"
+
+    @classmethod
+    def poll(cls, context):
+        return _domain(context.object) is not None
+
+    def draw(self, context):
+        _draw_common(self.layout, context.object.nst3d, smoke=True)
+        self.layout.operator(NST3D_OT_stylize_smoke.bl_idname, icon="BRUSH_DATA")
+
+
+class NST3D_PT_hair(bpy.types.Panel):
+    bl_label = "Stylize hair (nst3d)"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "object"
+
+    @classmethod
+    def poll(cls, context):
+        return _hair_curves(context.object)
+
+    def draw(self, context):
+        _draw_common(self.layout, context.object.nst3d, smoke=False)
+        self.layout.operator(NST3D_OT_stylize_hair.bl_idname, icon="BRUSH_DATA")
+
+
+_classes = (Nst3dPreferences, Nst3dSettings, NST3D_OT_stylize_smoke, NST3D_OT_stylize_hair, NST3D_PT_smoke, NST3D_PT_hair)
+
+
+def register():
+    for c in _classes:
+        bpy.utils.register_class(c)
+    bpy.types.Object.nst3d = PointerProperty(type=Nst3dSettings)
+
+
+def unregister():
+    del bpy.types.Object.nst3d
+    for c in reversed(_classes):
+        bpy.utils.unregister_class(c)

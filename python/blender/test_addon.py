@@ -1,0 +1,148 @@
+"""Headless test of the nst3d Blender add-on, in real Blender:
+
+    blender -b --factory-startup --python-use-system-env --python-exit-code 1 \
+        -P python/blender/test_addon.py -- OUTDIR
+
+(tools/test_blender.sh sets PYTHONPATH to the nst3d package and this
+folder). Bakes a small Mantaflow smoke (32 voxels, 30 frames) with ../shared/tools/blender_bake_smoke.py,
+runs the add-on's "Stylize smoke" operator on the domain, checks the new
+Volume object reads a stylized density grid, renders the original and the
+stylized frame with Cycles into OUTDIR/blender_smoke_before_after.png, and
+stylizes a hair Curves object in place."""
+
+import os
+import runpy
+import sys
+
+import bpy
+import numpy as np
+
+OUT = os.path.abspath(sys.argv[sys.argv.index("--") + 1])
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(os.path.dirname(HERE))
+SHARED = os.environ.get("NST3D_SHARED", os.path.join(os.path.dirname(REPO), "shared"))
+STYLE = os.path.join(SHARED, "data", "styles", "starry_night.jpg")
+FRAME = 30
+for need in (STYLE, os.path.join(SHARED, "tools", "blender_bake_smoke.py")):
+    if not os.path.exists(need):
+        raise SystemExit(f"test data missing: {need}")
+os.makedirs(OUT, exist_ok=True)
+
+
+def check(cond, what):
+    if not cond:
+        raise SystemExit(f"FAILED: {what}")
+    print(f"ok: {what}", flush=True)
+
+
+# 1. A real Mantaflow bake (32 voxels, 30 frames) with the shared script.
+cache = os.path.join(OUT, "cache")
+sys.argv = ["blender_bake_smoke.py", "--", cache, "32", str(FRAME)]
+runpy.run_path(os.path.join(SHARED, "tools", "blender_bake_smoke.py"), run_name="__main__")
+domain = next(o for o in bpy.data.objects if any(m.type == "FLUID" and m.fluid_type == "DOMAIN" for m in o.modifiers))
+check(os.path.exists(os.path.join(cache, "data", f"fluid_data_{FRAME:04d}.vdb")), "the smoke is baked")
+
+# 2. The add-on, registered as Blender does.
+import nst3d_blender  # noqa: E402
+
+nst3d_blender.register()
+s = domain.nst3d
+s.style = STYLE
+s.frame_start = s.frame_end = FRAME
+s.iters = 15
+s.mode = "velocity"
+s.output_dir = os.path.join(OUT, "styled")
+with bpy.context.temp_override(object=domain, active_object=domain, selected_objects=[domain]):
+    check(bpy.ops.nst3d.stylize_smoke.poll(), "the operator is offered on the smoke domain")
+    result = bpy.ops.nst3d.stylize_smoke()
+check(result == {"FINISHED"}, f"Stylize smoke finished ({result})")
+styled = bpy.data.objects.get(domain.name + "_nst3d")
+check(styled is not None and styled.type == "VOLUME", "a Volume object is loaded beside the domain")
+vol = styled.data
+vol.grids.load()
+check("density" in [g.name for g in vol.grids], f"it has a density grid ({[g.name for g in vol.grids]})")
+check(vol.grids.is_loaded, "Blender's OpenVDB reads the stylized file")
+
+import pyopenvdb  # noqa: E402  (Debian's, the same library Blender links)
+
+src = os.path.join(cache, "data", f"fluid_data_{FRAME:04d}.vdb")
+out = os.path.join(OUT, "styled", f"fluid_data_{FRAME:04d}.vdb")
+
+
+def world_mass(path):
+    """Density integrated over world space, and the voxel size."""
+    g = pyopenvdb.read(path, "density")
+    lo, hi = g.evalActiveVoxelBoundingBox()
+    d = np.zeros(tuple(h - l + 1 for l, h in zip(lo, hi)), np.float32)
+    g.copyToArray(d, ijk=lo)
+    vs = g.transform.voxelSize()[0]
+    return float(d.sum()) * vs**3, vs, d
+
+
+ma, va, _ = world_mass(src)
+mb, vb, db = world_mass(out)
+k = va / vb
+check(abs(k - round(k)) < 1e-6 and np.isfinite(db).all(), f"the stylized grid is finite, {round(k)}x finer than the cache")
+check(0.5 < mb / ma < 2.0, f"the smoke is moved, not lost or made (mass ratio {mb / ma:.3f})")
+
+# 3. Before | after, rendered by Cycles.
+before = nst3d_blender.load_volume(domain, os.path.join(cache, "data", "fluid_data_####.vdb"), [FRAME], "original")
+mat = bpy.data.materials.new("smoke")
+mat.use_nodes = True
+nodes = mat.node_tree.nodes
+nodes.remove(nodes["Principled BSDF"])
+pv = nodes.new("ShaderNodeVolumePrincipled")
+pv.inputs["Density"].default_value = 8.0
+mat.node_tree.links.new(pv.outputs["Volume"], nodes["Material Output"].inputs["Volume"])
+for o in (before, styled):
+    o.data.materials.append(mat)
+domain.hide_render = True
+for o in bpy.data.objects:
+    if o.type == "MESH" and o is not domain:
+        o.hide_render = True  # the inflow sphere
+scene = bpy.context.scene
+scene.frame_set(FRAME)
+cam_data = bpy.data.cameras.new("cam")
+cam = bpy.data.objects.new("cam", cam_data)
+scene.collection.objects.link(cam)
+cam.location = (0.0, -7.5, 0.9)
+cam.rotation_euler = (np.pi / 2, 0.0, 0.0)
+cam_data.lens = 100
+scene.camera = cam
+sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
+sun.data.energy = 4.0
+sun.rotation_euler = (0.9, 0.2, 0.6)
+scene.collection.objects.link(sun)
+world = bpy.data.worlds.new("w")
+world.use_nodes = True
+world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.05, 0.05, 0.07, 1)
+scene.world = world
+scene.render.engine = "CYCLES"
+scene.cycles.device = "CPU"
+scene.cycles.samples = 16
+scene.cycles.use_denoising = False
+scene.render.resolution_x, scene.render.resolution_y = 240, 320
+scene.render.resolution_percentage = 100
+scene.render.image_settings.file_format = "PNG"
+shots = []
+for name, show, hide in (("before", before, styled), ("after", styled, before)):
+    show.hide_render, hide.hide_render = False, True
+    scene.render.filepath = os.path.join(OUT, f"blender_{name}.png")
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(scene.render.filepath)
+    px = np.array(img.pixels[:], dtype=np.float32).reshape(img.size[1], img.size[0], 4)
+    shots.append(px)
+    check(px[..., :3].max() > 0.2, f"the {name} render shows smoke")
+bg = shots[0][0, 0, :3]
+smoke = np.abs(shots[0][..., :3] - bg).mean()
+diff = np.abs(shots[0][..., :3] - shots[1][..., :3]).mean()
+check(diff > 0.1 * smoke, f"before and after renders differ ({diff / smoke:.0%} of the smoke's own contrast)")
+gap = np.ones((shots[0].shape[0], 6, 4), np.float32)
+pair = np.concatenate([shots[0], gap, shots[1]], axis=1)
+sheet = bpy.data.images.new("sheet", pair.shape[1], pair.shape[0])
+sheet.pixels[:] = pair.ravel()
+sheet.filepath_raw = os.path.join(OUT, "blender_smoke_before_after.png")
+sheet.file_format = "PNG"
+sheet.save()
+check(os.path.exists(sheet.filepath_raw), f"wrote {sheet.filepath_raw}")
+print("ALL OK", flush=True)

@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# The Blender add-on's test, headless in Debian's Blender (3.4), after
+# tools/test_python.sh has installed the nst3d package into .venv-py:
+# bakes a small smoke, runs "Stylize smoke", renders before | after into
+# out/blender/blender_smoke_before_after.png (docs/img has the committed copy).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if ! command -v blender >/dev/null; then
+  echo "== installing Debian's blender"
+  SUDO=""; [ "$(id -u)" = 0 ] || SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq blender >/dev/null
+fi
+SITE=$(.venv-py/bin/python -c "import nst3d, os; print(os.path.dirname(os.path.dirname(nst3d.__file__)))")
+OUT=${1:-out/blender}
+rm -rf "$OUT"
+echo "== Blender add-on test ($(blender --version 2>/dev/null | head -1))"
+PYTHONPATH="$SITE:$PWD/python/blender" blender -b --factory-startup --python-use-system-env \
+  --python-exit-code 1 -P python/blender/test_addon.py -- "$OUT" 2>&1 | grep -E "^(ok|FAILED|ALL OK|nst3d:|Error|Traceback|  File)" || true
+grep -q . "$OUT/blender_smoke_before_after.png" 2>/dev/null || { echo "Blender add-on test FAILED"; exit 1; }
