@@ -145,4 +145,47 @@ sheet.filepath_raw = os.path.join(OUT, "blender_smoke_before_after.png")
 sheet.file_format = "PNG"
 sheet.save()
 check(os.path.exists(sheet.filepath_raw), f"wrote {sheet.filepath_raw}")
+
+# 4. Stylize hair on a mesh's hair particle system (through Blender's own
+#    particles -> Curves -> particles conversions).
+bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0, location=(5, 0, 0))
+scalp = bpy.context.object
+scalp.modifiers.new("hair", "PARTICLE_SYSTEM")
+ps = scalp.particle_systems[0].settings
+ps.type = "HAIR"
+ps.count = 200
+ps.hair_length = 0.4
+ps.hair_step = 6
+
+
+def hair_points(obj):
+    """The particle hair's points, read through Blender's own conversion
+    (reading hair_keys of a fresh particle system crashes Blender 3.4)."""
+    curves = nst3d_blender._curves_from_particles(bpy.context, obj)
+    d = curves.data
+    pts = np.empty(len(d.points) * 3, np.float32)
+    d.attributes["position"].data.foreach_get("vector", pts)
+    n = len(d.curves)
+    bpy.data.objects.remove(curves)
+    bpy.data.hair_curves.remove(d)
+    return pts.reshape(n, -1, 3)
+
+
+before_hair = hair_points(scalp)
+h = scalp.nst3d
+h.style = STYLE
+h.hair_iters = 9
+h.render_size = 128
+with bpy.context.temp_override(object=scalp, active_object=scalp, selected_objects=[scalp]):
+    check(bpy.ops.nst3d.stylize_hair.poll(), "Stylize hair is offered on a mesh with hair particles")
+    result = bpy.ops.nst3d.stylize_hair()
+check(result == {"FINISHED"}, f"Stylize hair finished ({result})")
+after_hair = hair_points(scalp)
+check(after_hair.shape == before_hair.shape, f"the particle system keeps its {before_hair.shape[0]} strands")
+moved = np.linalg.norm(after_hair - before_hair, axis=2)
+check(moved[:, 1:].mean() > 1e-3, f"the strands are stylized (mean tip-side move {moved[:, 1:].mean():.4f})")
+length = lambda p: np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
+ratio = length(after_hair) / length(before_hair)
+check(np.abs(ratio - 1).max() < 0.02, f"lengths are kept (worst {np.abs(ratio - 1).max():.2%})")
+check(not any(o.type == "CURVES" for o in bpy.data.objects), "no temporary Curves object is left")
 print("ALL OK", flush=True)

@@ -10,9 +10,10 @@ or point the add-on preferences at a folder that holds the package.
   the cache's ``fluid_data_####.vdb`` frames are stylized into a new cache
   folder (every other grid kept) and loaded as a Volume object beside the
   domain, at the domain's place.
-- **Stylize hair** (Object tab of a hair Curves object): the strands are
-  stylized and written back into the object, with its surface mesh (if
-  any) as the collision head.
+- **Stylize hair** (Object tab of a hair Curves object, or of a mesh with a
+  hair particle system): the strands are stylized and written back, with
+  the surface mesh (if any) as the collision head. Particle hair goes
+  through Blender's own conversions (particles → Curves → particles).
 
 In the UI the job runs in a background thread with a progress bar in the
 panel and the window's progress cursor; ``bpy.app.background`` runs it in
@@ -85,6 +86,10 @@ class Nst3dSettings(bpy.types.PropertyGroup):
     output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="",
                                description="New cache folder (default: the cache's data folder + _nst3d)")
     preset: EnumProperty(name="Preset", items=_PRESETS, default="short-hair")
+    hair_iters: IntProperty(name="Iterations", default=0, min=0,
+                            description="Iterations over the three scales (0: the preset's)")
+    render_size: IntProperty(name="Render size", default=0, min=0,
+                             description="Square render size in pixels (0: the preset's)")
     progress: FloatProperty(name="Progress", default=0.0, min=0.0, max=1.0, subtype="FACTOR")
     message: StringProperty(name="Status", default="")
 
@@ -264,8 +269,42 @@ def _hair_curves(obj):
     return obj is not None and obj.type == "CURVES"
 
 
+def _hair_particles(obj):
+    """The active hair particle system of a mesh, else None."""
+    if obj is None or obj.type != "MESH":
+        return None
+    ps = obj.particle_systems.active
+    return ps if ps is not None and ps.settings.type == "HAIR" else None
+
+
+def _curves_from_particles(context, mesh_obj):
+    """A temporary hair Curves object holding the mesh's particle hair
+    (Blender's own conversion), with the mesh as its surface."""
+    before = set(bpy.data.objects)
+    with context.temp_override(object=mesh_obj, active_object=mesh_obj, selected_objects=[mesh_obj]):
+        bpy.ops.curves.convert_from_particle_system()
+    new = [o for o in bpy.data.objects if o not in before and o.type == "CURVES"]
+    if not new:
+        raise RuntimeError(f"Blender could not convert the hair of {mesh_obj.name} to curves")
+    curves = new[0]
+    curves.data.surface = mesh_obj
+    return curves
+
+
+def _particles_from_curves(context, curves_obj):
+    """Writes a Curves object back into its surface's hair particle system
+    (Blender's own conversion) and removes the Curves object."""
+    with context.temp_override(object=curves_obj, active_object=curves_obj, selected_objects=[curves_obj]):
+        r = bpy.ops.curves.convert_to_particle_system()
+    if r != {"FINISHED"}:
+        raise RuntimeError(f"Blender could not write the strands back into the particle system ({r})")
+    data = curves_obj.data
+    bpy.data.objects.remove(curves_obj)
+    bpy.data.hair_curves.remove(data)
+
+
 class NST3D_OT_stylize_hair(_Nst3dOperator, bpy.types.Operator):
-    """Stylize the strands of this hair Curves object with a painting, in place"""
+    """Stylize the strands of this hair (a Curves object, or a mesh's hair particle system) with a painting, in place"""
 
     bl_idname = "nst3d.stylize_hair"
     bl_label = "Stylize hair"
@@ -273,7 +312,7 @@ class NST3D_OT_stylize_hair(_Nst3dOperator, bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return _hair_curves(context.object)
+        return _hair_curves(context.object) or _hair_particles(context.object) is not None
 
     def settings(self, context):
         return context.object.nst3d
@@ -282,8 +321,13 @@ class NST3D_OT_stylize_hair(_Nst3dOperator, bpy.types.Operator):
         import numpy as np
 
         nst3d = _nst3d()
+        s = context.object.nst3d
+        # Particle hair goes through a temporary Curves object and back.
+        self._particles = None
         obj = context.object
-        s = obj.nst3d
+        if _hair_particles(obj) is not None:
+            self._particles = obj.name
+            obj = _curves_from_particles(context, obj)
         style = bpy.path.abspath(s.style)
         if not os.path.isfile(style):
             raise RuntimeError(f"choose a painting (not found: {style or 'none'})")
@@ -310,10 +354,10 @@ class NST3D_OT_stylize_hair(_Nst3dOperator, bpy.types.Operator):
             v = v @ rot.T + np.array(to_curves.translation, dtype=np.float32)
             mesh = (v.astype(np.float32), tris.reshape(-1, 3))
         self._obj_name = obj.name
-        preset = s.preset
+        opts = dict(preset=s.preset, iters=s.hair_iters or None, render_size=s.render_size or None)
 
         def work(progress):
-            return nst3d.stylize_groom(points.reshape(-1, 3), counts, style, mesh=mesh, preset=preset, progress=progress)
+            return nst3d.stylize_groom(points.reshape(-1, 3), counts, style, mesh=mesh, progress=progress, **opts)
 
         return work
 
@@ -321,7 +365,12 @@ class NST3D_OT_stylize_hair(_Nst3dOperator, bpy.types.Operator):
         obj = bpy.data.objects[self._obj_name]
         obj.data.attributes["position"].data.foreach_set("vector", result.ravel())
         obj.data.update_tag()
-        self.report({"INFO"}, f"stylized {len(obj.data.curves)} strands of {obj.name}")
+        n = len(obj.data.curves)
+        if self._particles is not None:
+            _particles_from_curves(context, obj)
+            self.report({"INFO"}, f"stylized {n} strands of {self._particles}'s hair particle system")
+        else:
+            self.report({"INFO"}, f"stylized {n} strands of {obj.name}")
         return {"FINISHED"}
 
 
@@ -338,6 +387,8 @@ def _draw_common(layout, s, smoke):
         layout.prop(s, "output_dir")
     else:
         layout.prop(s, "preset")
+        layout.prop(s, "hair_iters")
+        layout.prop(s, "render_size")
     if s.message:
         layout.prop(s, "progress", text=s.message[:60])
 
@@ -365,7 +416,7 @@ class NST3D_PT_hair(bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        return _hair_curves(context.object)
+        return _hair_curves(context.object) or _hair_particles(context.object) is not None
 
     def draw(self, context):
         _draw_common(self.layout, context.object.nst3d, smoke=False)
