@@ -164,3 +164,32 @@ def test_model_trains_and_stylizes_like_the_command_line(tmp_path, data, style, 
 def test_the_benchmark_work_runs():
     times, median = nst3d.bench_volume_iter(16, "density", 1)
     assert len(times) == 1 and median > 0
+
+
+def test_ctrl_c_stops_a_running_job(tmp_path, style):
+    """A real SIGINT (what Ctrl-C sends) while the job runs with the GIL
+    released: KeyboardInterrupt comes out after the iteration in progress."""
+    import signal
+    import subprocess
+    import sys
+
+    script = tmp_path / "job.py"
+    script.write_text(
+        "import sys, time, numpy as np, nst3d\n"
+        "a = np.zeros((32, 32, 32), np.float32); a[8:24, 8:24, 8:24] = 1\n"
+        "def progress(done, total, message):\n"
+        "    if done == 1:\n"
+        "        print('started', flush=True)\n"
+        "try:\n"
+        f"    nst3d.stylize_volume(a, {str(style)!r}, upsample=1, iters=400, octaves=1, progress=progress)\n"
+        "    print('finished', flush=True)\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted', flush=True)\n"
+    )
+    p = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "started"
+    t0 = time.perf_counter()
+    p.send_signal(signal.SIGINT)
+    out, _ = p.communicate(timeout=60)
+    assert out.strip() == "interrupted"
+    assert time.perf_counter() - t0 < 10, "the job did not stop at its next iteration"

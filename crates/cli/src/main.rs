@@ -6,6 +6,7 @@
 
 mod bench;
 mod console;
+mod signals;
 mod strands;
 mod train;
 mod volume;
@@ -57,6 +58,7 @@ fn main() {
         eprintln!("nst3d: internal error: {msg}{at} (please report this)");
     }));
     let cli = Cli::parse();
+    signals::install();
     if let Some(n) = cli.threads {
         if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global() {
             eprintln!("nst3d: error: cannot start {n} threads: {e}");
@@ -70,6 +72,12 @@ fn main() {
         Command::Strands(args) => strands::run(args),
         Command::Train(args) => train::run(args),
     };
+    // A job stopped by a signal ends with 128 + the signal whatever it
+    // returned, so a farm manager tells a cancelled task from a failed one.
+    if let Some(sig) = signals::received() {
+        eprintln!("nst3d: stopped by {}; outputs written so far are complete, rerun to resume", signals::name(sig));
+        std::process::exit(128 + sig);
+    }
     if let Err(e) = result {
         eprintln!("nst3d: error: {}", nst3d_core::report::one_line(e.as_ref()));
         std::process::exit(1);

@@ -162,6 +162,73 @@ fn a_killed_run_resumes_and_loses_nothing() {
     assert!(all.contains("4 frames stylized"), "{all}");
 }
 
+/// SIGTERM (a farm cancelling the task) during sweep 2: the job stops
+/// after the sweep in progress, within seconds, exits 143, leaves no
+/// temporary file, and the rerun resumes after the last committed sweep and
+/// ends with the bytes of an uninterrupted run. SIGINT exits 130.
+#[test]
+fn sigterm_stops_cleanly_and_the_rerun_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let clean = dir.path().join("clean/s_####.vdb");
+    ok(&sequence_cmd("20-23", &clean, &[]).output().unwrap());
+
+    for (signal, code) in [("-TERM", 143), ("-INT", 130)] {
+        let out = dir.path().join(format!("stopped{code}/s_####.vdb"));
+        let mut child = sequence_cmd("20-23", &out, &[]).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+        let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+        let mut sent = None;
+        let mut said = String::new();
+        for line in lines.by_ref() {
+            let line = line.unwrap();
+            said.push_str(&line);
+            said.push('\n');
+            if sent.is_none() && line.contains("sweep 2/4") {
+                let k = Command::new("kill").args([signal, &child.id().to_string()]).status().unwrap();
+                assert!(k.success());
+                sent = Some(std::time::Instant::now());
+            }
+        }
+        let status = child.wait().unwrap();
+        let took = sent.expect("never saw sweep 2 in the progress lines").elapsed();
+        assert_eq!(status.code(), Some(code), "{signal}: {said}");
+        assert!(took.as_secs_f64() < 5.0, "{signal}: took {took:?} to stop");
+        assert!(said.contains("rerun to resume"), "{said}");
+        assert!(!said.contains("sweep 4/4"), "{signal}: the job did not stop: {said}");
+        let folder = out.parent().unwrap();
+        // nst3d's atomic writes go through `.nst3d-*.tmp` beside the target.
+        let leftovers: Vec<_> = walk(folder)
+            .into_iter()
+            .filter(|p| p.file_name().is_some_and(|n| n.to_string_lossy().ends_with(".tmp")))
+            .collect();
+        assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+
+        let o = sequence_cmd("20-23", &out, &[]).output().unwrap();
+        ok(&o);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("resuming at octave 1 sweep "), "{err}");
+        for f in 20..=23 {
+            let name = format!("s_{f:04}.vdb");
+            let a = std::fs::read(dir.path().join("clean").join(&name)).unwrap();
+            let b = std::fs::read(folder.join(&name)).unwrap();
+            assert!(a == b, "frame {f} differs from the uninterrupted run");
+        }
+    }
+}
+
+/// Every file under `dir`.
+fn walk(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            out.extend(walk(&p));
+        } else {
+            out.push(p);
+        }
+    }
+    out
+}
+
 /// A frame missing in the middle of the range fails the job (exit 1) with
 /// an error naming the file, before any slow work.
 #[test]
