@@ -299,3 +299,55 @@ fn identical_inputs_give_identical_files() {
     }
     assert!(outputs[0] == outputs[1], "two identical runs wrote different files");
 }
+
+/// Outputs are checked before any work: an `--out` that is the input (by
+/// another path), a folder that cannot be made, an extension nst3d does not
+/// write. Each is one line and exit 1 within seconds, and the input is untouched.
+#[test]
+fn bad_outputs_are_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let style = shared("styles/starry_night.jpg");
+    let input = dir.path().join("in.vdb");
+    std::fs::copy(shared("volumes/smoke_000003.vdb"), &input).unwrap();
+    let before = std::fs::read(&input).unwrap();
+    std::fs::create_dir(dir.path().join("sub")).unwrap();
+    let groom = dir.path().join("g.ply");
+    std::fs::copy(shared("grooms/Bangs_100_binary.ply"), &groom).unwrap();
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (vec!["volume".into(), "--out".into(), s(&dir.path().join("sub/../in.vdb")).into()], "is the input"),
+        (vec!["volume".into(), "--out".into(), s(&input.join("o.vdb")).into()], "cannot write in"),
+        (vec!["volume".into(), "--out".into(), s(&dir.path().join("o.exr")).into()], "writes .vdb here, not .exr"),
+        (
+            vec![
+                "volume".into(),
+                "--out".into(),
+                s(&dir.path().join("o.vdb")).into(),
+                "--preview".into(),
+                "p.jpg".into(),
+            ],
+            "writes .png here",
+        ),
+    ];
+    for (args, needle) in cases {
+        let mut all: Vec<&str> = vec![args[0].as_str(), "--input", s(&input), "--style", s(&style)];
+        all.extend(args[1..].iter().map(String::as_str));
+        let t = std::time::Instant::now();
+        let o = nst3d(&all);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{all:?}: {err}");
+        assert!(err.trim().lines().count() == 1 && err.contains(needle), "{all:?}: {err}");
+        assert!(t.elapsed().as_secs_f64() < 5.0, "{all:?} took {:?}", t.elapsed());
+    }
+    assert!(std::fs::read(&input).unwrap() == before, "the input was touched");
+
+    let o = nst3d(&["preview", "--input", s(&input), "--out", s(&dir.path().join("p.exr"))]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code() == Some(1) && err.contains("writes .png here, not .exr"), "{err}");
+    assert!(!dir.path().join("p.exr").exists());
+
+    let before = std::fs::read(&groom).unwrap();
+    let o = nst3d(&["strands", "--groom", s(&groom), "--style", s(&style), "--out", s(&groom)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code() == Some(1) && err.contains("is the input"), "{err}");
+    assert!(std::fs::read(&groom).unwrap() == before, "the groom was touched");
+}

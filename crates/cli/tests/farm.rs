@@ -215,6 +215,36 @@ fn sigterm_stops_cleanly_and_the_rerun_resumes() {
     }
 }
 
+/// Two blades, one job: while a sequence runs, the same command started
+/// again exits at once naming the first process; the first goes on, and
+/// once it ends (here by SIGTERM) no lock file is left.
+#[test]
+fn a_second_blade_on_the_same_job_exits_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("shared/s_####.vdb");
+    let slow = ["--strength", "10"]; // 40 sweeps: still running when the second starts
+    let mut first = sequence_cmd("20-23", &out, &slow).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    let mut lines = BufReader::new(first.stderr.take().unwrap()).lines();
+    for line in lines.by_ref() {
+        if line.unwrap().contains("sweep 1/40") {
+            break;
+        }
+    }
+    let t = std::time::Instant::now();
+    let second = sequence_cmd("20-23", &out, &slow).output().unwrap();
+    let err = String::from_utf8_lossy(&second.stderr);
+    assert_eq!(second.status.code(), Some(1), "{err}");
+    assert!(err.contains("another nst3d is running this job") && err.contains(&first.id().to_string()), "{err}");
+    assert!(t.elapsed().as_secs_f64() < 5.0, "the second blade took {:?}", t.elapsed());
+    assert!(first.try_wait().unwrap().is_none(), "the first blade stopped");
+    Command::new("kill").args(["-TERM", &first.id().to_string()]).status().unwrap();
+    for _ in lines {}
+    assert_eq!(first.wait().unwrap().code(), Some(143));
+    let locks: Vec<_> =
+        walk(&dir.path().join("shared")).into_iter().filter(|p| p.to_string_lossy().ends_with(".lock")).collect();
+    assert!(locks.is_empty(), "lock files left: {locks:?}");
+}
+
 /// Every file under `dir`.
 fn walk(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();

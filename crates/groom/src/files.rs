@@ -116,6 +116,7 @@ pub fn preview_groom(s: &GroomPreviewSettings) -> Result<usize> {
     if !(16..=8192).contains(&s.height) {
         anyhow::bail!("--height {}: give 16 to 8192 pixels", s.height);
     }
+    nst3d_io::atomic::check_output("--out", &s.out, &["png"], &[]).map_err(anyhow::Error::msg)?;
     let outs: Vec<PathBuf> = match s.turntable {
         Some(_) => (1..=n as i64).map(|i| frame_path(&s.out, i, "--out")).collect::<Result<_>>()?,
         None => vec![s.out.clone()],

@@ -51,10 +51,10 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
     let frames = frames.frames();
     let groom_at = |f| frame_path(&s.groom, f, "--groom");
     let out_at = |f| frame_path(&s.out, f, "--out");
-    out_at(frames[0])?;
-    if let Some(p) = &s.preview {
-        frame_path(p, frames[0], "--preview")?;
+    if s.out == s.groom {
+        bail!("--out {} is the input pattern: nst3d never overwrites its input", s.out.display());
     }
+    s.check_outputs(Some(frames[0]))?;
     let mesh_varies = s.mesh.as_deref().is_some_and(is_pattern);
     let mesh_at = |f| -> Result<Option<PathBuf>> {
         match &s.mesh {
@@ -118,6 +118,8 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
         Some(w) => w.clone(),
         None => default_work_dir(&out_at(frames[0])?, job_hash(s, frames, &groom_at, &mesh_at)?),
     };
+    // Held until the job ends: a second blade on the same job exits here.
+    let _lock = nst3d_sequence::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
     let state_path = work.join(STATE_FILE);
     // Only our own file goes: the work folder may hold more.
     if s.force && state_path.exists() {

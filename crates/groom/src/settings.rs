@@ -154,6 +154,25 @@ impl StrandSettings {
         Ok(())
     }
 
+    /// The outputs checked before any work (`io::atomic::check_output`): a
+    /// `.usda`/`.ply` that is not the input groom and whose folder takes a
+    /// file, and a `.png` preview; for a sequence those of `frame`.
+    pub fn check_outputs(&self, frame: Option<i64>) -> Result<()> {
+        use nst3d_io::atomic::check_output;
+        let at = |p: &Path, flag: &str| -> Result<PathBuf> {
+            match frame {
+                Some(f) => crate::files::frame_path(p, f, flag),
+                None => Ok(p.to_path_buf()),
+            }
+        };
+        let (groom, out) = (at(&self.groom, "--groom")?, at(&self.out, "--out")?);
+        check_output("--out", &out, &["usda", "ply"], &[&groom]).map_err(anyhow::Error::msg)?;
+        if let Some(p) = &self.preview {
+            check_output("--preview", &at(p, "--preview")?, &["png"], &[]).map_err(anyhow::Error::msg)?;
+        }
+        Ok(())
+    }
+
     /// The stylization settings for a groom of `guides` strands (proxies
     /// default to the preset's proxy/guide ratio).
     pub fn stylize_params(&self, guides: usize) -> StylizeParams {

@@ -62,6 +62,7 @@ impl GroomReport {
 pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Result<GroomReport> {
     let format = OutFormat::of(&s.out)?;
     s.check()?;
+    s.check_outputs(None)?;
     if s.frames.is_some() {
         bail!("{} names frames: run it as a sequence", s.groom.display());
     }

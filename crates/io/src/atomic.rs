@@ -73,3 +73,89 @@ mod tests {
         }
     }
 }
+
+/// Checks an output before any work is done, so a bad `--out` fails in a
+/// second rather than after the optimisation: its extension is one of
+/// `exts` (lower case, without the dot; empty: any), it is not one of
+/// `inputs` (the same file by any path: nst3d never overwrites its source),
+/// it is not a folder, and its folder can be made and takes a new file (the
+/// probe file is removed at once). `flag` names the option in messages.
+pub fn check_output(flag: &str, path: &Path, exts: &[&str], inputs: &[&Path]) -> Result<(), String> {
+    let ext = path.extension().map(|e| e.to_string_lossy().to_lowercase()).unwrap_or_default();
+    if !exts.is_empty() && !exts.contains(&ext.as_str()) {
+        let want: Vec<String> = exts.iter().map(|e| format!(".{e}")).collect();
+        return Err(format!(
+            "{flag} {}: nst3d writes {} here, not {}",
+            path.display(),
+            want.join(" or "),
+            if ext.is_empty() { "a file without extension".to_string() } else { format!(".{ext}") }
+        ));
+    }
+    if path.is_dir() {
+        return Err(format!("{flag} {} is a folder; name the file to write", path.display()));
+    }
+    for input in inputs {
+        if let (Ok(a), Ok(b)) = (fs::canonicalize(path), fs::canonicalize(input)) {
+            if a == b {
+                return Err(format!(
+                    "{flag} {} is the input {}: nst3d never overwrites its input (choose another path)",
+                    path.display(),
+                    input.display()
+                ));
+            }
+        }
+    }
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    // Nothing is created here: the folders the write would make are probed
+    // at the nearest one that exists (a failed job leaves no empty folder).
+    let existing = dir.ancestors().find(|a| a.as_os_str().is_empty() || a.exists()).unwrap_or(Path::new("."));
+    let existing = if existing.as_os_str().is_empty() { Path::new(".") } else { existing };
+    let probe = match existing.is_dir() {
+        true => tempfile::Builder::new().prefix(".nst3d-").suffix(".tmp").tempfile_in(existing).map(drop),
+        false => Err(io::Error::other(format!("{} is not a folder", existing.display()))),
+    };
+    probe.map_err(|e| format!("{flag} {}: cannot write in {}: {e}", path.display(), dir.display()))
+}
+
+#[cfg(test)]
+mod check_tests {
+    use super::check_output;
+
+    /// Each refusal names the problem; a good path passes and leaves nothing behind.
+    #[test]
+    fn outputs_are_checked_before_the_work() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("in.vdb");
+        std::fs::write(&input, b"x").unwrap();
+        let via_dotdot = dir.path().join("sub/../in.vdb");
+        std::fs::create_dir_all(dir.path().join("sub")).unwrap();
+        let e = check_output("--out", &via_dotdot, &["vdb"], &[&input]).unwrap_err();
+        assert!(e.contains("is the input"), "{e}");
+        let e = check_output("--out", &dir.path().join("x.exr"), &["png"], &[]).unwrap_err();
+        assert!(e.contains("writes .png here, not .exr"), "{e}");
+        let e = check_output("--out", &dir.path().join("sub"), &[], &[]).unwrap_err();
+        assert!(e.contains("is a folder"), "{e}");
+        // Under a file: no folder can be made there, whoever runs the test.
+        let e = check_output("--out", &input.join("o.vdb"), &["vdb"], &[]).unwrap_err();
+        assert!(e.contains("cannot write in"), "{e}");
+        let fresh = dir.path().join("new/deeper/out.vdb");
+        check_output("--out", &fresh, &["vdb"], &[&input]).unwrap();
+        assert!(!dir.path().join("new").exists(), "the check made a folder");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2, "the probe was left behind");
+        // A folder that takes no new file (not checkable as root, who may write anywhere).
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let ro = dir.path().join("sub/ro");
+            std::fs::create_dir(&ro).unwrap();
+            std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o555)).unwrap();
+            let writable = tempfile::tempfile_in(&ro).is_ok();
+            let r = check_output("--out", &ro.join("o.vdb"), &["vdb"], &[]);
+            assert_eq!(r.is_ok(), writable, "{r:?}");
+            std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o755)).unwrap();
+        }
+    }
+}

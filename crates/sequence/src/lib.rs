@@ -10,8 +10,10 @@ pub mod ema;
 pub mod flicker;
 pub mod frames;
 pub mod job;
+pub mod lock;
 pub mod store;
 
 pub use frames::{expand_pattern, FrameSpec, FramesError};
 pub use job::{default_work_dir, job_fingerprint};
+pub use lock::WorkLock;
 pub use store::DiskStore;

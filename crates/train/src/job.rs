@@ -270,6 +270,8 @@ fn write_outputs(
 
 /// Trains (or resumes training) the network `s` describes.
 pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainReport> {
+    let inputs: Vec<&Path> = s.frames.iter().map(PathBuf::as_path).collect();
+    nst3d_io::atomic::check_output("--out", &s.out, &[], &inputs).map_err(anyhow::Error::msg)?;
     if s.patch % 4 != 0 || !(16..=256).contains(&s.patch) {
         bail!("--patch must be a multiple of 4 from 16 to 256, got {}", s.patch);
     }
@@ -296,6 +298,8 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     let mut rng = SplitMix64::new(s.seed ^ 0x7261_696e);
     let mut losses = Vec::new();
     let ckpt = checkpoint_path(&s.out);
+    // Two blades training one model would interleave their checkpoints.
+    let _lock = nst3d_sequence::WorkLock::acquire(&ckpt).map_err(anyhow::Error::msg)?;
     if let Some(c) = load_checkpoint(&ckpt, s)? {
         trainer.net = c.net;
         trainer.set_adam_state(&c.m, &c.v, c.step)?;

@@ -53,9 +53,36 @@ pub enum VolumeReport {
 /// has [`VolumeSettings::model`], else a sequence when it has
 /// [`VolumeSettings::sequence`], else one frame.
 pub fn stylize(settings: &VolumeSettings, reporter: &mut dyn Reporter) -> anyhow::Result<VolumeReport> {
+    check_outputs(settings)?;
     Ok(match (&settings.model, &settings.sequence) {
         (Some(m), _) => VolumeReport::Model(stylize_with_model(settings, m, reporter)?),
         (None, Some(_)) => VolumeReport::Sequence(stylize_sequence_files(settings, reporter)?),
         (None, None) => VolumeReport::Frame(stylize_frame_file(settings, reporter)?),
     })
+}
+
+/// The outputs checked before any work (`io::atomic::check_output`): a
+/// `.vdb` that is not the input and whose folder takes a file (for a
+/// sequence, the first frame's), and a `.png` preview.
+fn check_outputs(s: &VolumeSettings) -> anyhow::Result<()> {
+    use nst3d_io::atomic::check_output;
+    use std::path::PathBuf;
+    let (input, out) = match &s.sequence {
+        Some(q) => {
+            let f = nst3d_sequence::FrameSpec::parse(&q.frames)?.frames()[0];
+            let at = |p: &std::path::Path| -> anyhow::Result<PathBuf> {
+                Ok(PathBuf::from(nst3d_sequence::expand_pattern(&p.to_string_lossy(), f)?))
+            };
+            if s.input == s.out {
+                anyhow::bail!("--out {} is the input pattern: nst3d never overwrites its input", s.out.display());
+            }
+            (at(&s.input)?, at(&s.out)?)
+        }
+        None => (s.input.clone(), s.out.clone()),
+    };
+    check_output("--out", &out, &["vdb"], &[&input]).map_err(anyhow::Error::msg)?;
+    if let Some(p) = &s.preview {
+        check_output("--preview", p, &["png"], &[]).map_err(anyhow::Error::msg)?;
+    }
+    Ok(())
 }

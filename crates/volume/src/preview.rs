@@ -106,6 +106,7 @@ struct Shot {
 /// Draws the pictures `args` asks for; nothing is left behind if any fails.
 pub fn preview(args: &PreviewSettings) -> Result<PreviewReport> {
     check_args(args)?;
+    nst3d_io::atomic::check_output("--out", &args.out, &["png"], &[]).map_err(anyhow::Error::msg)?;
     let shots = plan(args)?;
     let sequence = args.frames.is_some();
 

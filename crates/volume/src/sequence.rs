@@ -462,6 +462,8 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         Some(w) => w.clone(),
         None => default_work_dir(&s.out, job_hash(s, seq, &sim.inner.paths)?),
     };
+    // Held until the job ends: a second blade on the same job exits here.
+    let _lock = nst3d_sequence::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
     if seq.force {
         DiskStore::remove(&work).with_context(|| format!("cannot clear the work folder {}", work.display()))?;
     }
