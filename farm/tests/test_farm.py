@@ -154,6 +154,8 @@ def test_slurm_array_runs_the_chunks_and_a_requeued_task_ends_the_same(tmp_path,
     wait_for(job2)
     text = log.read_text()
     assert "restart 1" in text, text[-3000:]
+    # Slurm's requeue sends SIGTERM: nst3d stops cleanly, the restart resumes.
+    assert "stopped by SIGTERM" in text and "resuming at octave 1 sweep" in text, text[-3000:]
     assert text.count("10 frames stylized") == 1, text[-3000:]
     for f in FRAMES:
         assert frame(out2, f).read_bytes() == frame(out, f).read_bytes(), f"frame {f} differs after the requeue"
