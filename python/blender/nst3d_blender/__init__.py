@@ -203,11 +203,13 @@ class NST3D_OT_stylize_smoke(_Nst3dOperator, bpy.types.Operator):
         return _domain(context.object) is not None
 
     def settings(self, context):
-        return context.object.nst3d
+        # Not context.object: while the job runs the user may select another.
+        return bpy.data.objects[self._settings_of].nst3d
 
     def prepare(self, context):
         nst3d = _nst3d()
         obj = context.object
+        self._settings_of = obj.name
         s = obj.nst3d
         ds = _domain(obj)
         pattern, present = _cache_frames(ds)
@@ -315,12 +317,14 @@ class NST3D_OT_stylize_hair(_Nst3dOperator, bpy.types.Operator):
         return _hair_curves(context.object) or _hair_particles(context.object) is not None
 
     def settings(self, context):
-        return context.object.nst3d
+        # Not context.object: while the job runs the user may select another.
+        return bpy.data.objects[self._settings_of].nst3d
 
     def prepare(self, context):
         import numpy as np
 
         nst3d = _nst3d()
+        self._settings_of = context.object.name
         s = context.object.nst3d
         # Particle hair goes through a temporary Curves object and back.
         self._particles = None
