@@ -188,4 +188,21 @@ length = lambda p: np.linalg.norm(np.diff(p, axis=1), axis=2).sum(axis=1)
 ratio = length(after_hair) / length(before_hair)
 check(np.abs(ratio - 1).max() < 0.02, f"lengths are kept (worst {np.abs(ratio - 1).max():.2%})")
 check(not any(o.type == "CURVES" for o in bpy.data.objects), "no temporary Curves object is left")
+
+# 5. Stylize hair on a hair Curves object (Blender 3.3+ hair), in place.
+curves = nst3d_blender._curves_from_particles(bpy.context, scalp)
+d = curves.data
+before_c = np.empty(len(d.points) * 3, np.float32)
+d.attributes["position"].data.foreach_get("vector", before_c)
+curves.nst3d.style = STYLE
+curves.nst3d.hair_iters = 9
+curves.nst3d.render_size = 128
+with bpy.context.temp_override(object=curves, active_object=curves, selected_objects=[curves]):
+    check(bpy.ops.nst3d.stylize_hair.poll(), "Stylize hair is offered on a Curves object")
+    result = bpy.ops.nst3d.stylize_hair()
+check(result == {"FINISHED"}, f"Stylize hair on Curves finished ({result})")
+after_c = np.empty_like(before_c)
+d.attributes["position"].data.foreach_get("vector", after_c)
+move = np.abs(after_c - before_c).reshape(-1, 3).max(axis=1)
+check(move.mean() > 1e-4 and len(d.curves) == 200, f"the Curves object's strands are written back (mean move {move.mean():.4f})")
 print("ALL OK", flush=True)
