@@ -138,3 +138,40 @@ fn a_groom_without_its_mesh_is_stylized_without_collisions_and_says_so() {
     }
     assert_ne!(input.strands, result.strands, "the groom did not change");
 }
+
+/// A stylization that cannot fit in this machine's memory is refused before
+/// any work, naming the estimate and what is available; an absurd render
+/// size is refused outright.
+#[test]
+fn a_job_too_big_for_memory_is_refused_up_front() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.usda");
+    let (groom, head, style) =
+        (shared("grooms/Bangs_100.hair"), shared("grooms/Bangs_head.ply"), shared("styles/starry_night.jpg"));
+    let run = |size: &str| {
+        let t = std::time::Instant::now();
+        let o = common::nst3d(&[
+            "strands",
+            "--groom",
+            s(&groom),
+            "--mesh",
+            s(&head),
+            "--style",
+            s(&style),
+            "--out",
+            s(&out),
+            "--render-size",
+            size,
+        ]);
+        (o, t.elapsed())
+    };
+    let (o, took) = run("16000");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("needs about") && err.contains("GB is available") && err.contains("--render-size"), "{err}");
+    assert!(took.as_secs_f64() < 10.0, "refused only after {took:?}");
+    assert!(!out.exists());
+    let (o, _) = run("100000");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.code() == Some(1) && err.contains("--render-size must be 16 to 16384"), "{err}");
+}

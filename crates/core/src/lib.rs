@@ -13,6 +13,7 @@ pub mod groom;
 pub mod image;
 pub mod linalg;
 pub mod math;
+pub mod memory;
 pub mod mesh;
 pub mod report;
 pub mod stop;

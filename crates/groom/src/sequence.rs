@@ -94,6 +94,7 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
     let painting = nst3d_io::image::load_style(&s.style, 1.0)?;
     let vgg = Vgg19::load(s.weights.as_deref())?;
     let stylize = s.stylize_params(first.strand_count());
+    StrandSettings::check_memory(&stylize, first.strand_count())?;
     let (temporal, borrowed) = s.temporal_params();
     if borrowed {
         reporter.note(&format!(

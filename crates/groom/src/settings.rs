@@ -135,6 +135,11 @@ impl StrandSettings {
         if self.iters == Some(0) {
             bail!("--iters must be at least 1");
         }
+        if let Some(n) = self.render_size {
+            if !(16..=16384).contains(&n) {
+                bail!("--render-size must be 16 to 16384 pixels, got {n}");
+            }
+        }
         if !(self.lr_scale.is_finite() && self.lr_scale > 0.0) {
             bail!("--lr-scale must be a positive number, got {}", self.lr_scale);
         }
@@ -171,6 +176,29 @@ impl StrandSettings {
             check_output("--preview", &at(p, "--preview")?, &["png"], &[]).map_err(anyhow::Error::msg)?;
         }
         Ok(())
+    }
+
+    /// Bytes a stylization with `params` needs at its peak, from the peak
+    /// RSS measured at Table 1 sizes (docs/STRANDS.md: 2.99M control points
+    /// at 600² took 3.3 GB, 450K at 500² took 2.0 GB; this gives 3.7 and
+    /// 2.4): 0.4 GB + 180 B per control point of guides and proxies + 7.7 KB
+    /// per render pixel (the VGG features and splat buffers of one view).
+    pub fn memory_estimate(params: &StylizeParams, guides: usize) -> u64 {
+        let points = ((guides + params.proxies) * params.preset.points_per_strand.max(2)) as u64;
+        let pixels = (params.render_size * params.render_size) as u64;
+        400_000_000 + 180 * points + 7_700 * pixels
+    }
+
+    /// Refuses, before any work, a stylization whose estimated peak memory
+    /// ([`StrandSettings::memory_estimate`]) exceeds what this machine has
+    /// available.
+    pub fn check_memory(params: &StylizeParams, guides: usize) -> Result<()> {
+        let need = Self::memory_estimate(params, guides);
+        let what = format!(
+            "stylizing {guides} guides and {} proxies at {}x{}",
+            params.proxies, params.render_size, params.render_size
+        );
+        nst3d_core::memory::check_fits(need, &what, "lower --render-size or --proxies").map_err(anyhow::Error::msg)
     }
 
     /// The stylization settings for a groom of `guides` strands (proxies

@@ -114,6 +114,7 @@ pub fn stylize_groom(
     let painting = nst3d_io::image::load_style(&s.style, 1.0)?;
     let vgg = Vgg19::load(s.weights.as_deref())?;
     let params = s.stylize_params(groom.strand_count());
+    StrandSettings::check_memory(&params, groom.strand_count())?;
 
     let scene =
         StrandScene::build(groom, head, &params, &mut |m| reporter.status(m)).with_context(|| match &s.mesh {

@@ -1,0 +1,51 @@
+//! How much memory this process may still use, so a job whose working set
+//! would not fit says so before it starts instead of being killed by the
+//! kernel half-way through.
+
+/// Bytes available to this process: the kernel's `MemAvailable`, lowered to
+/// what is left under a cgroup v2 `memory.max` (a container or a Slurm job
+/// limit) when there is one. `None` where neither can be read.
+pub fn available() -> Option<u64> {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok();
+    let avail = meminfo.as_deref().and_then(|m| {
+        m.lines().find(|l| l.starts_with("MemAvailable:"))?.split_whitespace().nth(1)?.parse::<u64>().ok()
+    });
+    let avail = avail.map(|kib| kib * 1024);
+    let read = |p: &str| std::fs::read_to_string(p).ok().and_then(|s| s.trim().parse::<u64>().ok());
+    let cgroup = match (read("/sys/fs/cgroup/memory.max"), read("/sys/fs/cgroup/memory.current")) {
+        (Some(max), Some(cur)) => Some(max.saturating_sub(cur)),
+        _ => None,
+    };
+    match (avail, cgroup) {
+        (Some(a), Some(c)) => Some(a.min(c)),
+        (a, c) => a.or(c),
+    }
+}
+
+/// `Err` with a message naming both figures when `needed` bytes (an
+/// estimate of the job's peak) exceed what is [`available`]; `what` says
+/// what the estimate covers and `lower` which settings bring it down.
+pub fn check_fits(needed: u64, what: &str, lower: &str) -> Result<(), String> {
+    match available() {
+        Some(avail) if needed > avail => Err(format!(
+            "{what} needs about {:.1} GB of memory at its peak (estimated), {:.1} GB is available: {lower}",
+            needed as f64 / 1e9,
+            avail as f64 / 1e9
+        )),
+        _ => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_need_beyond_the_machine_is_refused_naming_both_figures() {
+        let avail = available().expect("this platform reports available memory");
+        assert!(avail > 0);
+        assert!(check_fits(1 << 20, "a small job", "").is_ok());
+        let e = check_fits(u64::MAX / 2, "this job", "lower --render-size").unwrap_err();
+        assert!(e.contains("needs about") && e.contains("GB is available: lower --render-size"), "{e}");
+    }
+}
