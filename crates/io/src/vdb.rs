@@ -37,6 +37,19 @@ pub use tree::{leaf_offset, leaf_origin, Leaf, SparseGrid, LEAF_DIM, LEAF_VOXELS
 /// 1 GiB of `f32`, a 640³ box); bigger requests are refused before allocating.
 pub const MAX_DENSE_VOXELS: u64 = 1 << 28;
 
+/// Float values a file's active tiles may expand to per byte of the file. A
+/// tile is one stored value standing for up to 4096³ voxels; real caches
+/// keep their surfaces in leaves, which makes their files big enough for
+/// their tiles, while a few kilobytes claiming a solid gigavoxel region are
+/// refused before anything is filled (and in well under a second).
+pub const TILE_VALUES_PER_BYTE: u64 = 1024;
+
+/// The tile budget of a file of `len` bytes: [`TILE_VALUES_PER_BYTE`] per
+/// byte, at least 2²⁰ values and at most [`MAX_DENSE_VOXELS`].
+pub fn tile_budget(len: usize) -> u64 {
+    (len as u64).saturating_mul(TILE_VALUES_PER_BYTE).clamp(1 << 20, MAX_DENSE_VOXELS)
+}
+
 /// One metadata value, as OpenVDB types them.
 #[derive(Clone, Debug, PartialEq)]
 pub enum MetaValue {

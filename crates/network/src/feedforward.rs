@@ -40,19 +40,8 @@ impl FeedForward {
     /// channels (1 for density, 3 for velocity), initialised as PyTorch's
     /// `nn.Conv3d` does (weights and biases uniform in ±1/√fan_in) from `seed`.
     pub fn new(c: usize, out: usize, seed: u64) -> Self {
-        let shapes = [
-            (1, c, 5, 2, 2),
-            (c, 2 * c, 3, 2, 1),
-            (2 * c, 2 * c, 3, 1, 1),
-            (2 * c, 2 * c, 3, 1, 1),
-            (2 * c, 2 * c, 3, 1, 1),
-            (2 * c, 2 * c, 3, 1, 1),
-            (2 * c, c, 3, 1, 1),
-            (c, c, 3, 1, 1),
-            (c, out, 3, 1, 1),
-        ];
         let mut rng = SplitMix64::new(seed);
-        let layers = shapes
+        let layers = Self::layer_shapes(c, out)
             .iter()
             .map(|&(cin, cout, k, s, p)| {
                 let mut l = Conv3d::zeros(cin, cout, k, s, p);
@@ -62,6 +51,23 @@ impl FeedForward {
             })
             .collect();
         Self { layers }
+    }
+
+    /// Fig. 9's layers for width `c` and `out` output channels, as
+    /// `(in channels, out channels, kernel, stride, padding)`: what a model
+    /// file's tensors are checked against before any network is allocated.
+    pub fn layer_shapes(c: usize, out: usize) -> [(usize, usize, usize, usize, usize); LAYERS] {
+        [
+            (1, c, 5, 2, 2),
+            (c, 2 * c, 3, 2, 1),
+            (2 * c, 2 * c, 3, 1, 1),
+            (2 * c, 2 * c, 3, 1, 1),
+            (2 * c, 2 * c, 3, 1, 1),
+            (2 * c, 2 * c, 3, 1, 1),
+            (2 * c, c, 3, 1, 1),
+            (c, c, 3, 1, 1),
+            (c, out, 3, 1, 1),
+        ]
     }
 
     /// All weights and biases as one vector, layer by layer (weights, then

@@ -81,11 +81,12 @@ impl Model {
                 .ok_or_else(|| invalid(format!("metadata '{key}' is missing or not a width from 1 to 1024")))
         };
         let (c, out) = (number("channels")?, number("out_channels")?);
-        let mut net = FeedForward::new(c, out, 0);
-        for (l, name) in net.layers.iter_mut().zip(LAYER_NAMES) {
-            for (suffix, dst, shape) in
-                [("weight", &mut l.weight, vec![l.cout, l.cin, l.k, l.k, l.k]), ("bias", &mut l.bias, vec![l.cout])]
-            {
+        // Every tensor is checked against the widths before a network of
+        // those widths is made: a small file claiming 1024 channels must not
+        // cost a gigabyte.
+        let mut found = Vec::with_capacity(2 * LAYER_NAMES.len());
+        for (&(cin, cout, k, _, _), name) in FeedForward::layer_shapes(c, out).iter().zip(LAYER_NAMES) {
+            for (suffix, shape) in [("weight", vec![cout, cin, k, k, k]), ("bias", vec![cout])] {
                 let key = format!("{name}.{suffix}");
                 let t = tensors.get(&key).ok_or_else(|| invalid(format!("tensor {key} is missing")))?;
                 if t.shape != shape {
@@ -97,8 +98,13 @@ impl Model {
                 if let Some(i) = t.data.iter().position(|v| !v.is_finite()) {
                     return Err(invalid(format!("tensor {key} holds a non-finite weight at {i}")));
                 }
-                dst.copy_from_slice(&t.data);
+                found.push(&t.data);
             }
+        }
+        let mut net = FeedForward::new(c, out, 0);
+        let slots = net.layers.iter_mut().flat_map(|l| [&mut l.weight, &mut l.bias]);
+        for (dst, src) in slots.zip(found) {
+            dst.copy_from_slice(src);
         }
         for key in ["format", "architecture", "channels", "out_channels"] {
             info.remove(key);
@@ -136,5 +142,24 @@ mod tests {
         wider[at + key.len() - 2] = b'4';
         let e = Model::from_bytes(&wider, p).unwrap_err().to_string();
         assert!(e.contains("e1.weight") && e.contains("channels 4"), "{e}");
+    }
+
+    #[test]
+    fn a_small_file_claiming_1024_channels_is_refused_before_allocating() {
+        // Found while writing the fuzz harness: the network of the claimed
+        // width (1.8 GB at 1024 channels) used to be made and initialised
+        // before the tensors were compared with it.
+        let m = Model { net: FeedForward::new(1, 1, 9), info: BTreeMap::new() };
+        let bytes = m.to_bytes();
+        let key = b"\"channels\":\"1\"";
+        let at = bytes.windows(key.len()).position(|w| w == key).expect("channels in the header");
+        let mut claim = bytes[..at].to_vec();
+        claim.extend_from_slice(b"\"channels\":\"1024\"");
+        claim.extend_from_slice(&bytes[at + key.len()..]);
+        // The header grew by 3 bytes: fix its length prefix.
+        let n = u64::from_le_bytes(claim[..8].try_into().unwrap()) + 3;
+        claim[..8].copy_from_slice(&n.to_le_bytes());
+        let e = Model::from_bytes(&claim, Path::new("m.safetensors")).unwrap_err().to_string();
+        assert!(e.contains("e1.weight") && e.contains("channels 1024"), "{e}");
     }
 }

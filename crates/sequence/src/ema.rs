@@ -232,9 +232,14 @@ pub fn stylize_sequence_with(
         if first_sweep.is_none() {
             // Carry fields up from the coarser octave; fresh Adam moments.
             for t in 0..n {
-                let field = match store.load(t)? {
+                // The coarsest octave has nothing coarser: its frames start afresh.
+                let saved = match dims.get(level + 1) {
+                    Some(&coarser) => load_sized(store, t, coarser)?.map(|s| (s, coarser)),
+                    None => None,
+                };
+                let field = match saved {
                     None => Field::initial(fp.mode, here.iter().product()),
-                    Some(s) => s.field.resize(dims[level + 1], here),
+                    Some((s, coarser)) => s.field.resize(coarser, here),
                 };
                 let len = field.len();
                 store.save(t, FrameState { field, m: vec![0.0; len], v: vec![0.0; len], step: 0 })?;
@@ -249,15 +254,8 @@ pub fn stylize_sequence_with(
             for &t in &order {
                 let d = density_at(sim, t, level)?;
                 let u = velocity_at(sim, t, here)?;
-                let mut st = store
-                    .load(t)?
+                let mut st = load_sized(store, t, here)?
                     .ok_or_else(|| SequenceError::Frame { frame: t, message: "lost its optimisation state".into() })?;
-                let per_voxel = if matches!(st.field, Field::Velocity(_)) { 3 } else { 1 };
-                if st.field.len() != per_voxel * here.iter().product::<usize>() {
-                    return Err(SequenceError::Checkpoint(format!(
-                        "frame {t}: saved state does not match octave dims {here:?}"
-                    )));
-                }
                 // Optionally no blend on a frame's first Adam step of the octave: that step is
                 // lr·sign(g) per voxel, so any tiny difference in the blended
                 // field flips signs and grows frame after frame along the first
@@ -313,6 +311,22 @@ pub fn stylize_sequence_with(
     Ok(())
 }
 
+/// Frame `t`'s state, checked to hold one value (scale) or vector (velocity)
+/// per voxel of `dims` and Adam moments of the same length: a state file
+/// that decodes but belongs to another grid is an error here rather than an
+/// out-of-bounds index in the transport.
+fn load_sized(store: &mut dyn StateStore, t: usize, dims: [usize; 3]) -> Result<Option<FrameState>, SequenceError> {
+    let Some(st) = store.load(t)? else { return Ok(None) };
+    let per_voxel = if matches!(st.field, Field::Velocity(_)) { 3 } else { 1 };
+    let len = per_voxel * dims.iter().product::<usize>();
+    if st.field.len() != len || st.m.len() != len || st.v.len() != len {
+        return Err(SequenceError::Checkpoint(format!(
+            "frame {t}: saved state does not match the grid {dims:?} (delete the work folder to start afresh)"
+        )));
+    }
+    Ok(Some(st))
+}
+
 fn negate(u: &[[f32; 3]]) -> Vec<[f32; 3]> {
     u.iter().map(|w| [-w[0], -w[1], -w[2]]).collect()
 }
@@ -320,7 +334,8 @@ fn negate(u: &[[f32; 3]]) -> Vec<[f32; 3]> {
 /// `d*_t = T(d_t, v̂_t)` for a frame whose field is in `store`.
 pub fn stylized_density(sim: &dyn Simulation, store: &mut dyn StateStore, t: usize) -> Result<Grid3, SequenceError> {
     let d = sim.density(t)?;
-    let st = store.load(t)?.ok_or_else(|| SequenceError::Frame { frame: t, message: "was never stylized".into() })?;
+    let st = load_sized(store, t, d.dims)?
+        .ok_or_else(|| SequenceError::Frame { frame: t, message: "was never stylized".into() })?;
     let out = st.field.transport(&d);
     store.save(t, st)?;
     Ok(out)

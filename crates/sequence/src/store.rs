@@ -164,7 +164,9 @@ impl DiskStore {
     }
 }
 
-fn parse_checkpoint(text: &str) -> Option<(u64, SweepMark)> {
+/// Parses the `checkpoint` file: its generation and sweep mark, `None` when
+/// the text is not such a line. Public for the fuzz harness.
+pub fn parse_checkpoint(text: &str) -> Option<(u64, SweepMark)> {
     let w: Vec<&str> = text.split_whitespace().collect();
     match w.as_slice() {
         ["nst3d-checkpoint", "generation", g, "octave", k, "octaves", n, "sweeps", s] => Some((
@@ -177,7 +179,7 @@ fn parse_checkpoint(text: &str) -> Option<(u64, SweepMark)> {
 
 /// Serialises a state: magic, mode (0 velocity, 1 scale), step, parameter
 /// count, then field, first and second moments as little-endian f32.
-fn encode(st: &FrameState) -> Vec<u8> {
+pub fn encode(st: &FrameState) -> Vec<u8> {
     let params = st.field.params();
     let mut out = Vec::with_capacity(32 + 12 * params.len());
     out.extend_from_slice(MAGIC);
@@ -190,14 +192,18 @@ fn encode(st: &FrameState) -> Vec<u8> {
     out
 }
 
-fn decode(bytes: &[u8]) -> Option<FrameState> {
+/// Reads what [`encode`] wrote; `None` for anything else (another file,
+/// a truncated one, a count that does not match the bytes). Public for the
+/// fuzz harness.
+pub fn decode(bytes: &[u8]) -> Option<FrameState> {
     let word = |i: usize| Some(u64::from_le_bytes(bytes.get(8 * i..8 * i + 8)?.try_into().ok()?));
     if bytes.get(..8)? != MAGIC {
         return None;
     }
-    let (scale, step, len) = (word(1)?, word(2)?, word(3)? as usize);
+    let (scale, step, len) = (word(1)?, word(2)?, usize::try_from(word(3)?).ok()?);
     let body = bytes.get(32..)?;
-    if body.len() != 12 * len || (scale == 0 && len % 3 != 0) {
+    // The count is checked against the bytes actually there before anything is allocated.
+    if Some(body.len()) != len.checked_mul(12) || scale > 1 || (scale == 0 && len % 3 != 0) {
         return None;
     }
     let floats: Vec<f32> = body.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
@@ -314,5 +320,20 @@ mod tests {
         DiskStore::remove(&dir).unwrap();
         assert!(!dir.exists());
         DiskStore::remove(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_state_whose_count_overflows_is_refused_not_a_panic() {
+        // Count 2^62 + 1: `12 * count` wraps to 12, which the 12 bytes of
+        // body used to match, and the split at the count then panicked.
+        let mut bytes = encode(&FrameState { field: Field::Scale(vec![1.0]), m: vec![0.0], v: vec![0.0], step: 0 });
+        bytes[24..32].copy_from_slice(&((1u64 << 62) + 1).to_le_bytes());
+        assert!(decode(&bytes).is_none());
+        // The well-formed one still reads; a mode other than 0 or 1 does not.
+        let good = encode(&state(1.0));
+        assert_eq!(decode(&good).unwrap().field.params(), state(1.0).field.params());
+        let mut odd = good.clone();
+        odd[8] = 2;
+        assert!(decode(&odd).is_none());
     }
 }

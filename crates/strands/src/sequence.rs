@@ -76,6 +76,8 @@ use nst3d_core::math::{add, scale, sub, V3};
 
 mod state;
 
+pub use state::SavedState;
+
 /// Neighbours of the inverse-distance interpolation that carries the
 /// previous frame's field (a sample that lands on a new one dominates its
 /// weights by ~10⁸, so the count only matters for a style flow).

@@ -53,6 +53,10 @@ fn parse(bytes: &[u8]) -> Result<Groom, ErrorKind> {
     if flags & HAS_POINTS == 0 {
         return Err(corrupt("cyHair file has no point array (flag bit 1 clear)"));
     }
+    // The points must fit in the file before anything sized by the header's
+    // counts is made: a 370-byte file claiming a billion strands of default
+    // segments used to spend 10 s building their segment list.
+    r.ensure(point_count as u64, 12, "cyHair point array")?;
     let segments: Vec<usize> = if flags & HAS_SEGMENTS != 0 {
         r.ensure(hair_count as u64, 2, "cyHair segment array")?;
         (0..hair_count).map(|_| r.u16("cyHair segment array").map(usize::from)).collect::<Result<_, _>>()?

@@ -9,8 +9,7 @@
 use std::path::Path;
 
 use super::{
-    blosc, GridValues, Leaf, MetaValue, Metadata, SparseGrid, Transform, VdbFile, VdbGrid, LEAF_VOXELS,
-    MAX_DENSE_VOXELS,
+    blosc, tile_budget, GridValues, Leaf, MetaValue, Metadata, SparseGrid, Transform, VdbFile, VdbGrid, LEAF_VOXELS,
 };
 use crate::bytes::Reader;
 use crate::{Error, ErrorKind};
@@ -173,8 +172,12 @@ fn decode(path: &Path, data: &[u8]) -> Result<VdbFile, ErrorKind> {
         return Err(c.corrupt(format!("negative grid count {count}")));
     }
     let mut grids: Vec<(String, VdbGrid)> = Vec::new();
+    // Float values that tile expansion and instancing may still create in
+    // this file, shared by its grids.
+    let limit = tile_budget(c.len());
+    let mut budget = limit;
     for _ in 0..count {
-        let grid = read_grid(&mut c, path, has_offsets, &grids)?;
+        let grid = read_grid(&mut c, path, has_offsets, &grids, (&mut budget, limit))?;
         grids.push(grid);
     }
     Ok(VdbFile {
@@ -262,6 +265,7 @@ fn read_grid(
     path: &Path,
     has_offsets: bool,
     done: &[(String, VdbGrid)],
+    (budget, limit): (&mut u64, u64),
 ) -> Result<(String, VdbGrid), ErrorKind> {
     let unique = c.string("grid name")?;
     let name = unique.split(NAME_SEP).next().unwrap_or("").to_string();
@@ -297,18 +301,33 @@ fn read_grid(
         GridValues::Unsupported { tree_type: tree_type.clone() }
     } else if !parent.is_empty() {
         // An instance shares the tree of a grid written before it.
+        // A copy costs memory like the parent's voxels did: many instances
+        // of one big grid in a small file are refused too.
         match done.iter().find(|(u, _)| *u == parent) {
-            Some((_, p)) => p.values.clone(),
+            Some((_, p)) => {
+                let floats = match &p.values {
+                    GridValues::Float(g) => g.leaf_count() as u64 * LEAF_VOXELS as u64,
+                    GridValues::Vec3(g) => 3 * g.leaf_count() as u64 * LEAF_VOXELS as u64,
+                    GridValues::Unsupported { .. } => 0,
+                };
+                if floats > *budget {
+                    return Err(ErrorKind::TileExpansion {
+                        grid: name,
+                        values: u128::from(floats) + u128::from(limit - *budget),
+                        limit,
+                    });
+                }
+                *budget -= floats;
+                p.values.clone()
+            }
             None => return Err(c.corrupt(format!("grid '{name}' instances missing grid '{parent}'"))),
         }
     } else {
-        let mut dec =
-            TreeDecoder { c: &mut *c, compression, half: saved_as_half, grid: &name, budget: MAX_DENSE_VOXELS };
-        if is_float {
-            GridValues::Float(dec.tree::<f32>()?)
-        } else {
-            GridValues::Vec3(dec.tree::<[f32; 3]>()?)
-        }
+        let mut dec = TreeDecoder { c: &mut *c, compression, half: saved_as_half, grid: &name, budget: *budget, limit };
+        let values =
+            if is_float { GridValues::Float(dec.tree::<f32>()?) } else { GridValues::Vec3(dec.tree::<[f32; 3]>()?) };
+        *budget = dec.budget;
+        values
     };
     if let Some(end) = end_pos {
         // Trust the descriptor's end offset when it is sane, so trailing
@@ -348,8 +367,10 @@ struct TreeDecoder<'c, 'a> {
     compression: u32,
     half: bool,
     grid: &'c str,
-    /// Voxels tile expansion may still create.
+    /// Float values tile expansion may still create in this file.
     budget: u64,
+    /// The file's whole tile budget, [`tile_budget`].
+    limit: u64,
 }
 
 impl TreeDecoder<'_, '_> {
@@ -395,7 +416,27 @@ impl TreeDecoder<'_, '_> {
                 }
             }
         }
-        // Active tiles become full leaves; check the budget before filling.
+        // Active tiles become full leaves: the whole grid's claim is checked
+        // against the file's budget before anything is filled.
+        let tile_voxels = |value_mask: &[u64], child_mask: &[u64], child_total: u32| -> u128 {
+            let tiles: u32 = value_mask.iter().zip(child_mask).map(|(&on, &child)| (on & !child).count_ones()).sum();
+            u128::from(tiles) << (3 * child_total)
+        };
+        let mut claimed = u128::from(root_tiles.len() as u64) << 36;
+        for (_, n5) in &nodes {
+            claimed += tile_voxels(&n5.value_mask, &n5.child_mask, 7);
+            for n4 in &n5.children {
+                claimed += tile_voxels(&n4.value_mask, &n4.child_mask, 3);
+            }
+        }
+        let floats = claimed * (std::mem::size_of::<T>() / std::mem::size_of::<f32>()) as u128;
+        if floats > u128::from(self.budget) {
+            return Err(ErrorKind::TileExpansion {
+                grid: self.grid.to_string(),
+                values: floats + u128::from(self.limit - self.budget),
+                limit: self.limit,
+            });
+        }
         for (_, n5) in &nodes {
             for n4 in &n5.children {
                 self.expand_tiles(&mut grid, n4.origin, &n4.child_mask, &n4.value_mask, &n4.values, 4, 3)?;
@@ -435,15 +476,15 @@ impl TreeDecoder<'_, '_> {
 
     /// Sets every voxel of the cube at `o` with edge `edge` active to `v`.
     fn fill<T: Voxel>(&mut self, grid: &mut SparseGrid<T>, o: [i32; 3], edge: i32, v: T) -> Result<(), ErrorKind> {
-        let voxels = (edge as u64).pow(3);
-        if voxels > self.budget {
-            return Err(ErrorKind::TooLarge {
+        let floats = (edge as u64).pow(3) * (std::mem::size_of::<T>() / std::mem::size_of::<f32>()) as u64;
+        if floats > self.budget {
+            return Err(ErrorKind::TileExpansion {
                 grid: self.grid.to_string(),
-                voxels: u128::from(voxels) + u128::from(MAX_DENSE_VOXELS - self.budget),
-                limit: MAX_DENSE_VOXELS,
+                values: u128::from(floats) + u128::from(self.limit - self.budget),
+                limit: self.limit,
             });
         }
-        self.budget -= voxels;
+        self.budget -= floats;
         for x in (0..edge).step_by(8) {
             for y in (0..edge).step_by(8) {
                 for z in (0..edge).step_by(8) {

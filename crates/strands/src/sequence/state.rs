@@ -21,6 +21,7 @@ use nst3d_splat::{SplatOutput, StrandStyle};
 use super::{LockedView, Previous, SequenceError, SequenceStylizer};
 use crate::pipeline::ViewFrame;
 use crate::strands::FlatStrands;
+use crate::temporal::OneEuroHistory;
 use nst3d_core::math::V3;
 
 /// First bytes of a saved state (format version 1).
@@ -204,6 +205,41 @@ impl SequenceStylizer<'_> {
     /// had run the saved frames. Returns the saved `extra`. A truncated or
     /// foreign buffer is an error and leaves the stylizer as it was.
     pub fn restore_state(&mut self, bytes: &[u8]) -> Result<Vec<f64>, SequenceError> {
+        let SavedState { topology, view, previous, history, sums, flicker_sums, frames, pairs, extra } =
+            SavedState::parse(bytes)?;
+        let mut filter = self.filter.clone();
+        filter.set_history(history).map_err(|e| SequenceError::State(e.to_string()))?;
+        self.topology = topology;
+        self.view = view;
+        self.previous = previous;
+        self.filter = filter;
+        self.sums = sums;
+        self.flicker_sums = flicker_sums;
+        self.frames = frames;
+        self.pairs = pairs;
+        Ok(extra)
+    }
+}
+
+/// A saved state, read and checked but not yet put into a stylizer.
+pub struct SavedState {
+    topology: Option<Vec<usize>>,
+    view: Option<LockedView>,
+    previous: Option<Previous>,
+    history: Option<OneEuroHistory>,
+    sums: [f64; 4],
+    flicker_sums: [f64; 3],
+    frames: usize,
+    pairs: usize,
+    extra: Vec<f64>,
+}
+
+impl SavedState {
+    /// Reads the bytes of [`SequenceStylizer::save_state`]: a truncated or
+    /// foreign buffer, a length the buffer cannot hold, or parts that
+    /// disagree in size are errors. Needs no stylizer, so the fuzz harness
+    /// calls it directly.
+    pub fn parse(bytes: &[u8]) -> Result<SavedState, SequenceError> {
         if bytes.len() < MAGIC.len() || &bytes[..MAGIC.len()] != MAGIC {
             return Err(SequenceError::State("not an nst3d strand sequence state (bad magic)".into()));
         }
@@ -259,16 +295,63 @@ impl SequenceStylizer<'_> {
         if r.at != bytes.len() {
             return Err(corrupt("trailing bytes"));
         }
-        let mut filter = self.filter.clone();
-        filter.set_history(history).map_err(|e| SequenceError::State(e.to_string()))?;
-        self.topology = topology;
-        self.view = view;
-        self.previous = previous;
-        self.filter = filter;
-        self.sums = sums;
-        self.flicker_sums = flicker_sums;
-        self.frames = frames;
-        self.pairs = pairs;
-        Ok(extra)
+        // What the next frame reads side by side must be of one size; the
+        // next frame checks the rest against its own groom.
+        if let Some(p) = &previous {
+            let images = |i: &Image| (i.channels, i.height, i.width);
+            if p.velocities.len() != p.samples.len()
+                || p.output.offsets != p.undeformed.offsets
+                || images(&p.render_output) != images(&p.render_input)
+            {
+                return Err(corrupt("previous frame"));
+            }
+        }
+        if history.as_ref().is_some_and(|(x, d)| x.len() != d.len()) {
+            return Err(corrupt("1€ history"));
+        }
+        Ok(SavedState { topology, view, previous, history, sums, flicker_sums, frames, pairs, extra })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn u64s(xs: &[u64]) -> Vec<u8> {
+        xs.iter().flat_map(|x| x.to_le_bytes()).collect()
+    }
+
+    /// A state with only a previous frame of `samples` samples and
+    /// `velocities` velocities (both strands 1 × 2 points, 1×1×1 renders).
+    fn with_previous(samples: u64, velocities: u64) -> Vec<u8> {
+        let mut b = MAGIC.to_vec();
+        b.extend([0u8, 0, 1]); // no topology, no view, a previous frame
+        for n in [samples, velocities] {
+            b.extend(u64s(&[n]));
+            b.extend(vec![0u8; 12 * n as usize]);
+        }
+        for _ in 0..2 {
+            b.extend(u64s(&[2]));
+            b.extend([0u8; 24]);
+            b.extend(u64s(&[2, 0, 2]));
+        }
+        for _ in 0..2 {
+            b.extend(u64s(&[3, 1, 1, 1, 1]));
+            b.extend(0.5f32.to_le_bytes());
+        }
+        b.push(0); // no 1€ history
+        b.extend([0u8; 7 * 8]);
+        b.extend(u64s(&[1, 0, 0]));
+        b
+    }
+
+    #[test]
+    fn parts_that_disagree_in_size_are_refused() {
+        assert!(SavedState::parse(&with_previous(3, 3)).is_ok());
+        let e = SavedState::parse(&with_previous(3, 2)).err().expect("refused").to_string();
+        assert!(e.contains("previous frame"), "{e}");
+        let mut trailing = with_previous(3, 3);
+        trailing.push(0);
+        assert!(SavedState::parse(&trailing).is_err());
     }
 }
