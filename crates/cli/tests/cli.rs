@@ -351,3 +351,40 @@ fn bad_outputs_are_refused_before_any_work() {
     assert!(o.status.code() == Some(1) && err.contains("is the input"), "{err}");
     assert!(std::fs::read(&groom).unwrap() == before, "the groom was touched");
 }
+
+#[test]
+fn a_grid_too_big_for_memory_is_refused_before_refining() {
+    // NST3D_MEMORY_LIMIT stands for a farm slot's share (or a small blade):
+    // at --upsample 8 the real frame would be 408x392x768 voxels, ~30 GB.
+    let dir = tempfile::tempdir().unwrap();
+    let style = shared("styles/starry_night.jpg");
+    let frame = shared("volumes/smoke_000003.vdb");
+    let out = dir.path().join("out.vdb");
+    let started = std::time::Instant::now();
+    let o = Command::new(env!("CARGO_BIN_EXE_nst3d"))
+        .env("NST3D_MEMORY_LIMIT", "1G")
+        .args(["volume", "--input", s(&frame), "--style", s(&style), "--out", s(&out), "--upsample", "8"])
+        .output()
+        .unwrap();
+    assert_fails(&o, &out, "408x392x768");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("needs about 29.9 GB") && err.contains("1.0 GB is available") && err.contains("--upsample"),
+        "{err}"
+    );
+    assert!(started.elapsed().as_secs() < 10, "refused after {:?}", started.elapsed());
+
+    // A sequence checks its common box the same way, before any frame is stylized.
+    let frames = shared("volumes/plume48").join("fluid_data_####.vdb");
+    // Its box (112x112x104 refined) needs ~0.9 GB; iterations kept minimal
+    // so a wrong estimate fails the assertions, not the time limit.
+    let o = Command::new(env!("CARGO_BIN_EXE_nst3d"))
+        .env("NST3D_MEMORY_LIMIT", "500M")
+        .args(["volume", "--input", s(&frames), "--frames", "1-3", "--style", s(&style), "--iters", "1"])
+        .args(["--octaves", "1", "--out", s(&dir.path().join("s_####.vdb")), "--upsample", "8"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("112x112x104 grid needs about 0.9 GB") && err.contains("0.5 GB is available"), "{err}");
+}

@@ -4,8 +4,32 @@
 
 /// Bytes available to this process: the kernel's `MemAvailable`, lowered to
 /// what is left under a cgroup v2 `memory.max` (a container or a Slurm job
-/// limit) when there is one. `None` where neither can be read.
+/// limit) when there is one, and to `NST3D_MEMORY_LIMIT` when set (bytes,
+/// or with a K/M/G suffix: a farm slot's share of a blade that has no
+/// cgroup limits). `None` where none of these can be read.
 pub fn available() -> Option<u64> {
+    let limit = std::env::var("NST3D_MEMORY_LIMIT").ok().and_then(|v| parse_size(&v));
+    match (machine_available(), limit) {
+        (Some(a), Some(l)) => Some(a.min(l)),
+        (a, l) => a.or(l),
+    }
+}
+
+/// `1234`, `512M`, `2G`, `1.5G` (powers of 1000, like the messages print).
+fn parse_size(s: &str) -> Option<u64> {
+    let s = s.trim();
+    let (num, mul) = match s.char_indices().last()? {
+        (i, 'K' | 'k') => (&s[..i], 1e3),
+        (i, 'M' | 'm') => (&s[..i], 1e6),
+        (i, 'G' | 'g') => (&s[..i], 1e9),
+        (i, 'T' | 't') => (&s[..i], 1e12),
+        _ => (s, 1.0),
+    };
+    let v: f64 = num.trim().parse().ok()?;
+    (v.is_finite() && v >= 0.0).then(|| (v * mul) as u64)
+}
+
+fn machine_available() -> Option<u64> {
     let meminfo = std::fs::read_to_string("/proc/meminfo").ok();
     let avail = meminfo.as_deref().and_then(|m| {
         m.lines().find(|l| l.starts_with("MemAvailable:"))?.split_whitespace().nth(1)?.parse::<u64>().ok()
@@ -39,6 +63,15 @@ pub fn check_fits(needed: u64, what: &str, lower: &str) -> Result<(), String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sizes_parse_with_suffixes() {
+        assert_eq!(parse_size("1234"), Some(1234));
+        assert_eq!(parse_size("512M"), Some(512_000_000));
+        assert_eq!(parse_size("1.5G"), Some(1_500_000_000));
+        assert_eq!(parse_size("lots"), None);
+        assert_eq!(parse_size("-1G"), None);
+    }
 
     #[test]
     fn a_need_beyond_the_machine_is_refused_naming_both_figures() {

@@ -158,6 +158,7 @@ pub fn stylize_grid(
     }
     let dims = dense.dims;
     let k = s.upsample.factor(dims);
+    VolumeSettings::check_memory(dims.map(|d| d * k), false)?;
     let (dense, transform, origin) = match k {
         1 => (dense, transform.clone(), origin),
         _ => {

@@ -262,6 +262,7 @@ fn shot(
     if dims.iter().product::<usize>() > (1 << 28) {
         bail!("the frames' common box {dims:?} is too large to stylize densely");
     }
+    VolumeSettings::check_memory(dims, true)?;
     let origin = refine_origin(coarse_origin, k)?;
     let transform = refine_transform(&sv.transform, k);
     if k > 1 {

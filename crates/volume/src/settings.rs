@@ -172,6 +172,29 @@ impl VolumeSettings {
         }
     }
 
+    /// Estimated peak memory (bytes) of stylizing a grid of `dims` voxels
+    /// (after refinement) by optimisation: 400 MB (weights, the painting's
+    /// features, buffers) plus 240 bytes per voxel (the field, its Adam
+    /// moments, the transport and renderer tapes), and 200 MB more for a
+    /// sequence (neighbouring frames and their velocities). Fitted to the
+    /// peak RSS of plume48 refined 1-8x (13 K-6.7 M voxels), up to 10 % above it
+    /// (docs/FARM.md); cameras barely change it (they are rendered in turn).
+    pub fn memory_estimate(dims: [usize; 3], sequence: bool) -> u64 {
+        let voxels = dims.iter().map(|&d| d as u64).product::<u64>();
+        let fixed = if sequence { 600_000_000 } else { 400_000_000 };
+        voxels.saturating_mul(240).saturating_add(fixed)
+    }
+
+    /// Refuses, before the grid is refined or anything is optimised, a
+    /// stylization whose [`VolumeSettings::memory_estimate`] exceeds what
+    /// this machine has available.
+    pub fn check_memory(dims: [usize; 3], sequence: bool) -> Result<()> {
+        let need = Self::memory_estimate(dims, sequence);
+        let what = format!("stylizing a {}x{}x{} grid", dims[0], dims[1], dims[2]);
+        let lower = "lower --upsample, or stylize with a trained --model (tiled, bounded memory)";
+        nst3d_core::memory::check_fits(need, &what, lower).map_err(anyhow::Error::msg)
+    }
+
     /// Checks the numbers before any slow work, so a typo fails in a second.
     pub fn check(&self) -> Result<()> {
         if self.octaves == 0 || self.iters == 0 {
