@@ -26,7 +26,7 @@ fn parse_size(s: &str) -> Option<u64> {
         _ => (s, 1.0),
     };
     let v: f64 = num.trim().parse().ok()?;
-    (v.is_finite() && v >= 0.0).then(|| (v * mul) as u64)
+    (v.is_finite() && v >= 0.0).then_some((v * mul) as u64)
 }
 
 fn machine_available() -> Option<u64> {

@@ -437,23 +437,22 @@ impl TreeDecoder<'_, '_> {
                 limit: self.limit,
             });
         }
+        self.budget -= floats as u64;
         for (_, n5) in &nodes {
             for n4 in &n5.children {
-                self.expand_tiles(&mut grid, n4.origin, &n4.child_mask, &n4.value_mask, &n4.values, 4, 3)?;
+                Self::expand_tiles(&mut grid, n4.origin, &n4.child_mask, &n4.value_mask, &n4.values, 4, 3);
             }
-            self.expand_tiles(&mut grid, n5.origin, &n5.child_mask, &n5.value_mask, &n5.values, 5, 7)?;
+            Self::expand_tiles(&mut grid, n5.origin, &n5.child_mask, &n5.value_mask, &n5.values, 5, 7);
         }
         for (o, v) in root_tiles {
-            self.fill(&mut grid, o.map(|x| x & !4095), 4096, v)?;
+            Self::fill(&mut grid, o.map(|x| x & !4095), 4096, v);
         }
         Ok(grid)
     }
 
     /// Expands the active tiles of one internal node with `2^log2` children
     /// per axis, each covering `2^child_total` voxels per axis.
-    #[allow(clippy::too_many_arguments)]
     fn expand_tiles<T: Voxel>(
-        &mut self,
         grid: &mut SparseGrid<T>,
         origin: [i32; 3],
         child_mask: &[u64],
@@ -461,30 +460,21 @@ impl TreeDecoder<'_, '_> {
         values: &[T],
         log2: u32,
         child_total: u32,
-    ) -> Result<(), ErrorKind> {
+    ) {
         for (w, (&on, &child)) in value_mask.iter().zip(child_mask).enumerate() {
             let mut tiles = on & !child;
             while tiles != 0 {
                 let n = w * 64 + tiles.trailing_zeros() as usize;
                 tiles &= tiles - 1;
                 let o = local_origin(origin, n, log2, child_total);
-                self.fill(grid, o, 1 << child_total, values[n])?;
+                Self::fill(grid, o, 1 << child_total, values[n]);
             }
         }
-        Ok(())
     }
 
-    /// Sets every voxel of the cube at `o` with edge `edge` active to `v`.
-    fn fill<T: Voxel>(&mut self, grid: &mut SparseGrid<T>, o: [i32; 3], edge: i32, v: T) -> Result<(), ErrorKind> {
-        let floats = (edge as u64).pow(3) * (std::mem::size_of::<T>() / std::mem::size_of::<f32>()) as u64;
-        if floats > self.budget {
-            return Err(ErrorKind::TileExpansion {
-                grid: self.grid.to_string(),
-                values: u128::from(floats) + u128::from(self.limit - self.budget),
-                limit: self.limit,
-            });
-        }
-        self.budget -= floats;
+    /// Sets every voxel of the cube at `o` with edge `edge` active to `v`
+    /// (the caller has charged it to the budget).
+    fn fill<T: Voxel>(grid: &mut SparseGrid<T>, o: [i32; 3], edge: i32, v: T) {
         for x in (0..edge).step_by(8) {
             for y in (0..edge).step_by(8) {
                 for z in (0..edge).step_by(8) {
@@ -493,7 +483,6 @@ impl TreeDecoder<'_, '_> {
                 }
             }
         }
-        Ok(())
     }
 
     fn node5<T: Voxel>(&mut self, origin: [i32; 3], bg: T) -> Result<Node5<T>, ErrorKind> {
