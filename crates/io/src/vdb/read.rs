@@ -306,18 +306,11 @@ fn read_grid(
         match done.iter().find(|(u, _)| *u == parent) {
             Some((_, p)) => {
                 let floats = match &p.values {
-                    GridValues::Float(g) => g.leaf_count() as u64 * LEAF_VOXELS as u64,
-                    GridValues::Vec3(g) => 3 * g.leaf_count() as u64 * LEAF_VOXELS as u64,
+                    GridValues::Float(g) => g.leaf_count() as u128 * LEAF_VOXELS as u128,
+                    GridValues::Vec3(g) => 3 * g.leaf_count() as u128 * LEAF_VOXELS as u128,
                     GridValues::Unsupported { .. } => 0,
                 };
-                if floats > *budget {
-                    return Err(ErrorKind::TileExpansion {
-                        grid: name,
-                        values: u128::from(floats) + u128::from(limit - *budget),
-                        limit,
-                    });
-                }
-                *budget -= floats;
+                charge(budget, limit, floats, &name)?;
                 p.values.clone()
             }
             None => return Err(c.corrupt(format!("grid '{name}' instances missing grid '{parent}'"))),
@@ -342,6 +335,17 @@ fn read_grid(
     let grid =
         VdbGrid { name, class, transform, values, metadata, saved_as_half, source_path: Some(path.to_path_buf()) };
     Ok((unique, grid))
+}
+
+/// Takes `floats` from what is left of the file's tile budget `limit`, or
+/// refuses naming the file's whole claim with them.
+fn charge(budget: &mut u64, limit: u64, floats: u128, grid: &str) -> Result<(), ErrorKind> {
+    if floats > u128::from(*budget) {
+        let values = floats + u128::from(limit - *budget);
+        return Err(ErrorKind::TileExpansion { grid: grid.to_string(), values, limit });
+    }
+    *budget -= floats as u64;
+    Ok(())
 }
 
 /// Topology of a 16³ (`InternalNode<Leaf, 4>`) node.
@@ -430,14 +434,7 @@ impl TreeDecoder<'_, '_> {
             }
         }
         let floats = claimed * (std::mem::size_of::<T>() / std::mem::size_of::<f32>()) as u128;
-        if floats > u128::from(self.budget) {
-            return Err(ErrorKind::TileExpansion {
-                grid: self.grid.to_string(),
-                values: floats + u128::from(self.limit - self.budget),
-                limit: self.limit,
-            });
-        }
-        self.budget -= floats as u64;
+        charge(&mut self.budget, self.limit, floats, self.grid)?;
         for (_, n5) in &nodes {
             for n4 in &n5.children {
                 Self::expand_tiles(&mut grid, n4.origin, &n4.child_mask, &n4.value_mask, &n4.values, 4, 3);
