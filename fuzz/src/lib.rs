@@ -31,17 +31,15 @@ fn valid(groom: &Groom) {
 pub fn vdb(data: &[u8]) {
     let Ok(file) = read_vdb_bytes(Path::new("fuzz.vdb"), data) else { return };
     for g in &file.grids {
-        let _ = g.active_bbox();
-        if g.active_voxel_count() > 0 && g.active_voxel_count() <= DENSE_PROBE_VOXELS {
-            let small = g.active_bbox().is_some_and(|(lo, hi)| {
-                (0..3).map(|a| (i64::from(hi[a]) - i64::from(lo[a]) + 1) as u64).product::<u64>() <= DENSE_PROBE_VOXELS
-            });
-            if small {
-                match &g.values {
-                    GridValues::Float(_) => drop(g.to_dense()),
-                    GridValues::Vec3(_) => drop(g.to_dense_vec3()),
-                    GridValues::Unsupported { .. } => {}
-                }
+        // No box: nothing active, nothing to densify.
+        let small = g.active_bbox().is_some_and(|(lo, hi)| {
+            (0..3).map(|a| (i64::from(hi[a]) - i64::from(lo[a]) + 1) as u64).product::<u64>() <= DENSE_PROBE_VOXELS
+        });
+        if small {
+            match &g.values {
+                GridValues::Float(_) => drop(g.to_dense()),
+                GridValues::Vec3(_) => drop(g.to_dense_vec3()),
+                GridValues::Unsupported { .. } => {}
             }
         }
     }

@@ -9,9 +9,14 @@
 /// cgroup limits). `None` where none of these can be read.
 pub fn available() -> Option<u64> {
     let limit = std::env::var("NST3D_MEMORY_LIMIT").ok().and_then(|v| parse_size(&v));
-    match (machine_available(), limit) {
-        (Some(a), Some(l)) => Some(a.min(l)),
-        (a, l) => a.or(l),
+    smaller(machine_available(), limit)
+}
+
+/// The smaller of two limits, either of which may be unknown.
+fn smaller(a: Option<u64>, b: Option<u64>) -> Option<u64> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
     }
 }
 
@@ -40,10 +45,7 @@ fn machine_available() -> Option<u64> {
         (Some(max), Some(cur)) => Some(max.saturating_sub(cur)),
         _ => None,
     };
-    match (avail, cgroup) {
-        (Some(a), Some(c)) => Some(a.min(c)),
-        (a, c) => a.or(c),
-    }
+    smaller(avail, cgroup)
 }
 
 /// `Err` with a message naming both figures when `needed` bytes (an
