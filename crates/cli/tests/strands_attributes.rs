@@ -59,6 +59,8 @@ fn usda_groom_keeps_widths_colours_and_primvars() {
         foo.join(", "),
         bar.join(", ")
     );
+    // Declared z-up, which the output must keep (the points stay in the layer's axes).
+    let layer = layer.replace("upAxis = \"Y\"", "upAxis = \"Z\"");
     std::fs::write(&input, layer.strip_suffix("}\n").unwrap().to_string() + &extra).unwrap();
     let before = read_groom_file(&input).unwrap();
     assert_eq!(before.groom, groom);
@@ -76,6 +78,7 @@ fn usda_groom_keeps_widths_colours_and_primvars() {
         assert_eq!(a.colors, b.colors, "strand {i}: colours");
     }
     assert_eq!(after.usd_primvars.primvars, before.usd_primvars.primvars, "primvars:foo and primvars:bar");
+    assert_eq!(after.usd_primvars.up_axis.as_deref(), Some("Z"), "the input layer's upAxis");
 
     // The same groom to .ply: widths exact, colours to 8 bits, and the
     // primvars it cannot hold said once on stderr.
@@ -83,6 +86,7 @@ fn usda_groom_keeps_widths_colours_and_primvars() {
     let o = strands(&input, &out);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert_eq!(stderr.matches("cannot hold primvars:foo, primvars:bar").count(), 1, "{stderr}");
+    assert_eq!(stderr.matches("has no up axis").count(), 1, "{stderr}");
     assert_eq!(stderr.matches("rounded to 8 bits").count(), 1, "{stderr}");
     let ply = read_ply_strands(&out).unwrap();
     assert!(max_move(&groom, &ply) > 0.1);

@@ -42,14 +42,21 @@ pub fn write_groom(path: &Path, format: OutFormat, strands: &FlatStrands, input:
 
 /// What of `input`'s attributes an output in `format` will not hold, one
 /// line each (for the job to say once, before the slow part): primvars the
-/// reader could not keep, any primvar at all in `.ply`, and colours finer
-/// than the 8 bits per channel of `.ply`.
+/// reader could not keep, any primvar at all in `.ply`, a z-up layer's axis
+/// in `.ply`, and colours finer than the 8 bits per channel of `.ply`.
 pub fn attribute_notes(input: &GroomFile, format: OutFormat) -> Vec<String> {
     let mut notes = input.usd_primvars.dropped.clone();
     if format == OutFormat::Ply {
         let names: Vec<&str> = input.usd_primvars.primvars.iter().map(|p| p.name.as_str()).collect();
         if !names.is_empty() {
             notes.push(format!("a .ply output cannot hold {}: write .usda to keep them", names.join(", ")));
+        }
+        // Y is what a reader of the .ply will assume anyway.
+        if let Some(axis) = input.usd_primvars.up_axis.as_deref().filter(|&a| a != "Y") {
+            notes.push(format!(
+                "a .ply output has no up axis (the input layer is {axis}-up; its points are written as they are): \
+                 write .usda to keep it"
+            ));
         }
         let fine = |c: f32| {
             let k = (c.clamp(0.0, 1.0) * 255.0).round();

@@ -23,8 +23,9 @@
 //! the supported binary formats carries a transform, scale or up axis (the
 //! Bangs test groom is Y-up in all of them); USD transforms (`xformOp`s on the
 //! curve prim and its ancestors) are applied so points come out in world
-//! space, while the layer's `upAxis`/`metersPerUnit` are reported by nothing
-//! and applied by nothing. Every reader validates what it returns (see
+//! space, while the layer's `upAxis`/`metersPerUnit` are not applied: they
+//! are reported in [`UsdPrimvars`] and written back with the points, which
+//! stay in the layer's axes and units. Every reader validates what it returns (see
 //! [`Groom::validate`]) so a NaN or a one-point strand never reaches the
 //! renderer.
 

@@ -65,6 +65,7 @@ fn ply_keeps_uchar_colours_byte_for_byte_and_widths_exactly() {
 /// widths, uniform colours and five primvars the groom does not hold.
 const LAYER: &str = r#"#usda 1.0
 (
+    metersPerUnit = 0.01
     upAxis = "Z"
 )
 
@@ -113,6 +114,7 @@ fn usda_keeps_widths_colours_and_every_other_primvar() {
 
     let pv = &file.usd_primvars;
     assert_eq!(pv.curve_points, [3, 2, 4]);
+    assert_eq!((pv.up_axis.as_deref(), pv.meters_per_unit), (Some("Z"), Some(0.01)), "the layer's axis and units");
     assert!(pv.dropped.is_empty(), "{:?}", pv.dropped);
     let names: Vec<&str> = pv.primvars.iter().map(|p| p.name.as_str()).collect();
     assert_eq!(

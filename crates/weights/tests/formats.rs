@@ -56,12 +56,10 @@ fn legacy_zip_and_safetensors_match_pytorch() {
 #[test]
 fn zip_archive_folder_name_does_not_matter() {
     // The fixture's folder is `state_zip/`; the same bytes under another file name load.
-    let dir = std::env::temp_dir().join(format!("nst3d-weights-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let renamed = dir.join("renamed.bin");
+    let dir = tempfile::tempdir().unwrap();
+    let renamed = dir.path().join("renamed.bin");
     std::fs::copy(fixture("state_zip.pth"), &renamed).unwrap();
     let map = load_tensors(&renamed).unwrap();
-    std::fs::remove_file(&renamed).ok();
     assert_matches_expected(&map, "renamed zip");
 }
 

@@ -112,10 +112,11 @@ fn write_safetensors(path: &Path, map: &TensorMap) {
     std::fs::write(path, bytes).unwrap();
 }
 
-fn temp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("nst3d-weights-vgg-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+/// A path `name` in a folder removed when the returned guard drops.
+fn temp(name: &str) -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(name);
+    (dir, path)
 }
 
 #[test]
@@ -137,10 +138,9 @@ fn torchvision_and_gatys_layouts_are_recognised() {
 
     // End to end through files.
     for (name, map) in [("tv.safetensors", &torchvision), ("gatys.safetensors", &gatys)] {
-        let path = temp(name);
+        let (_dir, path) = temp(name);
         write_safetensors(&path, map);
         let loaded = load_vgg19_weights(&path).unwrap_or_else(|e| panic!("{e}"));
-        std::fs::remove_file(&path).ok();
         assert_eq!(loaded.len(), 32);
     }
 }
@@ -158,9 +158,8 @@ fn other_checkpoints_are_not_vgg19() {
     normalised.insert("0.weight".into(), TensorData { shape: vec![3, 3, 1, 1], data: vec![0.0; 9] });
     normalised.insert("0.bias".into(), TensorData { shape: vec![3], data: vec![0.0; 3] });
     assert_eq!(vgg19_layout(&normalised), Some(Vgg19Layout::Normalised));
-    let path = temp("normalised.safetensors");
+    let (_dir, path) = temp("normalised.safetensors");
     write_safetensors(&path, &normalised);
     let err = load_vgg19_weights(&path).unwrap_err();
-    std::fs::remove_file(&path).ok();
     assert!(matches!(err, WeightsError::NotVgg19 { .. }), "{err}");
 }

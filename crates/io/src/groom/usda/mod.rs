@@ -18,8 +18,10 @@
 //! translate (the pivot idiom). Other inverted ops are refused as
 //! unsupported rather than silently ignored. Widths are not scaled by the
 //! transform. Not read: composition (references, payloads, sublayers,
-//! inherits), `variantSet` blocks (skipped), normals, `upAxis` and
-//! `metersPerUnit` (points are returned in the layer's own axes and units).
+//! inherits), `variantSet` blocks (skipped), normals. `upAxis` and
+//! `metersPerUnit` are not applied (points are returned in the layer's own
+//! axes and units); [`read_usda_curves_file`] reports them so the writer
+//! can declare the same.
 //! `type`, `basis` and `wrap` only matter for mapping `varying` primvars;
 //! the points are kept as the prim's control points whatever the basis.
 //!
@@ -77,9 +79,21 @@ fn decode(bytes: &[u8], with_primvars: bool) -> Result<(Groom, UsdPrimvars), Err
         return Err(corrupt("not a text USD layer (no '#usda' header)"));
     }
     let text = std::str::from_utf8(bytes).map_err(|e| corrupt(format!("USD layer is not UTF-8 ({e})")))?;
-    let root = parse::layer(text)?;
+    let (root, meta) = parse::layer(text)?;
     let (mut strands, mut read) = (Vec::new(), Vec::new());
     curves::walk(&root, &xform::IDENTITY, &mut strands, &mut read)?;
-    let primvars = if with_primvars { primvars::gather(text, &read) } else { UsdPrimvars::default() };
+    let mut primvars = UsdPrimvars::default();
+    if with_primvars {
+        primvars = primvars::gather(text, &read);
+        for (key, value) in &meta {
+            match key.as_str() {
+                // USD knows only these two; anything else is not an axis a
+                // DCC would honour, so the writer's default stands.
+                "upAxis" => primvars.up_axis = value.as_str().filter(|a| matches!(*a, "Y" | "Z")).map(str::to_string),
+                "metersPerUnit" => primvars.meters_per_unit = value.as_f64().filter(|m| m.is_finite() && *m > 0.0),
+                _ => {}
+            }
+        }
+    }
     Ok((Groom { strands }, primvars))
 }

@@ -414,12 +414,11 @@ impl Parser {
 }
 
 /// Parses a whole layer (header already checked) into a root prim holding
-/// the layer's prims as children.
-pub(super) fn layer(text: &str) -> Result<Prim, ErrorKind> {
+/// the layer's prims as children, and the layer's own `( ... )` metadata
+/// (`upAxis`, `metersPerUnit`, ...).
+pub(super) fn layer(text: &str) -> Result<(Prim, Vec<(String, Val)>), ErrorKind> {
     let mut p = Parser { toks: tokenize(text)?, i: 0 };
-    if p.is_punct('(') {
-        p.metadata(0)?;
-    }
+    let meta = if p.is_punct('(') { p.metadata(0)? } else { Vec::new() };
     let mut root = Prim {
         specifier: "def".into(),
         type_name: None,
@@ -437,5 +436,5 @@ pub(super) fn layer(text: &str) -> Result<Prim, ErrorKind> {
             _ => return Err(p.err("expected a prim (def, over or class) at layer level")),
         }
     }
-    Ok(root)
+    Ok((root, meta))
 }

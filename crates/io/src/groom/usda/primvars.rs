@@ -54,6 +54,14 @@ pub struct UsdPrimvars {
     pub primvars: Vec<UsdPrimvar>,
     /// One line per primvar found but not kept, saying why.
     pub dropped: Vec<String>,
+    /// The layer's `upAxis` (`"Y"` or `"Z"`), if it declares one. The
+    /// reader returns points in the layer's own axes, so a layer written
+    /// back with them must say the same axis, or a z-up groom stands on its
+    /// back in the DCC.
+    pub up_axis: Option<String>,
+    /// The layer's `metersPerUnit`, if it declares one (points are kept in
+    /// the layer's units, so the writer says the same units).
+    pub meters_per_unit: Option<f64>,
 }
 
 /// Primvars the reader turns into strand attributes; the writer writes

@@ -10,6 +10,9 @@ use crate::{Error, ErrorKind};
 /// Writes `groom` as a text USD layer (`upAxis = "Y"`, `defaultPrim =
 /// "Groom"`) holding one `BasisCurves` prim `/Groom`.
 ///
+/// `upAxis = "Y"` is a guess when the points come from a format with no
+/// axis (PLY, cyHair, Alembic curves): most DCCs' default.
+///
 /// `type = "linear"`: our strands are sampled hair polylines (as every
 /// supported input format stores them), and linear curves draw exactly those
 /// points in any USD renderer, whereas cubic Catmull-Rom would drop the
@@ -29,7 +32,9 @@ pub fn write_usda_curves(path: &Path, groom: &Groom) -> Result<(), Error> {
 /// [`write_usda_curves`], plus the input layer's other primvars
 /// ([`UsdPrimvars`], as read by
 /// [`read_usda_curves_file`](crate::groom::read_usda_curves_file)) written
-/// after the colours, each declaration as it was. Fails without writing
+/// after the colours, each declaration as it was, and the input layer's
+/// `upAxis` and `metersPerUnit` (the points are in its axes and units).
+/// Fails without writing
 /// when the groom's curves are not those the primvars were read from (same
 /// number, same points each), or when a primvar is one the writer writes
 /// from the strands (`primvars:displayColor`, `primvars:widths`) or is not
@@ -69,7 +74,11 @@ pub fn write_usda_curves_with(path: &Path, groom: &Groom, primvars: &UsdPrimvars
     let f3 = |s: &mut String, p: &[f32; 3]| {
         let _ = write!(s, "({}, {}, {})", p[0], p[1], p[2]);
     };
-    s.push_str("#usda 1.0\n(\n    defaultPrim = \"Groom\"\n    doc = \"Written by nst3d\"\n    upAxis = \"Y\"\n)\n\n");
+    s.push_str("#usda 1.0\n(\n    defaultPrim = \"Groom\"\n    doc = \"Written by nst3d\"\n");
+    if let Some(m) = primvars.meters_per_unit {
+        let _ = writeln!(s, "    metersPerUnit = {m}");
+    }
+    let _ = write!(s, "    upAxis = \"{}\"\n)\n\n", primvars.up_axis.as_deref().unwrap_or("Y"));
     s.push_str(
         "def BasisCurves \"Groom\"\n{\n    uniform token type = \"linear\"\n    uniform token wrap = \"nonperiodic\"\n",
     );
