@@ -80,7 +80,7 @@ fn volume_iter(args: &BenchArgs) -> Result<()> {
 
 /// `infer`: the feed-forward network's forward pass; the last line is `ms_infer`.
 fn infer(args: &BenchArgs) -> Result<()> {
-    if !(16..=512).contains(&args.n) || args.n % 4 != 0 {
+    if !(16..=512).contains(&args.n) || !args.n.is_multiple_of(4) {
         bail!("--n must be a multiple of 4 between 16 and 512, got {}", args.n);
     }
     if !(1..=256).contains(&args.channels) {
@@ -97,7 +97,7 @@ fn infer(args: &BenchArgs) -> Result<()> {
 
 /// `train-step`: one feed-forward training step; the last line is `ms_per_step`.
 fn train_step(args: &BenchArgs) -> Result<()> {
-    if !(16..=256).contains(&args.patch) || args.patch % 4 != 0 {
+    if !(16..=256).contains(&args.patch) || !args.patch.is_multiple_of(4) {
         bail!("--patch must be a multiple of 4 between 16 and 256, got {}", args.patch);
     }
     if !(1..=256).contains(&args.channels) {

@@ -28,7 +28,7 @@ pub(crate) struct Blocking {
 impl Blocking {
     /// The fastest blocking that divides `cout` (a multiple of [`NR_MIN`]).
     pub(crate) fn for_cout(cout: usize) -> Self {
-        if cout % 64 == 0 {
+        if cout.is_multiple_of(64) {
             Self { mr: 6, nr: 64 }
         } else {
             Self { mr: 12, nr: 32 }

@@ -30,7 +30,7 @@ const G: [[f64; 3]; 6] = [
 
 /// Whether a convolution with these channel counts can take this path.
 pub(crate) fn supports(cin: usize, cout: usize) -> bool {
-    cin % LANES == 0 && cout % NR_MIN == 0 && cin > 0 && cout > 0
+    cin.is_multiple_of(LANES) && cout.is_multiple_of(NR_MIN) && cin > 0 && cout > 0
 }
 
 /// Transformed weights, packed as `[position][cout / nr][cin][nr]` (`nr`

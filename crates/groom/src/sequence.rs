@@ -243,5 +243,5 @@ fn job_hash(
         stamped.extend(mesh_at(f)?);
     }
     let settings = format!("{a:?}|threads {}", rayon::current_num_threads());
-    Ok(job_fingerprint(&settings, &[s.style.clone()], &stamped)?)
+    Ok(job_fingerprint(&settings, std::slice::from_ref(&s.style), &stamped)?)
 }

@@ -40,7 +40,7 @@ type Dict<'py> = Bound<'py, PyDict>;
 
 /// Little-endian f32 bytes → values (numpy's native order on every platform nst3d runs on).
 fn f32s(bytes: &[u8], what: &str) -> PyResult<Vec<f32>> {
-    if bytes.len() % 4 != 0 {
+    if !bytes.len().is_multiple_of(4) {
         return Err(PyValueError::new_err(format!("{what}: {} bytes is not a whole number of float32", bytes.len())));
     }
     Ok(bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())

@@ -59,7 +59,7 @@ fn ema_cuts_flicker() {
         };
         let mut store = MemoryStore::default();
         let params = SequenceParams { frame, alpha, settle_first_sweep: false };
-        stylize_sequence(&sim, &loss, &[view.clone()], &params, &mut store, &mut |_| {}).unwrap();
+        stylize_sequence(&sim, &loss, std::slice::from_ref(&view), &params, &mut store, &mut |_| {}).unwrap();
         let frames: Vec<Grid3> = (0..sim.len()).map(|t| stylized_density(&sim, &mut store, t).unwrap()).collect();
         let vels: Vec<_> = (0..sim.len()).map(|t| sim.velocity(t).unwrap()).collect();
         let f = flicker(&frames, &vels, |d| loss.image(d, &view).unwrap());

@@ -272,7 +272,7 @@ fn write_outputs(
 pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainReport> {
     let inputs: Vec<&Path> = s.frames.iter().map(PathBuf::as_path).collect();
     nst3d_io::atomic::check_output("--out", &s.out, &[], &inputs).map_err(anyhow::Error::msg)?;
-    if s.patch % 4 != 0 || !(16..=256).contains(&s.patch) {
+    if !s.patch.is_multiple_of(4) || !(16..=256).contains(&s.patch) {
         bail!("--patch must be a multiple of 4 from 16 to 256, got {}", s.patch);
     }
     if !(1..=128).contains(&s.channels) || s.steps == 0 || s.checkpoint_every == 0 {
@@ -330,7 +330,7 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         let out_of_time = s.minutes.is_some_and(|m| t0.elapsed().as_secs_f64() >= 60.0 * m);
         // A stopped run checkpoints first, so rerunning it resumes at this step.
         let stop = nst3d_core::stop::requested();
-        if trainer.steps() % s.checkpoint_every == 0 || trainer.steps() == s.steps || out_of_time || stop {
+        if trainer.steps().is_multiple_of(s.checkpoint_every) || trainer.steps() == s.steps || out_of_time || stop {
             save_checkpoint(&ckpt, s, &trainer, &rng, &losses)?;
             write_outputs(s, &trainer, &losses, &style_sha, [style_img.width, style_img.height])?;
         }

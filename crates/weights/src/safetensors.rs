@@ -58,7 +58,7 @@ pub(crate) fn write(
         offset = end;
     }
     let mut json = serde_json::to_vec(&serde_json::Value::Object(header)).expect("a JSON map serialises");
-    while json.len() % 8 != 0 {
+    while !json.len().is_multiple_of(8) {
         json.push(b' ');
     }
     let mut out = Vec::with_capacity(8 + json.len() + offset);

@@ -247,11 +247,11 @@ pub fn stylize_with(
             let mut cache: HashMap<usize, (SplatCamera, NnstMatch)> = HashMap::new();
             for m in 0..iters {
                 let k = m as usize % views.len();
-                if !cache.contains_key(&k) {
+                if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(k) {
                     let cam = scene.camera(views[k].0, views[k].1)?;
                     let (matched, _) =
                         match_view_on(scene, base.as_ref().unwrap_or(&scene.undeformed), vgg, &sstyle, &cam)?;
-                    cache.insert(k, (cam, matched));
+                    e.insert((cam, matched));
                 }
                 let (cam, matched) = &cache[&k];
                 if let Some(hook) = hooks.before_iteration.as_mut() {
