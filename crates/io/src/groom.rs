@@ -25,9 +25,9 @@
 //! curve prim and its ancestors) are applied so points come out in world
 //! space, while the layer's `upAxis`/`metersPerUnit` are not applied: they
 //! are reported in [`UsdPrimvars`] and written back with the points, which
-//! stay in the layer's axes and units. Every reader validates what it returns (see
-//! [`Groom::validate`]) so a NaN or a one-point strand never reaches the
-//! renderer.
+//! stay in the layer's axes and units. Every reader validates what it
+//! returns (see [`Groom::validate`]) so a NaN or a one-point strand never
+//! reaches the renderer.
 
 use std::path::Path;
 

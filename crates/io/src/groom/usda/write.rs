@@ -34,9 +34,8 @@ pub fn write_usda_curves(path: &Path, groom: &Groom) -> Result<(), Error> {
 /// [`read_usda_curves_file`](crate::groom::read_usda_curves_file)) written
 /// after the colours, each declaration as it was, and the input layer's
 /// `upAxis` and `metersPerUnit` (the points are in its axes and units).
-/// Fails without writing
-/// when the groom's curves are not those the primvars were read from (same
-/// number, same points each), or when a primvar is one the writer writes
+/// Fails without writing when the groom's curves are not those the
+/// primvars were read from (same number, same points each), or when a primvar is one the writer writes
 /// from the strands (`primvars:displayColor`, `primvars:widths`) or is not
 /// a `primvars:` attribute. The declarations are not otherwise checked:
 /// they are the input layer's text.
