@@ -35,9 +35,10 @@ pub fn write_usda_curves(path: &Path, groom: &Groom) -> Result<(), Error> {
 /// after the colours, each declaration as it was, and the input layer's
 /// `upAxis` and `metersPerUnit` (the points are in its axes and units).
 /// Fails without writing when the groom's curves are not those the
-/// primvars were read from (same number, same points each), or when a primvar is one the writer writes
-/// from the strands (`primvars:displayColor`, `primvars:widths`) or is not
-/// a `primvars:` attribute. The declarations are not otherwise checked:
+/// primvars were read from (same number, same points each), or when a
+/// primvar is one the writer writes from the strands
+/// (`primvars:displayColor`, `primvars:widths`) or is not a `primvars:`
+/// attribute. The declarations are not otherwise checked:
 /// they are the input layer's text.
 pub fn write_usda_curves_with(path: &Path, groom: &Groom, primvars: &UsdPrimvars) -> Result<(), Error> {
     validate_for(groom, path)?;
