@@ -6,6 +6,7 @@
 
 #![warn(missing_docs)]
 
+pub mod bf16;
 pub mod fixture;
 pub mod gradcheck;
 pub mod grid;
@@ -15,6 +16,7 @@ pub mod linalg;
 pub mod math;
 pub mod memory;
 pub mod mesh;
+pub mod precision;
 pub mod report;
 pub mod stop;
 

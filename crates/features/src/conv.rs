@@ -11,6 +11,9 @@ use std::sync::OnceLock;
 
 use rayon::prelude::*;
 
+use nst3d_core::{bf16, precision};
+
+use crate::conv_bf16::{self, Bf16Conv};
 use crate::simd::dispatch;
 use crate::tensor::{pad, take_buffer, FeatureMap, Padded, Padding, Source};
 use crate::winograd::{self, WinogradWeights};
@@ -156,6 +159,8 @@ pub struct Conv3x3 {
     bias: Vec<f32>,
     fwd: OnceLock<Kernel>,
     bwd: OnceLock<Kernel>,
+    fwd16: OnceLock<Bf16Conv>,
+    bwd16: OnceLock<Bf16Conv>,
 }
 
 impl Conv3x3 {
@@ -179,12 +184,21 @@ impl Conv3x3 {
             bias,
             fwd: OnceLock::new(),
             bwd: OnceLock::new(),
+            fwd16: OnceLock::new(),
+            bwd16: OnceLock::new(),
         })
     }
 
     /// The same convolution computed with `algorithm`.
     pub fn with_algorithm(self, algorithm: ConvAlgorithm) -> Self {
-        Self { algorithm, fwd: OnceLock::new(), bwd: OnceLock::new(), ..self }
+        Self {
+            algorithm,
+            fwd: OnceLock::new(),
+            bwd: OnceLock::new(),
+            fwd16: OnceLock::new(),
+            bwd16: OnceLock::new(),
+            ..self
+        }
     }
 
     /// Input channels.
@@ -207,25 +221,56 @@ impl Conv3x3 {
     }
 
     fn bwd_kernel(&self) -> &Kernel {
-        self.bwd.get_or_init(|| {
-            // Flipped taps, swapped channel roles: w'[ci][co][ky][kx] = w[co][ci][2-ky][2-kx].
-            let (cin, cout) = (self.cin, self.cout);
-            let mut wb = vec![0.0; self.weight.len()];
-            for co in 0..cout {
-                for ci in 0..cin {
-                    for tap in 0..9 {
-                        wb[(ci * cout + co) * 9 + 8 - tap] = self.weight[(co * cin + ci) * 9 + tap];
-                    }
-                }
-            }
-            Kernel::new(&wb, cout, cin, self.algorithm)
-        })
+        self.bwd.get_or_init(|| Kernel::new(&self.backward_weight(), self.cout, self.cin, self.algorithm))
     }
 
-    /// Builds both prepared kernels now rather than on first use.
+    /// The weights of the input gradient's convolution: flipped taps,
+    /// swapped channel roles, `w'[ci][co][ky][kx] = w[co][ci][2-ky][2-kx]`.
+    fn backward_weight(&self) -> Vec<f32> {
+        let (cin, cout) = (self.cin, self.cout);
+        let mut wb = vec![0.0; self.weight.len()];
+        for co in 0..cout {
+            for ci in 0..cin {
+                for tap in 0..9 {
+                    wb[(ci * cout + co) * 9 + 8 - tap] = self.weight[(co * cin + ci) * 9 + tap];
+                }
+            }
+        }
+        wb
+    }
+
+    /// The bf16 kernel this call runs on, when the precision in force is
+    /// bf16 and the layer takes it (the `Direct` reference never does).
+    fn bf16_kernel(&self) -> Option<bf16::Kernel> {
+        if self.algorithm != ConvAlgorithm::Auto || !conv_bf16::supports(self.cin, self.cout) {
+            return None;
+        }
+        bf16::Kernel::for_path(precision::path())
+    }
+
+    fn fwd16(&self) -> &Bf16Conv {
+        self.fwd16.get_or_init(|| Bf16Conv::new(&self.weight, self.cin, self.cout))
+    }
+
+    fn bwd16(&self) -> &Bf16Conv {
+        self.bwd16.get_or_init(|| Bf16Conv::new(&self.backward_weight(), self.cout, self.cin))
+    }
+
+    /// Builds the prepared kernels of the precision in force now rather
+    /// than on first use.
     pub fn prepare(&self) {
-        self.fwd_kernel();
-        self.bwd_kernel();
+        if self.bf16_kernel().is_some() {
+            self.fwd16();
+            self.bwd16();
+        } else {
+            self.fwd_kernel();
+            self.bwd_kernel();
+        }
+    }
+
+    /// Bytes of prepared weights held (both precisions, as built so far).
+    pub fn prepared_bytes(&self) -> usize {
+        self.fwd16.get().map_or(0, Bf16Conv::bytes) + self.bwd16.get().map_or(0, Bf16Conv::bytes)
     }
 
     /// `conv(x) + bias`.
@@ -241,7 +286,10 @@ impl Conv3x3 {
     fn forward_fused(&self, x: &FeatureMap, relu: bool) -> FeatureMap {
         assert_eq!(x.channels, self.cin, "conv input channels");
         let src = Source { map: x, pad: 1, mode: self.padding, mask: None };
-        self.fwd_kernel().run(src, x.height, x.width, Some(&self.bias), relu)
+        match self.bf16_kernel() {
+            Some(k) => self.fwd16().run(k, src, x.height, x.width, Some(&self.bias), relu),
+            None => self.fwd_kernel().run(src, x.height, x.width, Some(&self.bias), relu),
+        }
     }
 
     /// Gradient w.r.t. the input of [`Conv3x3::forward`] from `grad_out`.
@@ -257,14 +305,18 @@ impl Conv3x3 {
 
     fn backward_masked(&self, g: &FeatureMap, mask: Option<&FeatureMap>) -> FeatureMap {
         assert_eq!(g.channels, self.cout, "conv gradient channels");
-        let k = self.bwd_kernel();
+        let k16 = self.bf16_kernel();
+        let run = |src: Source<'_>, oh: usize, ow: usize| match k16 {
+            Some(k) => self.bwd16().run(k, src, oh, ow, None, false),
+            None => self.bwd_kernel().run(src, oh, ow, None, false),
+        };
         let (h, w) = (g.height, g.width);
         match self.padding {
-            Padding::Zero => k.run(Source { map: g, pad: 1, mode: Padding::Zero, mask }, h, w, None, false),
+            Padding::Zero => run(Source { map: g, pad: 1, mode: Padding::Zero, mask }, h, w),
             Padding::Reflect => {
                 // Gradient w.r.t. the reflection-padded input ((h+2) x (w+2)),
                 // then the mirrored border rows/columns fold back onto their sources.
-                let gp = k.run(Source { map: g, pad: 2, mode: Padding::Zero, mask }, h + 2, w + 2, None, false);
+                let gp = run(Source { map: g, pad: 2, mode: Padding::Zero, mask }, h + 2, w + 2);
                 let out = fold_reflection(&gp, h, w);
                 gp.recycle();
                 out
@@ -363,6 +415,12 @@ impl Conv1x1 {
 mod tests {
     use super::*;
     use nst3d_core::gradcheck::{check_gradient, dot as gdot, pseudo_random};
+    use nst3d_core::precision::{scoped, Precision};
+
+    /// The fp32 reference path, whatever the process runs by default.
+    fn fp32<R>(f: impl FnOnce() -> R) -> R {
+        scoped(Precision::Fp32, f)
+    }
 
     fn fm(h: usize, w: usize, c: usize, seed: u64) -> FeatureMap {
         FeatureMap::from_vec(h, w, c, pseudo_random(h * w * c, seed))
@@ -418,16 +476,20 @@ mod tests {
 
     #[test]
     fn winograd_matches_direct_reference() {
-        check_forward(64, 64, 13, 10, Padding::Zero);
-        check_forward(256, 512, 9, 8, Padding::Zero);
-        check_forward(32, 32, 17, 5, Padding::Reflect);
+        fp32(|| {
+            check_forward(64, 64, 13, 10, Padding::Zero);
+            check_forward(256, 512, 9, 8, Padding::Zero);
+            check_forward(32, 32, 17, 5, Padding::Reflect);
+        })
     }
 
     #[test]
     fn direct_matches_reference() {
-        check_forward(3, 64, 7, 9, Padding::Zero);
-        check_forward(3, 64, 6, 5, Padding::Reflect);
-        check_forward(64, 3, 5, 6, Padding::Zero);
+        fp32(|| {
+            check_forward(3, 64, 7, 9, Padding::Zero);
+            check_forward(3, 64, 6, 5, Padding::Reflect);
+            check_forward(64, 3, 5, 6, Padding::Zero);
+        })
     }
 
     fn gradcheck_conv(cin: usize, cout: usize, mode: Padding, relu: bool) {
@@ -452,59 +514,153 @@ mod tests {
 
     #[test]
     fn conv3x3_gradients() {
-        for mode in [Padding::Zero, Padding::Reflect] {
-            gradcheck_conv(16, 32, mode, false); // Winograd both ways
-            gradcheck_conv(3, 16, mode, false); // direct forward, direct backward
-            gradcheck_conv(32, 16, mode, false); // direct forward, Winograd backward
-        }
+        fp32(|| {
+            for mode in [Padding::Zero, Padding::Reflect] {
+                gradcheck_conv(16, 32, mode, false); // Winograd both ways
+                gradcheck_conv(3, 16, mode, false); // direct forward, direct backward
+                gradcheck_conv(32, 16, mode, false); // direct forward, Winograd backward
+            }
+        })
     }
 
     /// `<backward(g), x> = <g, forward(x) - bias>`: exact adjointness over
     /// many shapes (tile remainders, tiny maps) without finite differences.
     #[test]
     fn backward_is_adjoint_of_forward() {
-        for mode in [Padding::Zero, Padding::Reflect] {
-            for (cin, cout, h, w) in
-                [(256, 512, 5, 5), (16, 32, 2, 3), (32, 64, 10, 9), (64, 3, 6, 7), (3, 64, 5, 4), (32, 32, 3, 2)]
-            {
-                let conv = Conv3x3::new(cin, cout, pseudo_random(cout * cin * 9, 41), vec![0.0; cout], mode).unwrap();
-                let x = fm(h, w, cin, 42);
-                let g = fm(h, w, cout, 43);
-                let lhs = gdot(&conv.backward(&g).data, &x.data);
-                let rhs = gdot(&g.data, &conv.forward(&x).data);
-                let scale = (cin as f64 * 9.0 * (h * w * cout) as f64).sqrt();
-                assert!((lhs - rhs).abs() < 1e-4 * scale, "{mode:?} {cin}->{cout} {h}x{w}: {lhs} vs {rhs}");
+        fp32(|| {
+            for mode in [Padding::Zero, Padding::Reflect] {
+                for (cin, cout, h, w) in
+                    [(256, 512, 5, 5), (16, 32, 2, 3), (32, 64, 10, 9), (64, 3, 6, 7), (3, 64, 5, 4), (32, 32, 3, 2)]
+                {
+                    let conv =
+                        Conv3x3::new(cin, cout, pseudo_random(cout * cin * 9, 41), vec![0.0; cout], mode).unwrap();
+                    let x = fm(h, w, cin, 42);
+                    let g = fm(h, w, cout, 43);
+                    let lhs = gdot(&conv.backward(&g).data, &x.data);
+                    let rhs = gdot(&g.data, &conv.forward(&x).data);
+                    let scale = (cin as f64 * 9.0 * (h * w * cout) as f64).sqrt();
+                    assert!((lhs - rhs).abs() < 1e-4 * scale, "{mode:?} {cin}->{cout} {h}x{w}: {lhs} vs {rhs}");
+                }
             }
-        }
+        })
     }
 
     #[test]
     fn fused_relu_backward_is_mask_then_conv_backward() {
-        for mode in [Padding::Zero, Padding::Reflect] {
-            let conv = Conv3x3::new(16, 32, pseudo_random(32 * 16 * 9, 31), pseudo_random(32, 32), mode).unwrap();
-            let x = fm(9, 11, 16, 33);
-            let y = conv.forward_relu(&x);
-            assert_eq!(y, crate::ops::relu(&conv.forward(&x)));
-            let g = fm(9, 11, 32, 34);
-            let fused = conv.backward_relu(&g, &y);
-            let split = conv.backward(&crate::ops::relu_backward(&g, &y));
-            assert_eq!(fused, split);
-        }
+        fp32(|| {
+            for mode in [Padding::Zero, Padding::Reflect] {
+                let conv = Conv3x3::new(16, 32, pseudo_random(32 * 16 * 9, 31), pseudo_random(32, 32), mode).unwrap();
+                let x = fm(9, 11, 16, 33);
+                let y = conv.forward_relu(&x);
+                assert_eq!(y, crate::ops::relu(&conv.forward(&x)));
+                let g = fm(9, 11, 32, 34);
+                let fused = conv.backward_relu(&g, &y);
+                let split = conv.backward(&crate::ops::relu_backward(&g, &y));
+                assert_eq!(fused, split);
+            }
+        })
     }
 
     #[test]
     fn conv1x1_gradient() {
-        let x = fm(4, 5, 3, 21);
-        let conv = Conv1x1::new(3, 4, pseudo_random(12, 22), pseudo_random(4, 23)).unwrap();
-        let probe = pseudo_random(4 * 5 * 4, 24);
-        let gx = conv.backward(&FeatureMap::from_vec(4, 5, 4, probe.clone()));
-        let loss = |p: &[f32]| gdot(&probe, &conv.forward(&FeatureMap::from_vec(4, 5, 3, p.to_vec())).data);
-        assert!(check_gradient(&x.data, &gx.data, loss, 1e-2, 60, 1e-3).max_rel_err < 1e-3);
+        fp32(|| {
+            let x = fm(4, 5, 3, 21);
+            let conv = Conv1x1::new(3, 4, pseudo_random(12, 22), pseudo_random(4, 23)).unwrap();
+            let probe = pseudo_random(4 * 5 * 4, 24);
+            let gx = conv.backward(&FeatureMap::from_vec(4, 5, 4, probe.clone()));
+            let loss = |p: &[f32]| gdot(&probe, &conv.forward(&FeatureMap::from_vec(4, 5, 3, p.to_vec())).data);
+            assert!(check_gradient(&x.data, &gx.data, loss, 1e-2, 60, 1e-3).max_rel_err < 1e-3);
+        })
     }
 
     #[test]
     fn bad_shapes_are_errors() {
-        assert!(Conv3x3::new(2, 3, vec![0.0; 10], vec![0.0; 3], Padding::Zero).is_err());
-        assert!(Conv1x1::new(3, 3, vec![0.0; 9], vec![0.0; 2]).is_err());
+        fp32(|| {
+            assert!(Conv3x3::new(2, 3, vec![0.0; 10], vec![0.0; 3], Padding::Zero).is_err());
+            assert!(Conv1x1::new(3, 3, vec![0.0; 9], vec![0.0; 2]).is_err());
+        })
+    }
+
+    /// Every bf16 kernel this machine has (the portable one always).
+    fn bf16_kernels() -> Vec<bf16::Kernel> {
+        bf16::Kernel::all_here()
+    }
+
+    /// Max error over max |reference| and RMS error over RMS reference.
+    fn errors(got: &[f32], want: &[f64]) -> (f64, f64) {
+        let max = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let err = got.iter().zip(want).fold(0.0f64, |m, (a, b)| m.max((*a as f64 - b).abs()));
+        let e2: f64 = got.iter().zip(want).map(|(a, b)| (*a as f64 - b).powi(2)).sum();
+        let r2: f64 = want.iter().map(|b| b * b).sum();
+        (err / max, (e2 / r2).sqrt())
+    }
+
+    /// The bf16 tolerance, stated once: bf16 keeps 8 mantissa bits (a
+    /// rounding of at most 2^-9 = 0.2 % per operand); sums of many such
+    /// products stay within 1 % of the largest output and 0.5 % in RMS.
+    const BF16_MAX_REL: f64 = 1e-2;
+    const BF16_RMS_REL: f64 = 5e-3;
+
+    /// bf16 forward against the f64 reference, every kernel, shapes with
+    /// block remainders (widths not a multiple of 32, tiny maps), channel
+    /// counts not a multiple of 32, both paddings, and the kernels agree
+    /// with each other to summation order.
+    #[test]
+    fn bf16_forward_matches_reference_within_tolerance() {
+        for (cin, cout, h, w, mode) in [
+            (64, 64, 13, 37, Padding::Zero),
+            (256, 512, 9, 8, Padding::Reflect),
+            (16, 48, 5, 2, Padding::Reflect),
+            (128, 128, 34, 33, Padding::Zero),
+        ] {
+            let x = FeatureMap::from_vec(
+                h,
+                w,
+                cin,
+                pseudo_random(h * w * cin, 5).iter().map(|v| v.max(0.0) * 3.0).collect(),
+            );
+            let scale = (6.0 / (9.0 * cin as f32)).sqrt();
+            let wt: Vec<f32> = pseudo_random(cout * cin * 9, 6).iter().map(|v| v * scale).collect();
+            let b = pseudo_random(cout, 7);
+            let r = reference(&x, &wt, &b, cout, mode);
+            let packed = conv_bf16::Bf16Conv::new(&wt, cin, cout);
+            let src = Source { map: &x, pad: 1, mode, mask: None };
+            let outs: Vec<FeatureMap> =
+                bf16_kernels().into_iter().map(|k| packed.run(k, src, h, w, Some(&b), false)).collect();
+            for (k, y) in bf16_kernels().iter().zip(&outs) {
+                let (max, rms) = errors(&y.data, &r);
+                assert!(max < BF16_MAX_REL && rms < BF16_RMS_REL, "{k:?} {cin}->{cout} {h}x{w} {mode:?}: {max} {rms}");
+                let (same, _) = errors(&y.data, &outs[0].data.iter().map(|v| *v as f64).collect::<Vec<_>>());
+                assert!(same < 1e-5, "{k:?} differs from the portable kernel by {same}");
+            }
+        }
+    }
+
+    /// The public calls take the bf16 path under `bf16` (fused ReLU, masked
+    /// backward, reflection folding) and stay within the tolerance of fp32.
+    #[test]
+    fn bf16_forward_and_backward_match_fp32() {
+        for mode in [Padding::Zero, Padding::Reflect] {
+            let (cin, cout, h, w) = (64, 128, 19, 35);
+            let conv =
+                Conv3x3::new(cin, cout, pseudo_random(cout * cin * 9, 51), pseudo_random(cout, 52), mode).unwrap();
+            let x =
+                FeatureMap::from_vec(h, w, cin, pseudo_random(h * w * cin, 53).iter().map(|v| v.max(0.0)).collect());
+            let g = fm(h, w, cout, 54);
+            let (y32, gx32) = fp32(|| {
+                let y = conv.forward_relu(&x);
+                let gx = conv.backward_relu(&g, &y);
+                (y, gx)
+            });
+            // The same ReLU mask (fp32's) for both backwards: a bf16 forward
+            // flips the sign of outputs near zero, which changes the mask, not
+            // the kernel's error.
+            let (y16, gx16) = scoped(Precision::Bf16, || (conv.forward_relu(&x), conv.backward_relu(&g, &y32)));
+            assert_ne!(y16, y32, "the bf16 call did not take the bf16 path");
+            for (name, a, b) in [("forward", &y16, &y32), ("backward", &gx16, &gx32)] {
+                let (max, rms) = errors(&a.data, &b.data.iter().map(|v| *v as f64).collect::<Vec<_>>());
+                assert!(max < BF16_MAX_REL && rms < BF16_RMS_REL, "{mode:?} {name}: {max} {rms}");
+            }
+        }
     }
 }

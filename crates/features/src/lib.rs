@@ -11,6 +11,7 @@
 #![warn(missing_docs)]
 
 mod conv;
+mod conv_bf16;
 mod gemm;
 pub mod ops;
 mod simd;

@@ -1,0 +1,451 @@
+//! bf16 operands with fp32 accumulation: the one micro-kernel every bf16
+//! product of nst3d is built on (VGG-19 convolutions, the 3D network's
+//! convolutions, Gram matrices, NNST matching), in three implementations
+//! with one contract — AMX tiles ([`amx`]), AVX512-BF16 dot products, and
+//! an emulation for CPUs with neither (AVX-512F FMAs on the bf16 values
+//! widened exactly to f32, or scalar loops) — chosen by
+//! [`crate::precision::Path`]. The hardware kernels are checked against the
+//! scalar one on this CPU before they are first used ([`self_check`]).
+//!
+//! The contract ([`Kernel::block`]): a 32 × 32 fp32 block
+//! `C = Σ_s A_s · B_s` over `steps` K-slices of 32, where
+//! - `A_s` is two 16-row halves of bf16 rows, row `r` of half `h` at
+//!   `a[h] + offs[s] + r * lda` (so a direct convolution's taps are just
+//!   other offsets into the same padded activation: no im2col), and
+//! - `B_s` is packed once (weights are frozen or reused): two 16-column
+//!   tiles in the "VNNI" pair layout AMX and `vdpbf16ps` read, element
+//!   `(k, n)` of a tile at row `k / 2`, position `2 n + k % 2`
+//!   ([`PackedB`]).
+//!
+//! Every implementation multiplies the same bf16 values exactly and sums
+//! in fp32; they differ only in summation order.
+
+pub mod amx;
+
+use rayon::prelude::*;
+
+/// K (bf16 values) per step: one AMX tile row of 64 bytes.
+pub const KS: usize = 32;
+/// Rows of `C` per block (two A tiles of 16).
+pub const MB: usize = 32;
+/// Columns of `C` per block (two B tiles of 16).
+pub const NB: usize = 32;
+/// bf16 values in one packed B step (two 16 × 32 tiles).
+pub const B_STEP: usize = 2 * 16 * KS;
+
+/// Rounds to the nearest bf16, ties to even (NaN stays NaN).
+#[inline(always)]
+pub fn from_f32(x: f32) -> u16 {
+    let b = x.to_bits();
+    if x.is_nan() {
+        return ((b >> 16) | 0x40) as u16;
+    }
+    ((b + 0x7fff + ((b >> 16) & 1)) >> 16) as u16
+}
+
+/// The f32 a bf16 stands for (exact).
+#[inline(always)]
+pub fn to_f32(b: u16) -> f32 {
+    f32::from_bits((b as u32) << 16)
+}
+
+/// `x` rounded through bf16 and back.
+#[inline(always)]
+pub fn round(x: f32) -> f32 {
+    to_f32(from_f32(x))
+}
+
+/// Converts a slice (vectorised where AVX-512 is available).
+pub fn convert(src: &[f32], dst: &mut [u16]) {
+    assert_eq!(src.len(), dst.len(), "bf16 conversion lengths");
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx512f") {
+        // SAFETY: the CPU has the enabled features.
+        return unsafe { convert_avx512(src, dst) };
+    }
+    convert_plain(src, dst)
+}
+
+#[inline(always)]
+fn convert_plain(src: &[f32], dst: &mut [u16]) {
+    for (d, s) in dst.iter_mut().zip(src) {
+        *d = from_f32(*s);
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx2")]
+unsafe fn convert_avx512(src: &[f32], dst: &mut [u16]) {
+    convert_plain(src, dst)
+}
+
+/// Whether the CPU has AVX512-BF16 (`vdpbf16ps`).
+pub fn avx512_bf16_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512bf16") && std::arch::is_x86_feature_detected!("avx512f")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// B operands packed for [`Kernel::block`]: `npairs` column pairs of 32
+/// (columns past `n` are zero) × `steps` K-slices of 32, laid out
+/// `[pair][step][tile][k / 2][2 n + k % 2]`, so one block's B streams
+/// contiguously.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PackedB {
+    /// Column blocks of [`NB`].
+    pub npairs: usize,
+    /// K-slices of [`KS`] per column block.
+    pub steps: usize,
+    data: Vec<u16>,
+}
+
+impl PackedB {
+    /// Packs `value(step, k, n)` for `k < KS` and `n < ncols`; `None` (or
+    /// columns past `ncols`) is zero.
+    pub fn new(steps: usize, ncols: usize, value: impl Fn(usize, usize, usize) -> f32 + Sync) -> Self {
+        let npairs = ncols.div_ceil(NB);
+        let mut data = vec![0u16; npairs * steps * B_STEP];
+        data.par_chunks_mut(B_STEP).enumerate().for_each(|(i, out)| {
+            let (pair, step) = (i / steps, i % steps);
+            for tile in 0..2 {
+                for k in 0..KS {
+                    for j in 0..16 {
+                        let n = pair * NB + tile * 16 + j;
+                        if n < ncols {
+                            out[tile * 16 * KS + (k / 2) * KS + 2 * j + k % 2] = from_f32(value(step, k, n));
+                        }
+                    }
+                }
+            }
+        });
+        Self { npairs, steps, data }
+    }
+
+    /// The B of column block `pair`: `steps * B_STEP` values.
+    pub fn pair(&self, pair: usize) -> &[u16] {
+        &self.data[pair * self.steps * B_STEP..(pair + 1) * self.steps * B_STEP]
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        self.data.len() * 2
+    }
+}
+
+/// One implementation of the block product.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kernel {
+    /// AMX tiles.
+    Amx,
+    /// AVX512-BF16.
+    Avx512,
+    /// Emulation on AVX-512F: bf16 widened to f32 (exact), fp32 FMAs.
+    Emulated,
+    /// Scalar emulation: the reference.
+    Portable,
+}
+
+impl Kernel {
+    /// The kernel of a bf16 [`crate::precision::Path`] (`None` for fp32).
+    pub fn for_path(p: crate::precision::Path) -> Option<Self> {
+        use crate::precision::Path;
+        match p {
+            Path::Fp32 => None,
+            Path::Bf16Amx => Some(Kernel::Amx),
+            Path::Bf16Avx512 => Some(Kernel::Avx512),
+            Path::Bf16Portable if has_avx512f() => Some(Kernel::Emulated),
+            Path::Bf16Portable => Some(Kernel::Portable),
+        }
+    }
+
+    /// Every kernel this machine can run, the scalar reference first.
+    pub fn all_here() -> Vec<Kernel> {
+        let mut k = vec![Kernel::Portable];
+        if has_avx512f() {
+            k.push(Kernel::Emulated);
+        }
+        if avx512_bf16_available() {
+            k.push(Kernel::Avx512);
+        }
+        if amx::available() {
+            k.push(Kernel::Amx);
+        }
+        k
+    }
+
+    /// Runs `f` with this kernel ready on the calling thread (AMX: tiles
+    /// configured before, released after). Call [`Kernel::block`] only
+    /// inside, with the [`Ready`] token, and start no rayon work inside.
+    #[inline]
+    pub fn run<R>(self, f: impl FnOnce(Ready) -> R) -> R {
+        match self {
+            Kernel::Amx => amx::with_tiles(|| f(Ready { kernel: self })),
+            _ => f(Ready { kernel: self }),
+        }
+    }
+}
+
+/// Proof that the kernel is ready on this thread (see [`Kernel::run`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Ready {
+    kernel: Kernel,
+}
+
+impl Ready {
+    /// `c[r * ldc + j] = Σ_s Σ_k A_s[r][k] · B_s[k][j]` for `r, j < 32`
+    /// (see the module docs for the operands).
+    ///
+    /// # Safety
+    /// For every step `s` and row `r < 16`, `a0 + offs[s] + r * lda` and
+    /// `a1 + offs[s] + r * lda` must be valid for reading [`KS`] values; `b`
+    /// must hold `offs.len() * B_STEP` values; `c` 32 rows of 32 floats at
+    /// stride `ldc`.
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    pub unsafe fn block(
+        self,
+        a0: *const u16,
+        a1: *const u16,
+        lda: usize,
+        offs: &[usize],
+        b: *const u16,
+        c: *mut f32,
+        ldc: usize,
+    ) {
+        match self.kernel {
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Amx => amx::block(a0, a1, lda, offs, b, c, ldc),
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx512 => block_avx512(a0, a1, lda, offs, b, c, ldc),
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Emulated => block_emulated(a0, a1, lda, offs, b, c, ldc),
+            _ => block_portable(a0, a1, lda, offs, b, c, ldc),
+        }
+    }
+}
+
+/// Scalar [`Ready::block`]: the reference the fast kernels are tested against.
+unsafe fn block_portable(
+    a0: *const u16,
+    a1: *const u16,
+    lda: usize,
+    offs: &[usize],
+    b: *const u16,
+    c: *mut f32,
+    ldc: usize,
+) {
+    let mut acc = [[0f32; NB]; MB];
+    for (s, &o) in offs.iter().enumerate() {
+        let bs = b.add(s * B_STEP);
+        for (r, acc_r) in acc.iter_mut().enumerate() {
+            let arow = if r < 16 { a0.add(o + r * lda) } else { a1.add(o + (r - 16) * lda) };
+            for k in 0..KS {
+                let av = to_f32(*arow.add(k));
+                for (j, x) in acc_r.iter_mut().enumerate() {
+                    let bv = to_f32(*bs.add((j / 16) * 16 * KS + (k / 2) * KS + 2 * (j % 16) + k % 2));
+                    *x += av * bv;
+                }
+            }
+        }
+    }
+    for (r, acc_r) in acc.iter().enumerate() {
+        std::ptr::copy_nonoverlapping(acc_r.as_ptr(), c.add(r * ldc), NB);
+    }
+}
+
+/// [`Ready::block`] on `vdpbf16ps`: one 16 × 16 quarter at a time, 16
+/// accumulator registers, each A pair broadcast against a B row of 16 pairs.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bf16")]
+unsafe fn block_avx512(
+    a0: *const u16,
+    a1: *const u16,
+    lda: usize,
+    offs: &[usize],
+    b: *const u16,
+    c: *mut f32,
+    ldc: usize,
+) {
+    use std::arch::x86_64::*;
+    for (h, a) in [a0, a1].into_iter().enumerate() {
+        for t in 0..2 {
+            let mut acc = [_mm512_setzero_ps(); 16];
+            for (s, &o) in offs.iter().enumerate() {
+                let bt = b.add(s * B_STEP + t * 16 * KS);
+                let arow = a.add(o);
+                for kp in 0..16 {
+                    let bv: __m512bh = std::mem::transmute(_mm512_loadu_si512(bt.add(kp * KS) as *const _));
+                    for (r, x) in acc.iter_mut().enumerate() {
+                        let pair = (arow.add(r * lda + 2 * kp) as *const i32).read_unaligned();
+                        let av: __m512bh = std::mem::transmute(_mm512_set1_epi32(pair));
+                        *x = _mm512_dpbf16_ps(*x, av, bv);
+                    }
+                }
+            }
+            for (r, x) in acc.iter().enumerate() {
+                _mm512_storeu_ps(c.add((h * 16 + r) * ldc + t * 16), *x);
+            }
+        }
+    }
+}
+
+/// [`Ready::block`] for AVX-512F CPUs without bf16 units: each B row of 16
+/// pairs splits into its even-k and odd-k halves (a shift and a mask widen
+/// bf16 to f32 exactly) and two fp32 FMAs do what one `vdpbf16ps` does.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn block_emulated(
+    a0: *const u16,
+    a1: *const u16,
+    lda: usize,
+    offs: &[usize],
+    b: *const u16,
+    c: *mut f32,
+    ldc: usize,
+) {
+    use std::arch::x86_64::*;
+    let hi = _mm512_set1_epi32(0xffff_0000u32 as i32);
+    for (h, a) in [a0, a1].into_iter().enumerate() {
+        for t in 0..2 {
+            let mut acc = [_mm512_setzero_ps(); 16];
+            for (s, &o) in offs.iter().enumerate() {
+                let bt = b.add(s * B_STEP + t * 16 * KS);
+                let arow = a.add(o);
+                for kp in 0..16 {
+                    let bv = _mm512_loadu_si512(bt.add(kp * KS) as *const _);
+                    let be = _mm512_castsi512_ps(_mm512_slli_epi32::<16>(bv));
+                    let bo = _mm512_castsi512_ps(_mm512_and_si512(bv, hi));
+                    for (r, x) in acc.iter_mut().enumerate() {
+                        let pair = (arow.add(r * lda + 2 * kp) as *const u32).read_unaligned();
+                        let ae = _mm512_set1_ps(f32::from_bits(pair << 16));
+                        let ao = _mm512_set1_ps(f32::from_bits(pair & 0xffff_0000));
+                        *x = _mm512_fmadd_ps(ao, bo, _mm512_fmadd_ps(ae, be, *x));
+                    }
+                }
+            }
+            for (r, x) in acc.iter().enumerate() {
+                _mm512_storeu_ps(c.add((h * 16 + r) * ldc + t * 16), *x);
+            }
+        }
+    }
+}
+
+/// Whether AVX-512F may be used (`NST3D_NO_AVX512` hides it, as for the
+/// fp32 kernels).
+pub fn has_avx512f() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512f") && std::env::var_os("NST3D_NO_AVX512").is_none()
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Runs `kernel` on a fixed block with awkward strides and offsets and
+/// compares it with the scalar reference: a hardware path that disagrees
+/// (a CPU or hypervisor that misreports, a kernel bug on hardware the tests
+/// never ran on) is not used. Cost: microseconds, once per kernel.
+pub fn self_check(kernel: Kernel) -> bool {
+    let (lda, steps, ldc) = (80usize, 3usize, 40usize);
+    let vals = |n: usize, seed: u32| -> Vec<f32> {
+        (0..n)
+            .map(|i| ((i as u32).wrapping_mul(2654435761).wrapping_add(seed) >> 8) as f32 / (1 << 24) as f32 - 0.5)
+            .collect()
+    };
+    let a: Vec<u16> = vals(72 * lda + 64, 1).iter().map(|v| from_f32(*v)).collect();
+    let bv = vals(steps * KS * NB, 2);
+    let packed = PackedB::new(steps, NB, |s, k, n| bv[(s * KS + k) * NB + n]);
+    let offs = [0usize, 33, 7];
+    let run = |k: Kernel| {
+        let mut c = vec![f32::NAN; MB * ldc];
+        k.run(|ready| unsafe {
+            ready.block(a.as_ptr(), a.as_ptr().add(20 * lda), lda, &offs, packed.pair(0).as_ptr(), c.as_mut_ptr(), ldc)
+        });
+        c
+    };
+    let (want, got) = (run(Kernel::Portable), run(kernel));
+    (0..MB).all(|r| {
+        (0..NB).all(|j| (got[r * ldc + j] - want[r * ldc + j]).abs() <= 1e-5 * (1.0 + want[r * ldc + j].abs()))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gradcheck::pseudo_random;
+
+    #[test]
+    fn rounding_is_nearest_even() {
+        assert_eq!(round(1.0), 1.0);
+        // 1 + 2^-8 lies halfway between 1 and 1 + 2^-7: ties to even (1).
+        assert_eq!(round(1.0 + 1.0 / 256.0), 1.0);
+        assert_eq!(round(1.0 + 3.0 / 256.0), 1.0 + 4.0 / 256.0);
+        assert!(round(f32::NAN).is_nan());
+        assert_eq!(round(f32::INFINITY), f32::INFINITY);
+        assert_eq!(round(-0.0).to_bits(), (-0.0f32).to_bits());
+        let mut out = [0u16; 3];
+        convert(&[1.5, -2.0, 3.0e-3], &mut out);
+        assert_eq!(out.map(to_f32), [1.5, -2.0, round(3.0e-3)]);
+    }
+
+    /// Every kernel this machine has against an f64 sum of the same bf16
+    /// values: strided rows, per-step offsets, several steps.
+    #[test]
+    fn kernels_match_reference() {
+        let (lda, steps, ldc) = (80usize, 3usize, 40usize);
+        let rows = 16 + 16 + 40;
+        let a: Vec<u16> = pseudo_random(rows * lda + 64, 1).iter().map(|v| from_f32(*v)).collect();
+        let bv = pseudo_random(steps * KS * NB, 2);
+        let packed = PackedB::new(steps, NB, |s, k, n| bv[(s * KS + k) * NB + n]);
+        let offs = [0usize, 33, 7];
+        let (a0, a1) = (0usize, 20 * lda);
+        let mut want = vec![0f64; MB * NB];
+        for r in 0..MB {
+            let base = if r < 16 { a0 + r * lda } else { a1 + (r - 16) * lda };
+            for j in 0..NB {
+                want[r * NB + j] = (0..steps)
+                    .flat_map(|s| (0..KS).map(move |k| (s, k)))
+                    .map(|(s, k)| to_f32(a[base + offs[s] + k]) as f64 * round(bv[(s * KS + k) * NB + j]) as f64)
+                    .sum();
+            }
+        }
+        for k in Kernel::all_here() {
+            assert!(self_check(k), "{k:?} fails its self-check");
+            let mut c = vec![f32::NAN; MB * ldc];
+            k.run(|ready| unsafe {
+                ready.block(
+                    a.as_ptr().add(a0),
+                    a.as_ptr().add(a1),
+                    lda,
+                    &offs,
+                    packed.pair(0).as_ptr(),
+                    c.as_mut_ptr(),
+                    ldc,
+                )
+            });
+            for r in 0..MB {
+                for j in 0..NB {
+                    let (got, w) = (c[r * ldc + j] as f64, want[r * NB + j]);
+                    assert!((got - w).abs() < 1e-5 * (1.0 + w.abs()), "{k:?} ({r}, {j}): {got} vs {w}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn packing_zeroes_columns_past_the_end() {
+        let p = PackedB::new(1, 20, |_, k, n| (k * 100 + n) as f32);
+        assert_eq!(p.npairs, 1);
+        let b = p.pair(0);
+        // Tile 1 holds columns 16..32; column 19 (j = 3) is set, 20 (j = 4) is zero.
+        assert_eq!(to_f32(b[16 * KS + (5 / 2) * KS + 2 * 3 + 1]), round(519.0));
+        assert_eq!(b[16 * KS + 2 * 4], 0);
+    }
+}
