@@ -33,16 +33,18 @@ from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
 import numpy as np
 
 from . import _nst3d
-from ._nst3d import Nst3dError, __version__, set_threads, threads
+from ._nst3d import Nst3dError, __version__, precision, set_precision, set_threads, threads
 
 __all__ = [
     "Nst3dError",
     "Model",
     "__version__",
     "bench_volume_iter",
+    "precision",
     "print_progress",
     "read_groom",
     "read_mesh",
+    "set_precision",
     "set_threads",
     "stylize_groom",
     "stylize_groom_file",

@@ -69,7 +69,12 @@ fn volume_iter(args: &BenchArgs) -> Result<()> {
         Mode::Velocity => "velocity",
         Mode::Density => "density",
     };
-    eprintln!("volume-iter: N={} mode={mode} threads={threads} iters={}", args.n, args.iters.max(1));
+    eprintln!(
+        "volume-iter: N={} mode={mode} threads={threads} iters={} precision={}",
+        args.n,
+        args.iters.max(1),
+        nst3d_core::precision::path().describe()
+    );
     let report = bench::volume_iter(args.n, args.mode, args.iters.max(1));
     let times: Vec<String> = report.iteration_ms.iter().map(|t| format!("{t:.1}")).collect();
     println!("iteration_ms {}", times.join(" "));
@@ -86,7 +91,13 @@ fn infer(args: &BenchArgs) -> Result<()> {
     if !(1..=256).contains(&args.channels) {
         bail!("--channels must be between 1 and 256, got {}", args.channels);
     }
-    eprintln!("infer: N={} channels={} threads={}", args.n, args.channels, rayon::current_num_threads());
+    eprintln!(
+        "infer: N={} channels={} threads={} precision={}",
+        args.n,
+        args.channels,
+        rayon::current_num_threads(),
+        nst3d_core::precision::path().describe()
+    );
     let times = nst3d_network::bench::infer(args.n, args.channels, args.iters.max(1));
     let shown: Vec<String> = times.iter().map(|t| format!("{t:.1}")).collect();
     println!("iteration_ms {}", shown.join(" "));
@@ -105,11 +116,12 @@ fn train_step(args: &BenchArgs) -> Result<()> {
     }
     let velocity = matches!(args.mode, Mode::Velocity);
     eprintln!(
-        "train-step: patch={} mode={} channels={} threads={}",
+        "train-step: patch={} mode={} channels={} threads={} precision={}",
         args.patch,
         if velocity { "velocity" } else { "density" },
         args.channels,
-        rayon::current_num_threads()
+        rayon::current_num_threads(),
+        nst3d_core::precision::path().describe()
     );
     let (times, last) = nst3d_train::bench::train_step(args.patch, velocity, args.channels, args.iters.max(1));
     let shown: Vec<String> = times.iter().map(|t| format!("{t:.1}")).collect();

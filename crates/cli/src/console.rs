@@ -24,8 +24,24 @@ impl Console {
     }
 }
 
+/// The run's header, printed once per process when the first long work
+/// starts (not before, so a refused input stays a one-line error): which
+/// arithmetic the products run in and on how many threads.
+fn header() {
+    static SHOWN: std::sync::Once = std::sync::Once::new();
+    SHOWN.call_once(|| {
+        eprintln!(
+            "nst3d: precision {} ({}), {} threads",
+            nst3d_core::precision::current(),
+            nst3d_core::precision::path().describe(),
+            rayon::current_num_threads()
+        );
+    });
+}
+
 impl Reporter for Console {
     fn begin(&mut self, steps: u64) {
+        header();
         self.total = steps;
         self.done = 0;
         self.bar = std::io::stderr().is_terminal().then(|| {

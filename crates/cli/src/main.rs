@@ -27,6 +27,11 @@ struct Cli {
     /// Worker threads (default: all cores).
     #[arg(long, global = true)]
     threads: Option<usize>,
+    /// Arithmetic of the heavy products: auto (bf16 where the CPU has a bf16
+    /// unit, AMX or AVX512-BF16; fp32 otherwise), bf16 (emulated where there
+    /// is none) or fp32 (the reference). Default: $NST3D_PRECISION, else auto.
+    #[arg(long, global = true, value_name = "auto|bf16|fp32", value_parser = parse_precision)]
+    precision: Option<nst3d_core::precision::Precision>,
     #[command(subcommand)]
     command: Command,
 }
@@ -43,6 +48,10 @@ enum Command {
     Strands(strands::StrandsArgs),
     /// Train the feed-forward network (volumetric paper Sec. 4) for one painting.
     Train(train::TrainArgs),
+}
+
+fn parse_precision(s: &str) -> Result<nst3d_core::precision::Precision, String> {
+    s.parse()
 }
 
 fn main() {
@@ -63,6 +72,15 @@ fn main() {
         if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global() {
             eprintln!("nst3d: error: cannot start {n} threads: {e}");
             std::process::exit(2);
+        }
+    }
+    match cli.precision {
+        Some(p) => nst3d_core::precision::set(p),
+        None => {
+            if let Err(e) = nst3d_core::precision::check_env() {
+                eprintln!("nst3d: error: {e}");
+                std::process::exit(2);
+            }
         }
     }
     let result = match cli.command {

@@ -24,9 +24,11 @@
 //! `L = 1/N_c · Σ_i ‖h_i − T_i‖²`. The targets are constants: no gradient
 //! flows through the arg-max, as in NNST.
 
-use super::{matmul, parallelism};
-use gemm::Parallelism;
-use nst3d_core::Image;
+use std::sync::OnceLock;
+
+use nst3d_core::bf16::{self, PackedB, KS, MB, NB};
+use nst3d_core::microkernel::{self, Blocking};
+use nst3d_core::{precision, Image};
 use rayon::prelude::*;
 
 /// Why an NNST target, match or loss could not be built from the given features.
@@ -92,10 +94,13 @@ impl Default for NnstParams {
     }
 }
 
-/// Score rows per matching block: a block's `rows x N_s` score matrix stays
-/// under this many floats (32 MiB), so memory is bounded whatever the sizes;
-/// blocks of a few hundred rows keep gemm near its best throughput.
-const BLOCK_SCORES: usize = 1 << 23;
+/// Content rows per matching task: the task's gathered hyper-columns
+/// (`rows x D`, 370 KB at D = 960 in fp32) stay in L2 while every panel of
+/// style columns streams past them. Never more than this many scores exist
+/// at once: each block of them is reduced to its arg-max as it is made.
+const MATCH_ROWS: usize = 96;
+/// The fp32 matching kernel's blocking: 6 content rows x 64 style columns.
+const MATCH_BLOCKING: Blocking = Blocking { mr: 6, nr: 64 };
 
 /// Floor on a style column's norm before normalising (NNST clamps the squared
 /// norm at 1e-8), so constant style regions do not divide by zero.
@@ -264,9 +269,12 @@ pub struct NnstTarget {
     params: NnstParams,
     /// Raw style hyper-columns, planar `D x N_s`.
     columns: Image,
-    /// Centred, unit style columns, planar `D x N_s`: the `k x n` operand
-    /// layout gemm runs fastest with.
+    /// Centred, unit style columns, planar `D x N_s`.
     unit: Vec<f32>,
+    /// `unit` packed for the fp32 matching kernel, built on first use.
+    panels: OnceLock<Vec<f32>>,
+    /// `unit` packed for the bf16 block kernel, built on first use.
+    packed16: OnceLock<PackedB>,
 }
 
 impl NnstTarget {
@@ -288,7 +296,14 @@ impl NnstTarget {
         unit.par_chunks_mut(ns).zip(columns.data.par_chunks(ns)).zip(&mean).for_each(|((u, c), m)| {
             u.iter_mut().zip(c).zip(&inv).for_each(|((u, v), i)| *u = (v - m) * i);
         });
-        Ok(Self { channels: feats.iter().map(|f| f.channels).collect(), params: *params, columns, unit })
+        Ok(Self {
+            channels: feats.iter().map(|f| f.channels).collect(),
+            params: *params,
+            columns,
+            unit,
+            panels: OnceLock::new(),
+            packed16: OnceLock::new(),
+        })
     }
 
     /// Number of feature layers.
@@ -327,49 +342,22 @@ impl NnstTarget {
     /// Eq. 2: the nearest style hyper-column (cosine distance of centred
     /// columns) of every hyper-column of the content render's features `content`.
     ///
-    /// The `N_c x N_s` similarity matrix is never held whole: row blocks of it
-    /// are computed (gemm) and reduced to their arg-max in parallel.
+    /// The `N_c x N_s` similarity matrix is never held: each block of it is
+    /// made by a product kernel (fp32, or bf16 under `--precision bf16`) and
+    /// folded into a running arg-max per content column at once. Ties go to
+    /// the first style column; a NaN score never wins.
     pub fn match_content(&self, content: &[Image]) -> Result<NnstMatch, NnstError> {
         self.check(content)?;
         let grid = common_grid(content, &self.params)?;
         let h = hypercolumns(content, grid);
-        let (d, nc, ns) = (h.channels, h.plane(), self.columns.plane());
+        let (d, nc) = (h.channels, h.plane());
         let mean = channel_means(&h);
         let mut centred = h;
         centred.data.par_chunks_mut(nc).zip(&mean).for_each(|(p, m)| p.iter_mut().for_each(|v| *v -= m));
-
-        let rows = (BLOCK_SCORES / ns).clamp(1, 512);
-        let mut indices = vec![0u32; nc];
-        indices.par_chunks_mut(rows).enumerate().for_each(|(b, idx)| {
-            let (i0, n) = (b * rows, idx.len());
-            // The block's columns gathered pixel-major: gemm packs a
-            // contiguous-row operand far faster than the planar map's
-            // N_c-strided one.
-            let mut block = vec![0.0f32; n * d];
-            for (k, plane) in centred.data.chunks_exact(nc).enumerate() {
-                for (r, v) in plane[i0..i0 + n].iter().enumerate() {
-                    block[r * d + k] = *v;
-                }
-            }
-            let mut scores = vec![0.0f32; n * ns];
-            matmul(
-                n,
-                ns,
-                d,
-                &mut scores,
-                &block,
-                (d, 1),
-                &self.unit,
-                (ns, 1),
-                1.0,
-                // The blocks already spread over the pool; small single-block
-                // cases still let gemm use it.
-                if nc <= rows { parallelism(n, ns, d) } else { Parallelism::None },
-            );
-            for (r, out) in idx.iter_mut().enumerate() {
-                *out = argmax(&scores[r * ns..(r + 1) * ns]) as u32;
-            }
-        });
+        let indices = match bf16::Kernel::for_path(precision::path()) {
+            Some(kernel) => self.argmax_bf16(kernel, &centred),
+            None => self.argmax_fp32(&centred),
+        };
 
         let mut targets = Image::zeros(d, grid.0, grid.1);
         targets.data.par_chunks_mut(nc).enumerate().for_each(|(k, t)| {
@@ -378,17 +366,127 @@ impl NnstTarget {
         });
         Ok(NnstMatch { channels: self.channels.clone(), params: self.params, targets, indices })
     }
+
+    /// Arg-max of `centred`'s columns against the unit style columns, fp32:
+    /// content rows gathered pixel-major, style columns in panels of 64
+    /// (`[panel][D][64]`, zero past `N_s`), 6 x 64 scores per kernel call.
+    fn argmax_fp32(&self, centred: &Image) -> Vec<u32> {
+        let (d, nc, ns) = (centred.channels, centred.plane(), self.columns.plane());
+        let bl = MATCH_BLOCKING;
+        let npanels = ns.div_ceil(bl.nr);
+        let panels = self.panels.get_or_init(|| {
+            let mut p = vec![0.0f32; npanels * d * bl.nr];
+            p.par_chunks_mut(d * bl.nr).enumerate().for_each(|(pi, panel)| {
+                for k in 0..d {
+                    let row = &self.unit[k * ns..(k + 1) * ns];
+                    for j in 0..bl.nr.min(ns - pi * bl.nr) {
+                        panel[k * bl.nr + j] = row[pi * bl.nr + j];
+                    }
+                }
+            });
+            p
+        });
+        let mut indices = vec![0u32; nc];
+        indices.par_chunks_mut(MATCH_ROWS).enumerate().for_each(|(b, idx)| {
+            let (i0, n) = (b * MATCH_ROWS, idx.len());
+            let rows = n.div_ceil(bl.mr) * bl.mr;
+            let block = gather_rows(centred, i0, n, rows, d, |v| v);
+            let mut best = vec![f32::NEG_INFINITY; n];
+            let mut c = [0.0f32; 6 * 64];
+            for pi in 0..npanels {
+                let panel = &panels[pi * d * bl.nr..(pi + 1) * d * bl.nr];
+                let cols = bl.nr.min(ns - pi * bl.nr);
+                for r0 in (0..rows).step_by(bl.mr) {
+                    // SAFETY: block holds `rows` rows of d; panel d x nr; c mr x nr.
+                    unsafe {
+                        microkernel::kernel(bl, block.as_ptr().add(r0 * d), d, panel.as_ptr(), d, c.as_mut_ptr(), bl.nr)
+                    };
+                    for r in 0..bl.mr.min(n.saturating_sub(r0)) {
+                        fold_argmax(&c[r * bl.nr..r * bl.nr + cols], pi * bl.nr, &mut best[r0 + r], &mut idx[r0 + r]);
+                    }
+                }
+            }
+        });
+        indices
+    }
+
+    /// [`Self::argmax_fp32`] on the bf16 block kernel: content rows and style
+    /// columns rounded to bf16, scores summed in fp32, 32 x 32 per call.
+    fn argmax_bf16(&self, kernel: bf16::Kernel, centred: &Image) -> Vec<u32> {
+        let (d, nc, ns) = (centred.channels, centred.plane(), self.columns.plane());
+        let steps = d.div_ceil(KS);
+        let dp = steps * KS;
+        let packed = self.packed16.get_or_init(|| {
+            PackedB::new(steps, ns, |s, k, n| {
+                let kk = s * KS + k;
+                if kk < d {
+                    self.unit[kk * ns + n]
+                } else {
+                    0.0
+                }
+            })
+        });
+        let offs: Vec<usize> = (0..steps).map(|s| s * KS).collect();
+        // Tasks of several 32-row blocks, so each pair of style columns
+        // (steps x 2 KB) is read once per task and reused from cache.
+        let task_rows = 8 * MB;
+        let mut indices = vec![0u32; nc];
+        indices.par_chunks_mut(task_rows).enumerate().for_each(|(b, idx)| {
+            let (i0, n) = (b * task_rows, idx.len());
+            let rows = n.div_ceil(MB) * MB;
+            let block = gather_rows(centred, i0, n, rows, dp, bf16::from_f32);
+            let mut best = vec![f32::NEG_INFINITY; n];
+            let mut c = [0.0f32; MB * NB];
+            kernel.run(|ready| {
+                for pair in 0..packed.npairs {
+                    let bp = packed.pair(pair).as_ptr();
+                    let cols = NB.min(ns - pair * NB);
+                    for r0 in (0..rows).step_by(MB) {
+                        let a0 = block.as_ptr().wrapping_add(r0 * dp);
+                        // SAFETY: block holds `rows` rows of dp values; the
+                        // pair holds `steps` steps; c is 32 x 32.
+                        unsafe { ready.block(a0, a0.add(16 * dp), dp, &offs, bp, c.as_mut_ptr(), NB) };
+                        for r in 0..MB.min(n.saturating_sub(r0)) {
+                            fold_argmax(&c[r * NB..r * NB + cols], pair * NB, &mut best[r0 + r], &mut idx[r0 + r]);
+                        }
+                    }
+                }
+            });
+        });
+        indices
+    }
 }
 
-/// Index of the largest value; the first one on ties (NaNs never win).
-fn argmax(v: &[f32]) -> usize {
-    let mut best = 0;
-    for (i, &x) in v.iter().enumerate() {
-        if x > v[best] {
-            best = i;
+/// Content columns `i0 .. i0 + n` of the planar `centred` map, pixel-major
+/// (`rows x stride`, converted by `conv`, zero past `n` rows and `D` values).
+fn gather_rows<T: Copy + Default>(
+    centred: &Image,
+    i0: usize,
+    n: usize,
+    rows: usize,
+    stride: usize,
+    conv: impl Fn(f32) -> T,
+) -> Vec<T> {
+    let nc = centred.plane();
+    let mut block = vec![T::default(); rows * stride];
+    for (k, plane) in centred.data.chunks_exact(nc).enumerate() {
+        for (r, v) in plane[i0..i0 + n].iter().enumerate() {
+            block[r * stride + k] = conv(*v);
         }
     }
-    best
+    block
+}
+
+/// Folds one row of scores (style columns `j0 ..`) into a running arg-max:
+/// strictly greater wins, so ties keep the first column.
+#[inline(always)]
+fn fold_argmax(scores: &[f32], j0: usize, best: &mut f32, index: &mut u32) {
+    for (j, &v) in scores.iter().enumerate() {
+        if v > *best {
+            *best = v;
+            *index = (j0 + j) as u32;
+        }
+    }
 }
 
 /// The stylized target features `T` of eq. 2 for one content render: the
@@ -575,6 +673,48 @@ mod tests {
         let (loss, grads) = nnst_loss(&feats, &target).unwrap();
         assert_eq!(loss, 0.0);
         assert!(grads.iter().all(|g| g.data.iter().all(|v| *v == 0.0)));
+    }
+
+    /// Exact (f64) scores of centred content columns against the target's
+    /// unit style columns, and the first arg-max of each content column.
+    fn brute_force(target: &NnstTarget, centred: &Image) -> (Vec<Vec<f64>>, Vec<u32>) {
+        let (d, nc, ns) = (centred.channels, centred.plane(), target.columns.plane());
+        let scores: Vec<Vec<f64>> = (0..nc)
+            .map(|i| {
+                (0..ns)
+                    .map(|j| (0..d).map(|k| centred.data[k * nc + i] as f64 * target.unit[k * ns + j] as f64).sum())
+                    .collect()
+            })
+            .collect();
+        let best =
+            scores.iter().map(|row| (0..ns).fold(0, |b, j| if row[j] > row[b] { j } else { b }) as u32).collect();
+        (scores, best)
+    }
+
+    /// The fused fp32 matching and every bf16 kernel against brute force, on
+    /// sizes that leave partial blocks everywhere (D = 40, N_s = 143,
+    /// N_c = 221). fp32 picks the exact best up to rounding; bf16 picks a
+    /// column whose exact score is within its tolerance of the best (a near
+    /// tie may go either way), and agrees with fp32 on almost every column.
+    #[test]
+    fn fused_matching_matches_brute_force() {
+        let target = NnstTarget::from_style_features(&[image(40, 11, 13, 1)], &NnstParams { grid_divisor: 1 }).unwrap();
+        let centred = image(40, 13, 17, 2);
+        let (scores, want) = brute_force(&target, &centred);
+        let scale = scores.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+        let fp32 = target.argmax_fp32(&centred);
+        for (i, (&g, &w)) in fp32.iter().zip(&want).enumerate() {
+            assert!(scores[i][g as usize] >= scores[i][w as usize] - 1e-5 * scale, "fp32 column {i}: {g} vs {w}");
+        }
+        for k in bf16::Kernel::all_here() {
+            let got = target.argmax_bf16(k, &centred);
+            let mut same = 0;
+            for (i, (&g, &w)) in got.iter().zip(&want).enumerate() {
+                assert!(scores[i][g as usize] >= scores[i][w as usize] - 2e-2 * scale, "{k:?} column {i}: {g} vs {w}");
+                same += usize::from(g == fp32[i]);
+            }
+            assert!(same * 100 >= got.len() * 90, "{k:?}: {same} of {} columns as fp32", got.len());
+        }
     }
 
     #[test]

@@ -390,6 +390,22 @@ fn threads() -> usize {
     rayon::current_num_threads()
 }
 
+/// Arithmetic of the heavy products for every later job, as the command
+/// line's `--precision`: "auto" (bf16 where the CPU has a bf16 unit, fp32
+/// otherwise), "bf16" or "fp32". Returns what it runs on this machine.
+#[pyfunction]
+fn set_precision(name: &str) -> PyResult<String> {
+    let p: nst3d_core::precision::Precision = name.parse().map_err(pyo3::exceptions::PyValueError::new_err)?;
+    nst3d_core::precision::set(p);
+    Ok(nst3d_core::precision::path().describe().to_string())
+}
+
+/// What the heavy products run in now (e.g. "fp32" or "bf16 (AMX-BF16 tiles, fp32 accumulation)").
+#[pyfunction]
+fn precision() -> String {
+    nst3d_core::precision::path().describe().to_string()
+}
+
 #[pymodule]
 fn _nst3d(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
@@ -404,6 +420,8 @@ fn _nst3d(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(bench_volume_iter, m)?)?;
     m.add_function(wrap_pyfunction!(set_threads, m)?)?;
     m.add_function(wrap_pyfunction!(threads, m)?)?;
+    m.add_function(wrap_pyfunction!(set_precision, m)?)?;
+    m.add_function(wrap_pyfunction!(precision, m)?)?;
     m.add_class::<Model>()?;
     Ok(())
 }

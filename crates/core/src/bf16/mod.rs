@@ -338,14 +338,7 @@ unsafe fn block_emulated(
 /// Whether AVX-512F may be used (`NST3D_NO_AVX512` hides it, as for the
 /// fp32 kernels).
 pub fn has_avx512f() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx512f") && std::env::var_os("NST3D_NO_AVX512").is_none()
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    crate::microkernel::has_avx512()
 }
 
 /// Runs `kernel` on a fixed block with awkward strides and offsets and
