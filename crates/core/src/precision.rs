@@ -193,6 +193,12 @@ pub fn scoped<R>(p: Precision, f: impl FnOnce() -> R) -> R {
     f()
 }
 
+/// [`scoped`] to fp32: how a test of the fp32 reference (a finite-difference
+/// check, a PyTorch fixture) pins its path whatever the process runs.
+pub fn fp32<R>(f: impl FnOnce() -> R) -> R {
+    scoped(Precision::Fp32, f)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

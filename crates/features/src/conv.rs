@@ -415,12 +415,7 @@ impl Conv1x1 {
 mod tests {
     use super::*;
     use nst3d_core::gradcheck::{check_gradient, dot as gdot, pseudo_random};
-    use nst3d_core::precision::{scoped, Precision};
-
-    /// The fp32 reference path, whatever the process runs by default.
-    fn fp32<R>(f: impl FnOnce() -> R) -> R {
-        scoped(Precision::Fp32, f)
-    }
+    use nst3d_core::precision::{fp32, scoped, Precision};
 
     fn fm(h: usize, w: usize, c: usize, seed: u64) -> FeatureMap {
         FeatureMap::from_vec(h, w, c, pseudo_random(h * w * c, seed))

@@ -10,10 +10,12 @@
 
 #![warn(missing_docs)]
 
+mod gram_bf16;
 pub mod nnst;
 
+use nst3d_core::bf16::Kernel;
 use nst3d_core::linalg::{matmul, matmul_into, parallelism, Parallelism};
-use nst3d_core::{FeatureView, Layout};
+use nst3d_core::{precision, FeatureView, Layout};
 use rayon::prelude::*;
 
 /// Why a style target or style loss could not be built from the given inputs.
@@ -85,6 +87,10 @@ pub fn gram(f: FeatureView<'_>) -> Vec<f32> {
     if p == 0 {
         return vec![0.0; c * c];
     }
+    let scale = 1.0 / p as f32;
+    if let Some(k) = Kernel::for_path(precision::path()) {
+        return gram_bf16::gram(k, f, scale);
+    }
     let (_, col) = f.strides();
     // Shallow layers are C x C outputs over a very long k = h·w (64 x 256² at
     // relu1_1): too few output tiles for gemm to spread over threads, so the
@@ -92,7 +98,6 @@ pub fn gram(f: FeatureView<'_>) -> Vec<f32> {
     // chunk count depends on the shape only, so results do not change with
     // the thread count.
     let chunks = (p / c.max(256)).clamp(1, MAX_GRAM_CHUNKS);
-    let scale = 1.0 / p as f32;
     let mut g = if chunks == 1 {
         upper_gram(c, p, f.data, f.strides(), scale, parallelism(c, c, p))
     } else {
@@ -153,6 +158,11 @@ pub fn gram_backward(f: FeatureView<'_>, grad_g: &[f32]) -> Vec<f32> {
     for i in 0..c {
         for j in 0..c {
             sym[i * c + j] = grad_g[i * c + j] + grad_g[j * c + i];
+        }
+    }
+    if p > 0 && f.layout == Layout::ChannelsLast {
+        if let Some(k) = Kernel::for_path(precision::path()) {
+            return gram_bf16::gram_backward_channels_last(k, f, &sym, 1.0 / p as f32);
         }
     }
     let mut out = vec![0.0; c * p];
@@ -319,30 +329,34 @@ mod tests {
 
     #[test]
     fn gram_matches_definition_and_is_symmetric() {
-        // One small (single-threaded path) and one above the parallel threshold.
-        for (c, h, w) in [(5, 3, 7), (40, 30, 33)] {
-            let f = image(c, h, w, 3);
-            let g = gram((&f).into());
-            let want = gram_naive(&f);
-            for (a, b) in g.iter().zip(&want) {
-                assert!((*a as f64 - b).abs() < 1e-5, "{a} vs {b}");
-            }
-            for i in 0..c {
-                for j in 0..c {
-                    assert_eq!(g[i * c + j], g[j * c + i]);
+        nst3d_core::precision::fp32(|| {
+            // One small (single-threaded path) and one above the parallel threshold.
+            for (c, h, w) in [(5, 3, 7), (40, 30, 33)] {
+                let f = image(c, h, w, 3);
+                let g = gram((&f).into());
+                let want = gram_naive(&f);
+                for (a, b) in g.iter().zip(&want) {
+                    assert!((*a as f64 - b).abs() < 1e-5, "{a} vs {b}");
+                }
+                for i in 0..c {
+                    for j in 0..c {
+                        assert_eq!(g[i * c + j], g[j * c + i]);
+                    }
                 }
             }
-        }
+        })
     }
 
     #[test]
     fn gram_backward_gradcheck_nonsymmetric_upstream() {
-        let f = image(6, 4, 5, 11);
-        let wgt = pseudo_random(36, 12); // not symmetric: exercises dG + dGᵀ
-        let analytic = gram_backward((&f).into(), &wgt);
-        let probe = |x: &[f32]| dot(&wgt, &gram((&Image::from_vec(6, 4, 5, x.to_vec())).into()));
-        let r = check_gradient(&f.data, &analytic, probe, 1e-2, 120, 1e-3);
-        assert!(r.max_rel_err < 1e-2, "{r:?}");
+        nst3d_core::precision::fp32(|| {
+            let f = image(6, 4, 5, 11);
+            let wgt = pseudo_random(36, 12); // not symmetric: exercises dG + dGᵀ
+            let analytic = gram_backward((&f).into(), &wgt);
+            let probe = |x: &[f32]| dot(&wgt, &gram((&Image::from_vec(6, 4, 5, x.to_vec())).into()));
+            let r = check_gradient(&f.data, &analytic, probe, 1e-2, 120, 1e-3);
+            assert!(r.max_rel_err < 1e-2, "{r:?}");
+        })
     }
 
     /// Channels-last features give the planar Gram and the planar gradient
@@ -350,90 +364,147 @@ mod tests {
     /// the backward by finite differences, so this covers both layouts).
     #[test]
     fn channels_last_matches_planar() {
-        // Small, and chunked over pixels with several row bands.
-        for (c, h, w) in [(6, 4, 5), (96, 40, 33)] {
-            let f = image(c, h, w, 21);
-            let cl = channels_last(&f);
-            let view = FeatureView { channels: c, height: h, width: w, layout: Layout::ChannelsLast, data: &cl };
-            let (gp, gc) = (gram((&f).into()), gram(view));
-            for (a, b) in gp.iter().zip(&gc) {
-                assert!((a - b).abs() <= 1e-5 * (1.0 + a.abs()), "gram {a} vs {b}");
+        nst3d_core::precision::fp32(|| {
+            // Small, and chunked over pixels with several row bands.
+            for (c, h, w) in [(6, 4, 5), (96, 40, 33)] {
+                let f = image(c, h, w, 21);
+                let cl = channels_last(&f);
+                let view = FeatureView { channels: c, height: h, width: w, layout: Layout::ChannelsLast, data: &cl };
+                let (gp, gc) = (gram((&f).into()), gram(view));
+                for (a, b) in gp.iter().zip(&gc) {
+                    assert!((a - b).abs() <= 1e-5 * (1.0 + a.abs()), "gram {a} vs {b}");
+                }
+                let wgt = pseudo_random(c * c, 22);
+                let planar = Image::from_vec(c, h, w, gram_backward((&f).into(), &wgt));
+                for (a, b) in channels_last(&planar).iter().zip(&gram_backward(view, &wgt)) {
+                    assert!((a - b).abs() <= 1e-5 * (1.0 + a.abs()), "gram_backward {a} vs {b}");
+                }
             }
-            let wgt = pseudo_random(c * c, 22);
-            let planar = Image::from_vec(c, h, w, gram_backward((&f).into(), &wgt));
-            for (a, b) in channels_last(&planar).iter().zip(&gram_backward(view, &wgt)) {
-                assert!((a - b).abs() <= 1e-5 * (1.0 + a.abs()), "gram_backward {a} vs {b}");
-            }
-        }
+        })
     }
 
     #[test]
     fn mse_backward_gradcheck() {
-        let a = pseudo_random(30, 1);
-        let b = pseudo_random(30, 2);
-        let analytic = mse_backward(&a, &b);
-        let r = check_gradient(&a, &analytic, |x| mse(x, &b) as f64, 1e-2, 30, 1e-3);
-        assert!(r.max_rel_err < 1e-2, "{r:?}");
+        nst3d_core::precision::fp32(|| {
+            let a = pseudo_random(30, 1);
+            let b = pseudo_random(30, 2);
+            let analytic = mse_backward(&a, &b);
+            let r = check_gradient(&a, &analytic, |x| mse(x, &b) as f64, 1e-2, 30, 1e-3);
+            assert!(r.max_rel_err < 1e-2, "{r:?}");
+        })
     }
 
     #[test]
     fn style_loss_gradcheck_several_layers() {
-        let shapes = [(4, 5, 6), (8, 3, 4), (3, 2, 9)];
-        let style: Vec<Image> =
-            shapes.iter().enumerate().map(|(i, &(c, h, w))| image(c, h, w, 100 + i as u64)).collect();
-        let target = StyleTarget::from_features(&views(&style), &[1.0, 0.5, 3.0]).unwrap();
-        let feats: Vec<Image> =
-            shapes.iter().enumerate().map(|(i, &(c, h, w))| image(c, h, w, 200 + i as u64)).collect();
-        let (_, grads) = style_loss(&views(&feats), &target).unwrap();
-        // Perturb one layer at a time, the others held fixed.
-        for l in 0..shapes.len() {
-            let (c, h, w) = shapes[l];
-            let probe = |x: &[f32]| {
-                let mut fs = feats.clone();
-                fs[l] = Image::from_vec(c, h, w, x.to_vec());
-                style_loss(&views(&fs), &target).unwrap().0 as f64
-            };
-            let r = check_gradient(&feats[l].data, &grads[l], probe, 1e-2, 60, 1e-4);
-            assert!(r.max_rel_err < 2e-2, "layer {l}: {r:?}");
-        }
+        nst3d_core::precision::fp32(|| {
+            let shapes = [(4, 5, 6), (8, 3, 4), (3, 2, 9)];
+            let style: Vec<Image> =
+                shapes.iter().enumerate().map(|(i, &(c, h, w))| image(c, h, w, 100 + i as u64)).collect();
+            let target = StyleTarget::from_features(&views(&style), &[1.0, 0.5, 3.0]).unwrap();
+            let feats: Vec<Image> =
+                shapes.iter().enumerate().map(|(i, &(c, h, w))| image(c, h, w, 200 + i as u64)).collect();
+            let (_, grads) = style_loss(&views(&feats), &target).unwrap();
+            // Perturb one layer at a time, the others held fixed.
+            for l in 0..shapes.len() {
+                let (c, h, w) = shapes[l];
+                let probe = |x: &[f32]| {
+                    let mut fs = feats.clone();
+                    fs[l] = Image::from_vec(c, h, w, x.to_vec());
+                    style_loss(&views(&fs), &target).unwrap().0 as f64
+                };
+                let r = check_gradient(&feats[l].data, &grads[l], probe, 1e-2, 60, 1e-4);
+                assert!(r.max_rel_err < 2e-2, "layer {l}: {r:?}");
+            }
+        })
     }
 
     #[test]
     fn style_loss_is_zero_at_target() {
-        let style = vec![image(4, 3, 3, 1), image(2, 5, 2, 2)];
-        let target = StyleTarget::from_features(&views(&style), &[]).unwrap();
-        let (loss, grads) = style_loss(&views(&style), &target).unwrap();
-        assert_eq!(loss, 0.0);
-        assert!(grads.iter().all(|g| g.iter().all(|v| *v == 0.0)));
+        nst3d_core::precision::fp32(|| {
+            let style = vec![image(4, 3, 3, 1), image(2, 5, 2, 2)];
+            let target = StyleTarget::from_features(&views(&style), &[]).unwrap();
+            let (loss, grads) = style_loss(&views(&style), &target).unwrap();
+            assert_eq!(loss, 0.0);
+            assert!(grads.iter().all(|g| g.iter().all(|v| *v == 0.0)));
+        })
     }
 
     #[test]
     fn bad_inputs_are_errors() {
-        let style = vec![image(4, 3, 3, 1), image(2, 5, 2, 2)];
-        assert_eq!(
-            StyleTarget::from_features(&views(&style), &[1.0]),
-            Err(LossError::WeightCount { weights: 1, layers: 2 })
-        );
-        assert!(matches!(
-            StyleTarget::from_features(&views(&style), &[1.0, f32::NAN]),
-            Err(LossError::NonFiniteWeight { layer: 1, .. })
-        ));
-        assert!(matches!(
-            StyleTarget::from_features(&views(&[Image::zeros(3, 0, 4)]), &[]),
-            Err(LossError::EmptyLayer { layer: 0, .. })
-        ));
-        let target = StyleTarget::from_features(&views(&style), &[]).unwrap();
-        assert_eq!(
-            style_loss(&views(&style[..1]), &target).unwrap_err(),
-            LossError::LayerCount { got: 1, expected: 2 }
-        );
-        let wrong = vec![style[0].clone(), image(3, 5, 2, 2)];
-        assert_eq!(
-            style_loss(&views(&wrong), &target).unwrap_err(),
-            LossError::ChannelCount { layer: 1, got: 3, expected: 2 }
-        );
-        // Error messages are one line and name the problem.
-        let msg = LossError::WeightCount { weights: 1, layers: 2 }.to_string();
-        assert!(!msg.contains('\n') && msg.contains("weights"));
+        nst3d_core::precision::fp32(|| {
+            let style = vec![image(4, 3, 3, 1), image(2, 5, 2, 2)];
+            assert_eq!(
+                StyleTarget::from_features(&views(&style), &[1.0]),
+                Err(LossError::WeightCount { weights: 1, layers: 2 })
+            );
+            assert!(matches!(
+                StyleTarget::from_features(&views(&style), &[1.0, f32::NAN]),
+                Err(LossError::NonFiniteWeight { layer: 1, .. })
+            ));
+            assert!(matches!(
+                StyleTarget::from_features(&views(&[Image::zeros(3, 0, 4)]), &[]),
+                Err(LossError::EmptyLayer { layer: 0, .. })
+            ));
+            let target = StyleTarget::from_features(&views(&style), &[]).unwrap();
+            assert_eq!(
+                style_loss(&views(&style[..1]), &target).unwrap_err(),
+                LossError::LayerCount { got: 1, expected: 2 }
+            );
+            let wrong = vec![style[0].clone(), image(3, 5, 2, 2)];
+            assert_eq!(
+                style_loss(&views(&wrong), &target).unwrap_err(),
+                LossError::ChannelCount { layer: 1, got: 3, expected: 2 }
+            );
+            // Error messages are one line and name the problem.
+            let msg = LossError::WeightCount { weights: 1, layers: 2 }.to_string();
+            assert!(!msg.contains('\n') && msg.contains("weights"));
+        })
+    }
+
+    /// bf16 Gram and its backward, every kernel here, both layouts, channel
+    /// counts and pixel counts off the block sizes: within bf16's tolerance
+    /// of the fp32 reference (0.5 % of the largest value: operands rounded to
+    /// 8 mantissa bits, sums in fp32), exactly symmetric, and the same on
+    /// every kernel up to summation order.
+    #[test]
+    fn bf16_gram_and_backward_match_fp32() {
+        use nst3d_core::bf16::Kernel;
+        let max_rel = |a: &[f32], b: &[f32]| {
+            let m = b.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            a.iter().zip(b).fold(0.0f32, |e, (x, y)| e.max((x - y).abs())) / m
+        };
+        for (c, h, w) in [(64, 17, 19), (40, 9, 7), (128, 32, 32)] {
+            let f = Image::from_vec(c, h, w, pseudo_random(c * h * w, 5).iter().map(|v| v.max(0.0)).collect());
+            let cl = channels_last(&f);
+            let grad_g = pseudo_random(c * c, 6);
+            let layouts =
+                [FeatureView::from(&f), FeatureView { layout: Layout::ChannelsLast, data: &cl, ..(&f).into() }];
+            for v in layouts {
+                let (g32, d32) = nst3d_core::precision::fp32(|| (gram(v), gram_backward(v, &grad_g)));
+                for k in Kernel::all_here() {
+                    let scale = 1.0 / v.pixels() as f32;
+                    let g16 = gram_bf16::gram(k, v, scale);
+                    assert!(
+                        max_rel(&g16, &g32) < 5e-3,
+                        "{k:?} {c}x{h}x{w} {:?}: gram {}",
+                        v.layout,
+                        max_rel(&g16, &g32)
+                    );
+                    assert!((0..c).all(|i| (0..c).all(|j| g16[i * c + j] == g16[j * c + i])));
+                    if v.layout == Layout::ChannelsLast {
+                        let mut sym = vec![0.0; c * c];
+                        for i in 0..c {
+                            for j in 0..c {
+                                sym[i * c + j] = grad_g[i * c + j] + grad_g[j * c + i];
+                            }
+                        }
+                        let d16 = gram_bf16::gram_backward_channels_last(k, v, &sym, scale);
+                        assert!(max_rel(&d16, &d32) < 5e-3, "{k:?} {c}x{h}x{w}: backward {}", max_rel(&d16, &d32));
+                    }
+                }
+                let via_setting = nst3d_core::precision::scoped(nst3d_core::precision::Precision::Bf16, || gram(v));
+                assert_ne!(via_setting, g32, "gram under bf16 did not take the bf16 path");
+            }
+        }
     }
 }
