@@ -104,3 +104,69 @@ pub fn matmul_into(
         );
     }
 }
+
+/// [`matmul_into`] in the arithmetic of `path` (a
+/// [`crate::precision::path`] the caller resolved on its own thread, so a
+/// scoped choice holds inside its parallel tasks too): this module's fp32
+/// product, or the block kernel of [`crate::bf16`] (operands rounded to bf16
+/// once, sums in fp32, each output block's sum in one fixed order). For
+/// products whose operands change every call (the 3D network's im2col
+/// matrices), so both are packed here.
+#[allow(clippy::too_many_arguments)]
+pub fn matmul_into_precision(
+    path: crate::precision::Path,
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: &mut [f32],
+    dst_row_stride: usize,
+    accumulate: bool,
+    lhs: &[f32],
+    lhs_strides: (usize, usize),
+    rhs: &[f32],
+    rhs_strides: (usize, usize),
+    beta: f32,
+    parallelism: Parallelism,
+) {
+    match crate::bf16::Kernel::for_path(path) {
+        Some(kernel) if m > 0 && n > 0 && k > 0 => {
+            assert!(n <= dst_row_stride && (m - 1) * dst_row_stride + n <= dst.len(), "matmul destination bounds");
+            assert!((m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1 < lhs.len(), "matmul lhs bounds");
+            assert!((k - 1) * rhs_strides.0 + (n - 1) * rhs_strides.1 < rhs.len(), "matmul rhs bounds");
+            let parallel = !matches!(parallelism, Parallelism::None);
+            crate::bf16::matmul(
+                kernel,
+                (m, n, k),
+                dst,
+                dst_row_stride,
+                accumulate,
+                (lhs, lhs_strides),
+                (rhs, rhs_strides),
+                beta,
+                parallel,
+            );
+        }
+        _ => {
+            matmul_into(m, n, k, dst, dst_row_stride, accumulate, lhs, lhs_strides, rhs, rhs_strides, beta, parallelism)
+        }
+    }
+}
+
+/// [`matmul`] in the arithmetic of `path` (see [`matmul_into_precision`]).
+#[allow(clippy::too_many_arguments)]
+pub fn matmul_precision(
+    path: crate::precision::Path,
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: &mut [f32],
+    lhs: &[f32],
+    lhs_strides: (usize, usize),
+    rhs: &[f32],
+    rhs_strides: (usize, usize),
+    beta: f32,
+    parallelism: Parallelism,
+) {
+    assert_eq!(dst.len(), m * n, "matmul destination size");
+    matmul_into_precision(path, m, n, k, dst, n, false, lhs, lhs_strides, rhs, rhs_strides, beta, parallelism);
+}

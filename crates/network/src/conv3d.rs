@@ -18,7 +18,8 @@
 //! `r = (ci, kz, ky, kx)` runs in the weight tensor's own order, so `W` is
 //! the `cout x (cin·k³)` row-major matrix PyTorch stores.
 
-use nst3d_core::linalg::{matmul, Parallelism};
+use nst3d_core::linalg::{matmul_into_precision, matmul_precision as matmul, Parallelism};
+use nst3d_core::precision::{self, Path};
 use rayon::prelude::*;
 
 use crate::volume::Volume;
@@ -188,6 +189,12 @@ impl Conv3d {
     /// # Panics
     /// If `x` does not have `cin` channels or is smaller than the kernel.
     pub fn forward(&self, x: &Volume) -> Volume {
+        self.forward_on(precision::path(), x)
+    }
+
+    /// [`Conv3d::forward`] in the arithmetic of `path` (resolved once on the
+    /// calling thread: the products run in parallel tasks).
+    fn forward_on(&self, path: Path, x: &Volume) -> Volume {
         self.check_input(x);
         let out = self.out_dims(x.dims);
         let n_out: usize = out.iter().product();
@@ -199,7 +206,19 @@ impl Conv3d {
                 self.im2col(x, out, slab, col);
                 let cols = (slab.r1 - slab.r0) * out[0];
                 let mut o = vec![0.0f32; self.cout * cols];
-                matmul(self.cout, cols, taps, &mut o, &self.weight, (taps, 1), col, (cols, 1), 1.0, Parallelism::None);
+                matmul(
+                    path,
+                    self.cout,
+                    cols,
+                    taps,
+                    &mut o,
+                    &self.weight,
+                    (taps, 1),
+                    col,
+                    (cols, 1),
+                    1.0,
+                    Parallelism::None,
+                );
                 (slab, o)
             })
             .collect();
@@ -242,6 +261,7 @@ impl Conv3d {
         assert_eq!((grad_out.channels, grad_out.dims), (self.cout, out), "conv3d backward: gradient size");
         let n_out: usize = out.iter().product();
         let taps = self.taps();
+        let path = precision::path();
         // Weight gradient: slabs in WEIGHT_GROUPS fixed runs, each run summed
         // in order, the runs then summed in order.
         let slabs = self.slabs(out, usize::MAX);
@@ -255,7 +275,8 @@ impl Conv3d {
                     let cols = (slab.r1 - slab.r0) * out[0];
                     let g = &grad_out.data[slab.r0 * out[0]..];
                     // dW (cout x taps) += grad_out band (cout x cols, rows n_out apart) · colᵀ.
-                    nst3d_core::linalg::matmul_into(
+                    matmul_into_precision(
+                        path,
                         self.cout,
                         taps,
                         cols,
@@ -281,8 +302,8 @@ impl Conv3d {
             grads.bias[co] = grad_out.channel(co).iter().map(|&v| v as f64).sum::<f64>() as f32;
         }
         let dx = want_input.then(|| match self.stride {
-            1 => self.transposed().forward(grad_out),
-            _ => self.input_grad_scatter(x.dims, out, grad_out),
+            1 => self.transposed().forward_on(path, grad_out),
+            _ => self.input_grad_scatter(path, x.dims, out, grad_out),
         });
         (dx, grads)
     }
@@ -290,7 +311,7 @@ impl Conv3d {
     /// The input gradient of a strided layer: `Wᵀ · grad_out` per slab of
     /// whole output planes, scattered (col2im) into the input planes the
     /// slab read, and summed in slab order.
-    fn input_grad_scatter(&self, dims: [usize; 3], out: [usize; 3], grad_out: &Volume) -> Volume {
+    fn input_grad_scatter(&self, path: Path, dims: [usize; 3], out: [usize; 3], grad_out: &Volume) -> Volume {
         let [nx, ny, nz] = dims;
         let n_out: usize = out.iter().product();
         let taps = self.taps();
@@ -315,6 +336,7 @@ impl Conv3d {
                 let mut dcol = vec![0.0f32; taps * cols];
                 // col' (taps x cols) = Wᵀ · grad_out band.
                 matmul(
+                    path,
                     taps,
                     cols,
                     self.cout,
@@ -403,61 +425,65 @@ mod tests {
 
     #[test]
     fn forward_matches_the_definition() {
-        for (i, &(cin, cout, k, s, p, dims)) in SHAPES.iter().enumerate() {
-            let c = layer(cin, cout, k, s, p, 10 + i as u64);
-            let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 3));
-            let y = c.forward(&x);
-            for (a, b) in y.data.iter().zip(direct(&c, &x)) {
-                assert!((*a as f64 - b).abs() < 1e-4, "shape {i}: {a} vs {b}");
+        nst3d_core::precision::fp32(|| {
+            for (i, &(cin, cout, k, s, p, dims)) in SHAPES.iter().enumerate() {
+                let c = layer(cin, cout, k, s, p, 10 + i as u64);
+                let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 3));
+                let y = c.forward(&x);
+                for (a, b) in y.data.iter().zip(direct(&c, &x)) {
+                    assert!((*a as f64 - b).abs() < 1e-4, "shape {i}: {a} vs {b}");
+                }
             }
-        }
+        })
     }
 
     #[test]
     fn gradients_match_finite_differences() {
-        for (i, &(cin, cout, k, s, p, dims)) in SHAPES.iter().enumerate() {
-            let c = layer(cin, cout, k, s, p, 20 + i as u64);
-            let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 5));
-            let out = c.out_dims(dims);
-            let w = pseudo_random(cout * out.iter().product::<usize>(), 6);
-            let (dx, g) = c.backward(&x, &Volume::from_vec(cout, out, w.clone()), true);
-            // The map is linear in each argument, so a large step is exact.
-            let r = check_gradient(
-                &x.data,
-                &dx.unwrap().data,
-                |q| dot(&w, &c.forward(&Volume::from_vec(cin, dims, q.to_vec())).data),
-                0.1,
-                150,
-                1e-3,
-            );
-            assert!(r.max_rel_err < 1e-3, "shape {i} input: {r:?}");
-            let mut probe = c.clone();
-            let r = check_gradient(
-                &c.weight,
-                &g.weight,
-                |q| {
-                    probe.weight.copy_from_slice(q);
-                    dot(&w, &probe.forward(&x).data)
-                },
-                0.1,
-                150,
-                1e-3,
-            );
-            assert!(r.max_rel_err < 1e-3, "shape {i} weight: {r:?}");
-            let mut probe = c.clone();
-            let r = check_gradient(
-                &c.bias,
-                &g.bias,
-                |q| {
-                    probe.bias.copy_from_slice(q);
-                    dot(&w, &probe.forward(&x).data)
-                },
-                0.1,
-                10,
-                1e-3,
-            );
-            assert!(r.max_rel_err < 1e-3, "shape {i} bias: {r:?}");
-        }
+        nst3d_core::precision::fp32(|| {
+            for (i, &(cin, cout, k, s, p, dims)) in SHAPES.iter().enumerate() {
+                let c = layer(cin, cout, k, s, p, 20 + i as u64);
+                let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 5));
+                let out = c.out_dims(dims);
+                let w = pseudo_random(cout * out.iter().product::<usize>(), 6);
+                let (dx, g) = c.backward(&x, &Volume::from_vec(cout, out, w.clone()), true);
+                // The map is linear in each argument, so a large step is exact.
+                let r = check_gradient(
+                    &x.data,
+                    &dx.unwrap().data,
+                    |q| dot(&w, &c.forward(&Volume::from_vec(cin, dims, q.to_vec())).data),
+                    0.1,
+                    150,
+                    1e-3,
+                );
+                assert!(r.max_rel_err < 1e-3, "shape {i} input: {r:?}");
+                let mut probe = c.clone();
+                let r = check_gradient(
+                    &c.weight,
+                    &g.weight,
+                    |q| {
+                        probe.weight.copy_from_slice(q);
+                        dot(&w, &probe.forward(&x).data)
+                    },
+                    0.1,
+                    150,
+                    1e-3,
+                );
+                assert!(r.max_rel_err < 1e-3, "shape {i} weight: {r:?}");
+                let mut probe = c.clone();
+                let r = check_gradient(
+                    &c.bias,
+                    &g.bias,
+                    |q| {
+                        probe.bias.copy_from_slice(q);
+                        dot(&w, &probe.forward(&x).data)
+                    },
+                    0.1,
+                    10,
+                    1e-3,
+                );
+                assert!(r.max_rel_err < 1e-3, "shape {i} bias: {r:?}");
+            }
+        })
     }
 
     #[test]
@@ -472,6 +498,43 @@ mod tests {
         // The same sums per output, only split differently over slabs.
         for (a, b) in one.data.iter().zip(&many.data) {
             assert!((a - b).abs() < 1e-5, "{a} vs {b}");
+        }
+    }
+
+    /// Forward, input and weight gradients under bf16 (the network's
+    /// widths, 16 channels, both strides) within bf16's tolerance of fp32:
+    /// 1 % of the largest value (operands rounded to 8 mantissa bits, sums
+    /// in fp32).
+    #[test]
+    fn bf16_matches_fp32_within_tolerance() {
+        use nst3d_core::precision::{fp32, scoped, Precision};
+        let rel = |a: &[f32], b: &[f32]| {
+            let m = b.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            a.iter().zip(b).fold(0.0f32, |e, (x, y)| e.max((x - y).abs())) / m
+        };
+        for (cin, cout, k, s, p, dims) in
+            [(16, 16, 3, 1, 1, [9, 8, 10]), (16, 32, 3, 2, 1, [12, 9, 8]), (1, 16, 5, 2, 2, [11, 10, 9])]
+        {
+            let c = layer(cin, cout, k, s, p, 60);
+            let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 61));
+            let out = c.out_dims(dims);
+            let g = Volume::from_vec(cout, out, pseudo_random(cout * out.iter().product::<usize>(), 62));
+            let run = || {
+                let y = c.forward(&x);
+                let (dx, gr) = c.backward(&x, &g, true);
+                (y, dx.unwrap(), gr)
+            };
+            let (y32, dx32, g32) = fp32(run);
+            let (y16, dx16, g16) = scoped(Precision::Bf16, run);
+            assert_ne!(y16.data, y32.data, "the bf16 call did not take the bf16 path");
+            for (name, a, b) in [
+                ("forward", &y16.data, &y32.data),
+                ("input gradient", &dx16.data, &dx32.data),
+                ("weight gradient", &g16.weight, &g32.weight),
+                ("bias gradient", &g16.bias, &g32.bias),
+            ] {
+                assert!(rel(a, b) < 1e-2, "{cin}->{cout} k{k} s{s} {name}: {}", rel(a, b));
+            }
         }
     }
 }

@@ -21,6 +21,9 @@
 //! in fp32; they differ only in summation order.
 
 pub mod amx;
+mod matmul;
+
+pub(crate) use matmul::matmul;
 
 use rayon::prelude::*;
 
