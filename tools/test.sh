@@ -27,6 +27,22 @@ else
   cargo test --workspace --exclude nst3d-python --no-fail-fast
 fi
 
+# The run above took the dispatched arithmetic (--precision auto: bf16 on a
+# CPU with a bf16 unit, fp32 elsewhere). The crates whose numerics depend on
+# it run again forced to the other one, so a blade without AMX (fp32) and
+# the bf16 roundings (emulated where the CPU has no unit) are both covered.
+if grep -q -w -E 'amx_bf16|avx512_bf16' /proc/cpuinfo; then other=fp32; else other=bf16; fi
+echo "== the numeric crates again with NST3D_PRECISION=$other"
+kernel_crates=(nst3d-core nst3d-features nst3d-loss nst3d-network nst3d-stylize nst3d-train
+  nst3d-strands nst3d-render nst3d-transport nst3d-optim nst3d-sequence nst3d-splat)
+if cargo nextest --version >/dev/null 2>&1; then
+  # The workspace build of the run above, filtered: no second build.
+  filter=$(printf 'package(%s) | ' "${kernel_crates[@]}"); filter=${filter% | }
+  NST3D_PRECISION=$other cargo nextest run --workspace --exclude nst3d-python --no-fail-fast -E "$filter"
+else
+  NST3D_PRECISION=$other cargo test $(printf -- '-p %s ' "${kernel_crates[@]}") --no-fail-fast
+fi
+
 echo "== fuzzing every reader briefly (the long run: docs/FUZZING.md)"
 bash tools/fuzz.sh --seconds 6
 

@@ -78,12 +78,16 @@ fn check(flavor: VggFlavor, algorithm: ConvAlgorithm, file: &str) {
 
 #[test]
 fn torchvision_matches_pytorch() {
-    check(VggFlavor::Torchvision, ConvAlgorithm::Auto, "vgg_torchvision.bin");
-    check(VggFlavor::Torchvision, ConvAlgorithm::Direct, "vgg_torchvision.bin");
+    nst3d_core::precision::fp32(|| {
+        check(VggFlavor::Torchvision, ConvAlgorithm::Auto, "vgg_torchvision.bin");
+        check(VggFlavor::Torchvision, ConvAlgorithm::Direct, "vgg_torchvision.bin");
+    })
 }
 
 #[test]
 fn gatys_matches_pytorch() {
-    check(VggFlavor::Gatys, ConvAlgorithm::Auto, "vgg_gatys.bin");
-    check(VggFlavor::Gatys, ConvAlgorithm::Direct, "vgg_gatys.bin");
+    nst3d_core::precision::fp32(|| {
+        check(VggFlavor::Gatys, ConvAlgorithm::Auto, "vgg_gatys.bin");
+        check(VggFlavor::Gatys, ConvAlgorithm::Direct, "vgg_gatys.bin");
+    })
 }

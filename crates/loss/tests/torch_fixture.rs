@@ -39,30 +39,32 @@ fn assert_close(got: &[f32], want: &[f32], tol: f32, what: &str) {
 
 #[test]
 fn matches_pytorch() {
-    let mut r = Reader::open();
-    let style = r.images();
-    let feats = r.images();
-    let weights = r.take(2);
-    let grams: Vec<Vec<f32>> = SHAPES.iter().map(|&(c, ..)| r.take(c * c)).collect();
-    let mses = r.take(2);
-    let loss = r.take(1)[0];
-    let dmse0 = r.take(SHAPES[0].0 * SHAPES[0].0);
-    let grads = r.images();
-    assert_eq!(r.pos, r.data.len(), "fixture has trailing data: layout changed?");
+    nst3d_core::precision::fp32(|| {
+        let mut r = Reader::open();
+        let style = r.images();
+        let feats = r.images();
+        let weights = r.take(2);
+        let grams: Vec<Vec<f32>> = SHAPES.iter().map(|&(c, ..)| r.take(c * c)).collect();
+        let mses = r.take(2);
+        let loss = r.take(1)[0];
+        let dmse0 = r.take(SHAPES[0].0 * SHAPES[0].0);
+        let grads = r.images();
+        assert_eq!(r.pos, r.data.len(), "fixture has trailing data: layout changed?");
 
-    let target = StyleTarget::from_features(&views(&style), &weights).unwrap();
-    for l in 0..2 {
-        let g = gram((&feats[l]).into());
-        assert_close(&g, &grams[l], 1e-6, "gram");
-        assert_close(&[mse(&g, target.gram(l))], &mses[l..l + 1], 1e-6, "mse");
-    }
-    assert_close(&mse_backward(&gram((&feats[0]).into()), target.gram(0)), &dmse0, 1e-6, "mse_backward");
+        let target = StyleTarget::from_features(&views(&style), &weights).unwrap();
+        for l in 0..2 {
+            let g = gram((&feats[l]).into());
+            assert_close(&g, &grams[l], 1e-6, "gram");
+            assert_close(&[mse(&g, target.gram(l))], &mses[l..l + 1], 1e-6, "mse");
+        }
+        assert_close(&mse_backward(&gram((&feats[0]).into()), target.gram(0)), &dmse0, 1e-6, "mse_backward");
 
-    let (got_loss, got_grads) = style_loss(&views(&feats), &target).unwrap();
-    assert_close(&[got_loss], &[loss], 1e-6, "style loss");
-    for l in 0..2 {
-        assert_close(&got_grads[l], &grads[l].data, 1e-6, "style loss gradient");
-    }
+        let (got_loss, got_grads) = style_loss(&views(&feats), &target).unwrap();
+        assert_close(&[got_loss], &[loss], 1e-6, "style loss");
+        for l in 0..2 {
+            assert_close(&got_grads[l], &grads[l].data, 1e-6, "style loss gradient");
+        }
+    })
 }
 
 fn views(images: &[Image]) -> Vec<FeatureView<'_>> {
