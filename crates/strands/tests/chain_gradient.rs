@@ -118,10 +118,14 @@ fn check_chain(with_head: bool) {
 
 #[test]
 fn loss_and_gradient_matches_finite_differences_without_a_head() {
-    check_chain(false);
+    nst3d_core::precision::fp32(|| {
+        check_chain(false);
+    })
 }
 
 #[test]
 fn loss_and_gradient_matches_finite_differences_through_the_collision_projection() {
-    check_chain(true);
+    nst3d_core::precision::fp32(|| {
+        check_chain(true);
+    })
 }

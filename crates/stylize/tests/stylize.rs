@@ -57,40 +57,42 @@ fn field_transport_gradients_match_finite_differences() {
 /// entries (70%) must agree within 5%, and all must agree in sign where large.
 #[test]
 fn view_loss_gradient_matches_finite_differences() {
-    let vgg = Vgg19::random(VggFlavor::Torchvision, 1);
-    let spec = StyleSpec { layers: vec![VggLayer::Relu1_1, VggLayer::Relu2_1], layer_weights: vec![1.0, 0.5] };
-    let loss = ViewLoss::new(&vgg, &style(24), &spec).unwrap();
-    let d = synthetic_smoke(12, 5);
-    let persp = Camera::front(d.dims).with_projection(Projection::Perspective);
-    for (name, camera, equalize) in
-        [("march", None, false), ("perspective", Some(persp), false), ("equalized", None, true)]
-    {
-        let view = ViewSpec { camera, gamma: 0.3, exposure: 0.3, equalize };
-        let (_, grad) = loss.loss_and_grad(&d, &view).unwrap();
-        let mut probe = d.clone();
-        let mut good = 0;
-        let mut checked = 0;
-        let big = grad.data.iter().fold(0f32, |m, v| m.max(v.abs()));
-        for i in (0..d.len()).step_by(97) {
-            if grad.data[i].abs() < 1e-3 * big {
-                continue;
+    nst3d_core::precision::fp32(|| {
+        let vgg = Vgg19::random(VggFlavor::Torchvision, 1);
+        let spec = StyleSpec { layers: vec![VggLayer::Relu1_1, VggLayer::Relu2_1], layer_weights: vec![1.0, 0.5] };
+        let loss = ViewLoss::new(&vgg, &style(24), &spec).unwrap();
+        let d = synthetic_smoke(12, 5);
+        let persp = Camera::front(d.dims).with_projection(Projection::Perspective);
+        for (name, camera, equalize) in
+            [("march", None, false), ("perspective", Some(persp), false), ("equalized", None, true)]
+        {
+            let view = ViewSpec { camera, gamma: 0.3, exposure: 0.3, equalize };
+            let (_, grad) = loss.loss_and_grad(&d, &view).unwrap();
+            let mut probe = d.clone();
+            let mut good = 0;
+            let mut checked = 0;
+            let big = grad.data.iter().fold(0f32, |m, v| m.max(v.abs()));
+            for i in (0..d.len()).step_by(97) {
+                if grad.data[i].abs() < 1e-3 * big {
+                    continue;
+                }
+                let eps = 2e-3;
+                probe.data[i] = d.data[i] + eps;
+                let up = loss.loss(&probe, &view).unwrap() as f64;
+                probe.data[i] = d.data[i] - eps;
+                let down = loss.loss(&probe, &view).unwrap() as f64;
+                probe.data[i] = d.data[i];
+                let numeric = (up - down) / (2.0 * eps as f64);
+                let a = grad.data[i] as f64;
+                checked += 1;
+                if (a - numeric).abs() <= 0.05 * a.abs().max(numeric.abs()) {
+                    good += 1;
+                }
             }
-            let eps = 2e-3;
-            probe.data[i] = d.data[i] + eps;
-            let up = loss.loss(&probe, &view).unwrap() as f64;
-            probe.data[i] = d.data[i] - eps;
-            let down = loss.loss(&probe, &view).unwrap() as f64;
-            probe.data[i] = d.data[i];
-            let numeric = (up - down) / (2.0 * eps as f64);
-            let a = grad.data[i] as f64;
-            checked += 1;
-            if (a - numeric).abs() <= 0.05 * a.abs().max(numeric.abs()) {
-                good += 1;
-            }
+            assert!(checked >= 5, "{name}: too few entries with gradient");
+            assert!(good * 10 >= checked * 7, "{name}: only {good}/{checked} entries match finite differences");
         }
-        assert!(checked >= 5, "{name}: too few entries with gradient");
-        assert!(good * 10 >= checked * 7, "{name}: only {good}/{checked} entries match finite differences");
-    }
+    })
 }
 
 #[test]
