@@ -26,8 +26,12 @@ pub(crate) fn matmul(
     let mut a = vec![0u16; mp * kp];
     let fill = |(i, row): (usize, &mut [u16])| {
         if i < m {
-            for (q, v) in row[..k].iter_mut().enumerate() {
-                *v = from_f32(lhs[i * lr + q * lc]);
+            if lc == 1 {
+                super::convert(&lhs[i * lr..i * lr + k], &mut row[..k]);
+            } else {
+                for (q, v) in row[..k].iter_mut().enumerate() {
+                    *v = from_f32(lhs[i * lr + q * lc]);
+                }
             }
         }
     };
@@ -36,14 +40,7 @@ pub(crate) fn matmul(
     } else {
         a.chunks_mut(kp).enumerate().for_each(fill);
     }
-    let b = PackedB::new(steps, n, |s, kk, j| {
-        let q = s * KS + kk;
-        if q < k {
-            rhs[q * rr + j * rc]
-        } else {
-            0.0
-        }
-    });
+    let b = PackedB::from_strided(k, n, rhs, (rr, rc));
     let offs: Vec<usize> = (0..steps).map(|s| s * KS).collect();
     // One task per band of 32 output rows; each writes only its own rows.
     let band = |(bi, rows): (usize, &mut [f32])| {

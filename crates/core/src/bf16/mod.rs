@@ -40,10 +40,11 @@ pub const B_STEP: usize = 2 * 16 * KS;
 #[inline(always)]
 pub fn from_f32(x: f32) -> u16 {
     let b = x.to_bits();
-    if x.is_nan() {
-        return ((b >> 16) | 0x40) as u16;
-    }
-    ((b + 0x7fff + ((b >> 16) & 1)) >> 16) as u16
+    // Both results computed and one selected (no branch), so loops of
+    // conversions vectorise.
+    let rounded = b.wrapping_add(0x7fff + ((b >> 16) & 1)) >> 16;
+    let quiet_nan = (b >> 16) | 0x40;
+    (if b & 0x7fff_ffff > 0x7f80_0000 { quiet_nan } else { rounded }) as u16
 }
 
 /// The f32 a bf16 stands for (exact).
@@ -127,6 +128,57 @@ impl PackedB {
             }
         });
         Self { npairs, steps, data }
+    }
+
+    /// Packs a strided `k x n` matrix, `B[q][j] = data[q * rs + j * cs]`
+    /// (zero past `k` and `n`): [`PackedB::new`] with fast paths for
+    /// row-major (`cs == 1`) and column-major (`rs == 1`) operands, whose
+    /// pairs of rows or of values are read as contiguous runs — the 3D
+    /// network repacks an im2col matrix every call, so this is on its
+    /// critical path.
+    pub fn from_strided(k: usize, n: usize, data: &[f32], (rs, cs): (usize, usize)) -> Self {
+        let steps = k.div_ceil(KS);
+        let npairs = n.div_ceil(NB);
+        let mut out = vec![0u16; npairs * steps * B_STEP];
+        out.par_chunks_mut(B_STEP).enumerate().for_each(|(i, o)| {
+            let (pair, step) = (i / steps, i % steps);
+            for tile in 0..2 {
+                let n0 = pair * NB + tile * 16;
+                if n0 >= n {
+                    break;
+                }
+                let nn = 16.min(n - n0);
+                let ot = &mut o[tile * 16 * KS..(tile + 1) * 16 * KS];
+                for kp in 0..KS / 2 {
+                    let q = step * KS + 2 * kp;
+                    if q >= k {
+                        break;
+                    }
+                    let row = &mut ot[kp * KS..kp * KS + 2 * nn];
+                    if cs == 1 {
+                        let r0 = &data[q * rs + n0..q * rs + n0 + nn];
+                        let r1 = (q + 1 < k).then(|| &data[(q + 1) * rs + n0..(q + 1) * rs + n0 + nn]);
+                        interleave_rows(r0, r1, row);
+                    } else if rs == 1 {
+                        for (j, d) in row.chunks_exact_mut(2).enumerate() {
+                            let at = (n0 + j) * cs + q;
+                            d[0] = from_f32(data[at]);
+                            if q + 1 < k {
+                                d[1] = from_f32(data[at + 1]);
+                            }
+                        }
+                    } else {
+                        for (j, d) in row.chunks_exact_mut(2).enumerate() {
+                            d[0] = from_f32(data[q * rs + (n0 + j) * cs]);
+                            if q + 1 < k {
+                                d[1] = from_f32(data[(q + 1) * rs + (n0 + j) * cs]);
+                            }
+                        }
+                    }
+                }
+            }
+        });
+        Self { npairs, steps, data: out }
     }
 
     /// The B of column block `pair`: `steps * B_STEP` values.
@@ -338,6 +390,46 @@ unsafe fn block_emulated(
     }
 }
 
+/// `out[2 j] = bf16(r0[j])`, `out[2 j + 1] = bf16(r1[j])` (0 without `r1`):
+/// two rows of B into one VNNI row, 16 lanes at a time with AVX-512.
+fn interleave_rows(r0: &[f32], r1: Option<&[f32]>, out: &mut [u16]) {
+    #[inline(always)]
+    fn plain(r0: &[f32], r1: Option<&[f32]>, out: &mut [u16]) {
+        for (j, d) in out.chunks_exact_mut(2).enumerate() {
+            d[0] = from_f32(r0[j]);
+            d[1] = r1.map_or(0, |r| from_f32(r[j]));
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512bw,avx2")]
+    unsafe fn wide(r0: &[f32], r1: Option<&[f32]>, out: &mut [u16]) {
+        if r0.len() == 16 && out.len() == 32 {
+            let (mut lo, mut hi) = ([0u32; 16], [0u32; 16]);
+            for j in 0..16 {
+                lo[j] = from_f32(r0[j]) as u32;
+            }
+            if let Some(r1) = r1 {
+                for j in 0..16 {
+                    hi[j] = (from_f32(r1[j]) as u32) << 16;
+                }
+            }
+            for j in 0..16 {
+                let v = lo[j] | hi[j];
+                out[2 * j] = v as u16;
+                out[2 * j + 1] = (v >> 16) as u16;
+            }
+        } else {
+            plain(r0, r1, out)
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    if has_avx512f() {
+        // SAFETY: the CPU has the enabled features.
+        return unsafe { wide(r0, r1, out) };
+    }
+    plain(r0, r1, out)
+}
+
 /// Whether AVX-512F may be used (`NST3D_NO_AVX512` hides it, as for the
 /// fp32 kernels).
 pub fn has_avx512f() -> bool {
@@ -433,6 +525,20 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The fast strided packers give exactly what the generic one gives.
+    #[test]
+    fn strided_packing_matches_generic() {
+        let (k, n) = (45, 37);
+        let v = pseudo_random(k * n, 9);
+        let want =
+            PackedB::new(k.div_ceil(KS), n, |s, kk, j| if s * KS + kk < k { v[(s * KS + kk) * n + j] } else { 0.0 });
+        assert_eq!(PackedB::from_strided(k, n, &v, (n, 1)), want);
+        let t: Vec<f32> = (0..n * k).map(|i| v[(i % k) * n + i / k]).collect(); // column-major copy
+        assert_eq!(PackedB::from_strided(k, n, &t, (1, k)), want);
+        let wide: Vec<f32> = (0..k * n * 2).map(|i| if i % 2 == 0 { v[i / 2] } else { f32::NAN }).collect();
+        assert_eq!(PackedB::from_strided(k, n, &wide, (2 * n, 2)), want);
     }
 
     #[test]
