@@ -31,7 +31,7 @@ fn header() {
     static SHOWN: std::sync::Once = std::sync::Once::new();
     SHOWN.call_once(|| {
         eprintln!(
-            "nst3d: precision {} ({}), {} threads",
+            "nst3d: precision {} → {}, {} threads",
             nst3d_core::precision::current(),
             nst3d_core::precision::path().describe(),
             rayon::current_num_threads()

@@ -189,26 +189,28 @@ mod tests {
     /// probing every layer.
     #[test]
     fn weight_gradients_match_finite_differences() {
-        let net = FeedForward::new(2, 1, 3);
-        let x = Volume::from_vec(1, [8, 8, 8], pseudo_random(512, 4).iter().map(|v| v.abs()).collect());
-        let (y, tape) = net.forward(&x);
-        let w = pseudo_random(y.data.len(), 5);
-        let grads = net.backward(&tape, &Volume::from_vec(1, y.dims, w.clone()));
-        for l in 0..LAYERS {
-            let mut probe = net.clone();
-            let r = check_gradient(
-                &net.layers[l].weight,
-                &grads[l].weight,
-                |q| {
-                    probe.layers[l].weight.copy_from_slice(q);
-                    dot(&w, &probe.infer(&x).data)
-                },
-                1e-3,
-                30,
-                1e-3,
-            );
-            // LeakyReLU kinks make a few probes land across a kink.
-            assert!(r.max_rel_err < 2e-2, "layer {l}: {r:?}");
-        }
+        nst3d_core::precision::fp32(|| {
+            let net = FeedForward::new(2, 1, 3);
+            let x = Volume::from_vec(1, [8, 8, 8], pseudo_random(512, 4).iter().map(|v| v.abs()).collect());
+            let (y, tape) = net.forward(&x);
+            let w = pseudo_random(y.data.len(), 5);
+            let grads = net.backward(&tape, &Volume::from_vec(1, y.dims, w.clone()));
+            for l in 0..LAYERS {
+                let mut probe = net.clone();
+                let r = check_gradient(
+                    &net.layers[l].weight,
+                    &grads[l].weight,
+                    |q| {
+                        probe.layers[l].weight.copy_from_slice(q);
+                        dot(&w, &probe.infer(&x).data)
+                    },
+                    1e-3,
+                    30,
+                    1e-3,
+                );
+                // LeakyReLU kinks make a few probes land across a kink.
+                assert!(r.max_rel_err < 2e-2, "layer {l}: {r:?}");
+            }
+        })
     }
 }

@@ -14,24 +14,27 @@ fn fixture(name: &str) -> Vec<f32> {
 
 #[test]
 fn conv3d_matches_torch() {
-    // (cin, cout, k, stride, pad, [x, y, z])
-    let shapes = [(1, 3, 5, 2, 2, [5, 6, 7]), (2, 3, 3, 2, 1, [4, 5, 6]), (3, 2, 3, 1, 1, [4, 5, 6])];
-    for (i, (cin, cout, k, s, p, dims)) in shapes.into_iter().enumerate() {
-        let mut c = Conv3d::zeros(cin, cout, k, s, p);
-        let out = c.out_dims(dims);
-        let (nin, nout): (usize, usize) = (cin * dims.iter().product::<usize>(), cout * out.iter().product::<usize>());
-        let data = fixture(&format!("conv3d_{i}.bin"));
-        let f = split(&data, &[nin, c.weight.len(), cout, nout, nout, nin, c.weight.len(), cout]);
-        c.weight = f[1].to_vec();
-        c.bias = f[2].to_vec();
-        let x = Volume::from_vec(cin, dims, f[0].to_vec());
-        let y = c.forward(&x);
-        assert_close(&y.data, f[4], 1e-5, &format!("conv3d_{i} forward"));
-        let (dx, g) = c.backward(&x, &Volume::from_vec(cout, out, f[3].to_vec()), true);
-        assert_close(&dx.unwrap().data, f[5], 1e-5, &format!("conv3d_{i} dx"));
-        assert_close(&g.weight, f[6], 1e-5, &format!("conv3d_{i} dweight"));
-        assert_close(&g.bias, f[7], 1e-5, &format!("conv3d_{i} dbias"));
-    }
+    nst3d_core::precision::fp32(|| {
+        // (cin, cout, k, stride, pad, [x, y, z])
+        let shapes = [(1, 3, 5, 2, 2, [5, 6, 7]), (2, 3, 3, 2, 1, [4, 5, 6]), (3, 2, 3, 1, 1, [4, 5, 6])];
+        for (i, (cin, cout, k, s, p, dims)) in shapes.into_iter().enumerate() {
+            let mut c = Conv3d::zeros(cin, cout, k, s, p);
+            let out = c.out_dims(dims);
+            let (nin, nout): (usize, usize) =
+                (cin * dims.iter().product::<usize>(), cout * out.iter().product::<usize>());
+            let data = fixture(&format!("conv3d_{i}.bin"));
+            let f = split(&data, &[nin, c.weight.len(), cout, nout, nout, nin, c.weight.len(), cout]);
+            c.weight = f[1].to_vec();
+            c.bias = f[2].to_vec();
+            let x = Volume::from_vec(cin, dims, f[0].to_vec());
+            let y = c.forward(&x);
+            assert_close(&y.data, f[4], 1e-5, &format!("conv3d_{i} forward"));
+            let (dx, g) = c.backward(&x, &Volume::from_vec(cout, out, f[3].to_vec()), true);
+            assert_close(&dx.unwrap().data, f[5], 1e-5, &format!("conv3d_{i} dx"));
+            assert_close(&g.weight, f[6], 1e-5, &format!("conv3d_{i} dweight"));
+            assert_close(&g.bias, f[7], 1e-5, &format!("conv3d_{i} dbias"));
+        }
+    })
 }
 
 #[test]
