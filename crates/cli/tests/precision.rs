@@ -20,8 +20,8 @@ fn losses(stdout: &str) -> (f64, f64) {
 #[test]
 fn both_precisions_run_and_the_header_says_which() {
     let dir = tempfile::tempdir().unwrap();
-    let input = shared("data/volumes/smoke_000002.vdb");
-    let style = shared("data/styles/starry_night.jpg");
+    let input = shared("volumes/smoke_000002.vdb");
+    let style = shared("styles/starry_night.jpg");
     let mut drops = Vec::new();
     for p in ["fp32", "bf16"] {
         let out = dir.path().join(format!("{p}.vdb"));
