@@ -444,6 +444,14 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         sim.inner.velocity_scale
     ));
 
+    let work = match &seq.work_dir {
+        Some(w) => w.clone(),
+        None => default_work_dir(&s.out, job_hash(s, seq, &sim.inner.paths)?),
+    };
+    // Held until the job ends: a second blade on the same job exits here,
+    // before the weights and the painting's features are loaded (seconds on
+    // a blade the first one keeps busy).
+    let _lock = nst3d_sequence::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
     let (style, vgg) = load_style_and_vgg(s)?;
     let cameras = Cameras::of(s)?;
     let cams_at = |f: i64| cameras.at(f as f64, dims, &transform, origin);
@@ -459,12 +467,6 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
     let params =
         SequenceParams { frame: s.frame_params(vmax, &first_view), alpha: seq.ema, settle_first_sweep: seq.ema_settle };
 
-    let work = match &seq.work_dir {
-        Some(w) => w.clone(),
-        None => default_work_dir(&s.out, job_hash(s, seq, &sim.inner.paths)?),
-    };
-    // Held until the job ends: a second blade on the same job exits here.
-    let _lock = nst3d_sequence::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
     if seq.force {
         DiskStore::remove(&work).with_context(|| format!("cannot clear the work folder {}", work.display()))?;
     }
