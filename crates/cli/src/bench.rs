@@ -96,7 +96,7 @@ fn infer(args: &BenchArgs) -> Result<()> {
         args.n,
         args.channels,
         rayon::current_num_threads(),
-        nst3d_core::precision::path().describe()
+        nst3d_core::precision::path_for(nst3d_core::precision::Product::Conv3d).describe()
     );
     let times = nst3d_network::bench::infer(args.n, args.channels, args.iters.max(1));
     let shown: Vec<String> = times.iter().map(|t| format!("{t:.1}")).collect();
@@ -116,12 +116,13 @@ fn train_step(args: &BenchArgs) -> Result<()> {
     }
     let velocity = matches!(args.mode, Mode::Velocity);
     eprintln!(
-        "train-step: patch={} mode={} channels={} threads={} precision={}",
+        "train-step: patch={} mode={} channels={} threads={} precision: VGG-19 {}, 3D network {}",
         args.patch,
         if velocity { "velocity" } else { "density" },
         args.channels,
         rayon::current_num_threads(),
-        nst3d_core::precision::path().describe()
+        nst3d_core::precision::path().describe(),
+        nst3d_core::precision::path_for(nst3d_core::precision::Product::Conv3d).describe()
     );
     let (times, last) = nst3d_train::bench::train_step(args.patch, velocity, args.channels, args.iters.max(1));
     let shown: Vec<String> = times.iter().map(|t| format!("{t:.1}")).collect();

@@ -42,10 +42,12 @@ pub struct TrainArgs {
     /// Patch side in voxels (a multiple of 4; the paper used 128 and 256 on a GPU).
     #[arg(long, default_value_t = 32)]
     patch: usize,
-    /// Steps of the OneCycle schedule.
-    #[arg(long, default_value_t = 2000)]
-    steps: u64,
-    /// Stop after this many minutes (a checkpoint is written; rerun to continue).
+    /// Steps of the OneCycle schedule [default: 2000; with --minutes alone, as
+    /// many as the measured step time fits in the budget].
+    #[arg(long)]
+    steps: Option<u64>,
+    /// Train for this many minutes: alone, the schedule is sized to fill them;
+    /// with --steps, the run stops after them (a checkpoint is written; rerun to continue).
     #[arg(long)]
     minutes: Option<f64>,
     /// Random rotation about x, ± degrees.
@@ -108,11 +110,12 @@ pub fn run(args: TrainArgs) -> Result<()> {
     };
     let r = nst3d_train::train(&settings, &mut Console::default())?;
     let how = if r.resumed_at > 0 { format!(" (resumed at step {})", r.resumed_at + 1) } else { String::new() };
-    let left = if r.steps < settings.steps { "; time budget reached, rerun to continue" } else { "" };
+    let left = if r.steps < r.planned_steps { "; time budget reached, rerun to continue" } else { "" };
+    let sized = if r.sized { " (schedule sized to the time budget)" } else { "" };
     println!(
-        "trained {} of {} steps{how}; loss {:.4e} (first 10 %) -> {:.4e} (last 10 %){left}; wrote {}",
+        "trained {} of {} steps{sized}{how}; loss {:.4e} (first 10 %) -> {:.4e} (last 10 %){left}; wrote {}",
         r.steps,
-        settings.steps,
+        r.planned_steps,
         r.loss_first,
         r.loss_last,
         r.out.display()

@@ -178,6 +178,26 @@ pub fn path() -> Path {
     current().resolve()
 }
 
+/// Products whose bf16 path `auto` skips because it was measured slower
+/// than their fp32 one on a CPU with AMX (docs/PERFORMANCE.md, "bf16 on AMX").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Product {
+    /// The 3D network's convolutions: the bf16 path packs an im2col copy per
+    /// call, and that made a training step and an inference about 2x slower
+    /// than the fp32 im2col + micro-kernel path on AMX (2026-11-26).
+    Conv3d,
+}
+
+/// The path `product` runs on: [`path`], except that `auto` keeps the
+/// products of [`Product`] on fp32. `bf16` asked for explicitly still runs
+/// them in bf16.
+pub fn path_for(product: Product) -> Path {
+    match (current(), product) {
+        (Precision::Auto, Product::Conv3d) => Path::Fp32,
+        (p, _) => p.resolve(),
+    }
+}
+
 /// Runs `f` with this thread's choice overridden (for tests and for a
 /// caller comparing precisions). Work `f` hands to other threads sees the
 /// process-wide choice unless the kernel decided on this thread first, as
@@ -201,6 +221,15 @@ pub fn fp32<R>(f: impl FnOnce() -> R) -> R {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn auto_keeps_the_3d_network_on_fp32() {
+        use super::*;
+        assert_eq!(scoped(Precision::Auto, || path_for(Product::Conv3d)), Path::Fp32);
+        assert_eq!(scoped(Precision::Fp32, || path_for(Product::Conv3d)), Path::Fp32);
+        assert_eq!(scoped(Precision::Bf16, || path_for(Product::Conv3d)), Precision::Bf16.resolve());
+        assert_ne!(Precision::Bf16.resolve(), Path::Fp32);
+    }
+
     use super::*;
 
     #[test]

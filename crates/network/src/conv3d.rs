@@ -19,7 +19,7 @@
 //! the `cout x (cin·k³)` row-major matrix PyTorch stores.
 
 use nst3d_core::linalg::{matmul_into_precision, matmul_precision as matmul, Parallelism};
-use nst3d_core::precision::{self, Path};
+use nst3d_core::precision::{self, Path, Product};
 use rayon::prelude::*;
 
 use crate::volume::Volume;
@@ -189,7 +189,7 @@ impl Conv3d {
     /// # Panics
     /// If `x` does not have `cin` channels or is smaller than the kernel.
     pub fn forward(&self, x: &Volume) -> Volume {
-        self.forward_on(precision::path(), x)
+        self.forward_on(precision::path_for(Product::Conv3d), x)
     }
 
     /// [`Conv3d::forward`] in the arithmetic of `path` (resolved once on the
@@ -261,7 +261,7 @@ impl Conv3d {
         assert_eq!((grad_out.channels, grad_out.dims), (self.cout, out), "conv3d backward: gradient size");
         let n_out: usize = out.iter().product();
         let taps = self.taps();
-        let path = precision::path();
+        let path = precision::path_for(Product::Conv3d);
         // Weight gradient: slabs in WEIGHT_GROUPS fixed runs, each run summed
         // in order, the runs then summed in order.
         let slabs = self.slabs(out, usize::MAX);

@@ -224,7 +224,7 @@ pub fn apply_train(s: &mut nst3d_train::TrainSettings, mut o: Options<'_>) -> Py
     set!(o.usize("channels") => s.channels);
     set!(o.usize("patch") => s.patch);
     set!(o.usize("octaves") => s.octaves);
-    set!(o.u64("steps") => s.steps);
+    set!(o.u64("steps") => Some s.steps);
     if let Some(m) = o.typed("minutes", "a number", |v| v.extract::<f64>())? {
         s.minutes = Some(m);
     }

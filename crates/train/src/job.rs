@@ -41,8 +41,10 @@ pub struct TrainSettings {
     pub patch: usize,
     /// Octaves of the loss (the paper's 2; see [`crate::step::octave_loss`]).
     pub octaves: usize,
-    /// Steps of the OneCycle schedule (the run stops there).
-    pub steps: u64,
+    /// Steps of the OneCycle schedule (the run stops there). `None`:
+    /// [`DEFAULT_STEPS`], or, when `minutes` is given, as many as the measured
+    /// step time fits in the budget ([`sized_steps`]).
+    pub steps: Option<u64>,
     /// Wall-clock budget in minutes (the run stops after the step that crosses it).
     pub minutes: Option<f64>,
     /// Rotation range about x, degrees (±).
@@ -71,7 +73,7 @@ impl TrainSettings {
             channels: 16,
             patch: 32,
             octaves: 2,
-            steps: 2000,
+            steps: None,
             minutes: None,
             theta_deg: 180.0,
             phi_deg: 90.0,
@@ -82,6 +84,21 @@ impl TrainSettings {
     }
 }
 
+/// The schedule's length when neither `steps` nor `minutes` is given.
+pub const DEFAULT_STEPS: u64 = 2000;
+
+/// Steps timed before a `--minutes` run sizes its schedule.
+const CALIBRATION_STEPS: u64 = 8;
+
+/// How many steps fit in `budget_s` seconds when `done` steps took
+/// `elapsed_s`: the rest of the budget at the measured rate, 2 % kept back
+/// for the checkpoints and the final write. Never fewer than `done + 1`.
+pub fn sized_steps(done: u64, elapsed_s: f64, budget_s: f64) -> u64 {
+    let per_step = elapsed_s / done.max(1) as f64;
+    let more = ((budget_s - elapsed_s).max(0.0) * 0.98 / per_step.max(1e-9)).floor() as u64;
+    done + more.max(1)
+}
+
 /// What a training run did.
 #[derive(Clone, Debug)]
 pub struct TrainReport {
@@ -89,6 +106,10 @@ pub struct TrainReport {
     pub steps: u64,
     /// Step this run started at (0 unless resumed).
     pub resumed_at: u64,
+    /// Length of the OneCycle schedule (given, default or sized to the budget).
+    pub planned_steps: u64,
+    /// Whether the schedule was sized from the measured step time.
+    pub sized: bool,
     /// Mean loss of the first and of the last 10 % of the steps.
     pub loss_first: f32,
     /// See `loss_first`.
@@ -151,7 +172,7 @@ fn load_frames(s: &TrainSettings) -> Result<Vec<Grid3>> {
 /// What must match for a checkpoint to be resumed.
 fn fingerprint(s: &TrainSettings) -> String {
     format!(
-        "{:?}|{}|{:?}|{}|{}|{}|{}|{}|{}|{}|{}|{}|{}",
+        "{:?}|{}|{:?}|{}|{}|{}|{}|{}|{:?}|{}|{}|{}|{}",
         s.frames,
         s.grid,
         s.style,
@@ -173,6 +194,7 @@ struct Checkpoint {
     m: Vec<f32>,
     v: Vec<f32>,
     step: u64,
+    planned_steps: u64,
     rng: u64,
     losses: Vec<f32>,
 }
@@ -182,6 +204,7 @@ fn save_checkpoint(path: &Path, s: &TrainSettings, t: &TrainStep, rng: &SplitMix
     let mut meta = BTreeMap::new();
     meta.insert("fingerprint".to_string(), fingerprint(s));
     meta.insert("step".to_string(), t.steps().to_string());
+    meta.insert("planned_steps".to_string(), t.schedule.total_steps.to_string());
     meta.insert("adam_step".to_string(), adam_step.to_string());
     meta.insert("rng".to_string(), rng.state().to_string());
     let model = Model { net: t.net.clone(), info: meta };
@@ -223,6 +246,7 @@ fn load_checkpoint(path: &Path, s: &TrainSettings) -> Result<Option<Checkpoint>>
         m: get("adam.m")?,
         v: get("adam.v")?,
         step: num("step")?,
+        planned_steps: num("planned_steps")?,
         rng: num("rng")?,
         losses: get("losses")?,
     }))
@@ -275,8 +299,11 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     if !s.patch.is_multiple_of(4) || !(16..=256).contains(&s.patch) {
         bail!("--patch must be a multiple of 4 from 16 to 256, got {}", s.patch);
     }
-    if !(1..=128).contains(&s.channels) || s.steps == 0 || s.checkpoint_every == 0 {
+    if !(1..=128).contains(&s.channels) || s.steps == Some(0) || s.checkpoint_every == 0 {
         bail!("--channels must be 1..=128 and --steps and --checkpoint-every at least 1");
+    }
+    if s.minutes.is_some_and(|m| !(m >= 0.0 && m.is_finite())) {
+        bail!("--minutes must be a number of minutes, 0 or more");
     }
     if !(1..=3).contains(&s.octaves) || s.patch >> (s.octaves - 1) < 8 {
         bail!(
@@ -293,7 +320,12 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     let stylization =
         if s.velocity { Stylization::Velocity { vmax: 0.04 * s.patch as f32 } } else { Stylization::Density };
     let net = FeedForward::new(s.channels, stylization.channels(), s.seed);
-    let mut trainer = TrainStep::new(net, stylization, OneCycle::new(1e-4, s.steps, 20.0));
+    // Given only a budget, the schedule is sized after the first steps are
+    // timed; until then it is provisionally the default one (the first steps
+    // of any OneCycle sit at its initial rate, so the switch is seamless).
+    let mut sizing = s.steps.is_none() && s.minutes.is_some();
+    let planned = s.steps.unwrap_or(DEFAULT_STEPS);
+    let mut trainer = TrainStep::new(net, stylization, OneCycle::new(1e-4, planned, 20.0));
     trainer.octaves = s.octaves;
     let mut rng = SplitMix64::new(s.seed ^ 0x7261_696e);
     let mut losses = Vec::new();
@@ -305,14 +337,18 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         trainer.set_adam_state(&c.m, &c.v, c.step)?;
         rng = SplitMix64::new(c.rng);
         losses = c.losses;
-        reporter.status(&format!("resuming at step {} of {} from {}", c.step + 1, s.steps, ckpt.display()));
+        // A resumed run keeps the schedule it was planned with.
+        trainer.schedule = OneCycle::new(1e-4, c.planned_steps, 20.0);
+        sizing = false;
+        reporter.status(&format!("resuming at step {} of {} from {}", c.step + 1, c.planned_steps, ckpt.display()));
     }
     let resumed_at = trainer.steps();
     // γ = 8/P as the benchmark: the densest ray of a full patch gets optical depth ~8.
     let view = ViewSpec { camera: None, gamma: 8.0 / s.patch as f32, exposure: 1.0, equalize: false };
     let t0 = Instant::now();
-    reporter.begin(s.steps - resumed_at);
-    while trainer.steps() < s.steps {
+    let sized = sizing;
+    reporter.begin(trainer.schedule.total_steps - resumed_at);
+    while trainer.steps() < trainer.schedule.total_steps {
         let d = &frames[(rng.next_u64() % frames.len() as u64) as usize];
         let origin: [usize; 3] = std::array::from_fn(|a| (rng.next_u64() % (d.dims[a] - s.patch + 1) as u64) as usize);
         let rot = Rotation {
@@ -326,11 +362,27 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
             bail!("the loss became {l} at step {} (try a smaller learning rate)", trainer.steps());
         }
         losses.push(l);
-        reporter.step(&format!("step {}/{} loss {l:.4e}", trainer.steps(), s.steps));
+        if sizing && trainer.steps() - resumed_at >= CALIBRATION_STEPS {
+            sizing = false;
+            let budget = 60.0 * s.minutes.unwrap_or_default();
+            let elapsed = t0.elapsed().as_secs_f64();
+            let total = sized_steps(trainer.steps(), elapsed, budget);
+            trainer.schedule = OneCycle::new(1e-4, total, 20.0);
+            reporter.status(&format!(
+                "{:.0} ms a step over the first {}: the OneCycle schedule is sized to {total} steps for {} min",
+                1e3 * elapsed / trainer.steps() as f64,
+                trainer.steps(),
+                s.minutes.unwrap_or_default()
+            ));
+            reporter.end();
+            reporter.begin(total - trainer.steps());
+        }
+        reporter.step(&format!("step {}/{} loss {l:.4e}", trainer.steps(), trainer.schedule.total_steps));
         let out_of_time = s.minutes.is_some_and(|m| t0.elapsed().as_secs_f64() >= 60.0 * m);
         // A stopped run checkpoints first, so rerunning it resumes at this step.
         let stop = nst3d_core::stop::requested();
-        if trainer.steps().is_multiple_of(s.checkpoint_every) || trainer.steps() == s.steps || out_of_time || stop {
+        let last = trainer.steps() == trainer.schedule.total_steps;
+        if trainer.steps().is_multiple_of(s.checkpoint_every) || last || out_of_time || stop {
             save_checkpoint(&ckpt, s, &trainer, &rng, &losses)?;
             write_outputs(s, &trainer, &losses, &style_sha, [style_img.width, style_img.height])?;
         }
@@ -345,8 +397,25 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     Ok(TrainReport {
         steps: trainer.steps(),
         resumed_at,
+        planned_steps: trainer.schedule.total_steps,
+        sized,
         loss_first: mean(&losses[..tenth.min(losses.len())]),
         loss_last: mean(&losses[losses.len().saturating_sub(tenth)..]),
         out: s.out.clone(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::sized_steps;
+
+    #[test]
+    fn sized_steps_fill_the_rest_of_the_budget() {
+        // 8 steps in 4 s (0.5 s each), 60 s budget: 56 s left, 98 % of it = 109 more.
+        assert_eq!(sized_steps(8, 4.0, 60.0), 8 + 109);
+        // Over budget already: one more step, never zero.
+        assert_eq!(sized_steps(8, 70.0, 60.0), 9);
+        // An hour at 0.8 s a step.
+        assert_eq!(sized_steps(8, 6.4, 3600.0), 8 + ((3600.0 - 6.4) * 0.98 / 0.8f64).floor() as u64);
+    }
 }

@@ -23,7 +23,7 @@ fn settings(out: &Path) -> TrainSettings {
         velocity: false,
         channels: 2,
         patch: 16,
-        steps: 5,
+        steps: Some(5),
         minutes: None,
         theta_deg: 180.0,
         phi_deg: 90.0,
@@ -70,4 +70,25 @@ fn a_killed_run_resumes_to_the_same_model() {
     let mut bad = settings(&dir.path().join("bad.safetensors"));
     bad.patch = 18;
     assert!(train(&bad, &mut Silent).unwrap_err().to_string().contains("--patch"));
+}
+
+/// Given only `minutes`, the schedule is sized from the measured step time
+/// and the run ends with it, near the budget.
+#[test]
+fn a_minutes_budget_sizes_the_schedule() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("sized.safetensors");
+    let mut s = settings(&out);
+    s.steps = None;
+    s.minutes = Some(0.1);
+    s.checkpoint_every = 1000;
+    let t0 = std::time::Instant::now();
+    let r = train(&s, &mut Silent).unwrap();
+    let secs = t0.elapsed().as_secs_f64();
+    assert!(r.sized && r.planned_steps > 8, "{r:?}");
+    assert!(r.steps >= 9 && r.steps <= r.planned_steps, "{r:?}");
+    // 6 s of budget, set-up (weights, painting) not counted: within a second.
+    assert!(secs > 4.5 && secs < 14.0, "ran {secs:.1} s for a 6 s budget");
+    let m = nst3d_network::Model::from_bytes(&std::fs::read(&out).unwrap(), &out).unwrap();
+    assert_eq!(m.info.get("steps").map(String::as_str), Some(r.steps.to_string().as_str()));
 }
