@@ -86,7 +86,7 @@ fn stylize_volume<'py>(
     d.set_item("cameras", r.cameras)?;
     d.set_item("loss_before", r.loss_before)?;
     d.set_item("loss_after", r.loss_after)?;
-    d.set_item("held_out", r.held_out)?;
+    d.set_item("held_out", r.held_out.as_ref().map(|h| h.means()))?;
     let out = r.cropped();
     Ok((f32_bytes(py, out.data.into_iter()), d))
 }
@@ -117,7 +117,7 @@ fn stylize_vdb<'py>(
             d.set_item("cameras", f.cameras)?;
             d.set_item("loss_before", f.loss_before)?;
             d.set_item("loss_after", f.loss_after)?;
-            d.set_item("held_out", f.held_out)?;
+            d.set_item("held_out", f.held_out.as_ref().map(|h| h.means()))?;
         }
         VolumeReport::Sequence(nst3d_volume::SequenceReport::NothingToDo { frames, start, end }) => {
             d.set_item("kind", "sequence")?;

@@ -362,18 +362,32 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
             bail!("the loss became {l} at step {} (try a smaller learning rate)", trainer.steps());
         }
         losses.push(l);
-        if sizing && trainer.steps() - resumed_at >= CALIBRATION_STEPS {
-            sizing = false;
+        // Sized twice: after the calibration steps, and again at a fifth of
+        // the schedule (still in OneCycle's rise, where a new length only
+        // bends the warm-up) from the rate over all steps so far, so a
+        // machine that got busier or quieter still ends on time.
+        let done = trainer.steps() - resumed_at;
+        let resize = sizing && (done == CALIBRATION_STEPS || trainer.steps() == trainer.schedule.total_steps / 5);
+        if resize {
             let budget = 60.0 * s.minutes.unwrap_or_default();
             let elapsed = t0.elapsed().as_secs_f64();
             let total = sized_steps(trainer.steps(), elapsed, budget);
+            let first = done == CALIBRATION_STEPS;
             trainer.schedule = OneCycle::new(1e-4, total, 20.0);
-            reporter.status(&format!(
-                "{:.0} ms a step over the first {}: the OneCycle schedule is sized to {total} steps for {} min",
-                1e3 * elapsed / trainer.steps() as f64,
-                trainer.steps(),
-                s.minutes.unwrap_or_default()
-            ));
+            if first {
+                reporter.status(&format!(
+                    "{:.0} ms a step over the first {}: the OneCycle schedule is sized to {total} steps for {} min",
+                    1e3 * elapsed / done as f64,
+                    done,
+                    s.minutes.unwrap_or_default()
+                ));
+            } else {
+                sizing = false;
+                reporter.status(&format!(
+                    "{:.0} ms a step over {done}: the schedule is resized to {total} steps",
+                    1e3 * elapsed / done as f64
+                ));
+            }
             reporter.end();
             reporter.begin(total - trainer.steps());
         }

@@ -17,7 +17,7 @@ use nst3d_stylize::{stylize_frame_views, Mode, ViewLoss};
 
 use crate::cameras::{CameraSet, Cameras, Lens};
 use crate::dense::pad;
-use crate::look::{absorption_for, display, mean_loss, views_of, PREVIEW_HEIGHT};
+use crate::look::{absorption_for, display, views_of, HeldOut, PREVIEW_HEIGHT};
 use crate::output::write_stylized;
 use crate::settings::VolumeSettings;
 use crate::style::load_style_and_vgg;
@@ -42,8 +42,8 @@ pub struct FrameReport {
     pub loss_before: f32,
     /// And after.
     pub loss_after: f32,
-    /// Mean style loss over the evaluation cameras before and after, when asked for.
-    pub held_out: Option<(f32, f32)>,
+    /// Style loss from each evaluation camera before and after, when asked for.
+    pub held_out: Option<HeldOut>,
     /// The written file.
     pub out: PathBuf,
 }
@@ -81,8 +81,8 @@ pub struct StylizedGrid {
     pub loss_before: f32,
     /// And after.
     pub loss_after: f32,
-    /// Mean style loss over the evaluation cameras before and after, when asked for.
-    pub held_out: Option<(f32, f32)>,
+    /// Style loss from each evaluation camera before and after, when asked for.
+    pub held_out: Option<HeldOut>,
 }
 
 impl StylizedGrid {
@@ -191,7 +191,6 @@ pub fn stylize_grid(
         }
         None => Vec::new(),
     };
-    let held_out_before = mean_loss(&loss, &padded, &held_out)?;
 
     reporter.begin((s.octaves * s.iterations()) as u64);
     let result = stylize_frame_views(&padded, &loss, &params, &views, &mut |p| {
@@ -219,7 +218,7 @@ pub fn stylize_grid(
     }
     let held_out = match held_out.is_empty() {
         true => None,
-        false => Some((held_out_before, mean_loss(&loss, &result.density, &held_out)?)),
+        false => Some(HeldOut::measure(&loss, &padded, &result.density, &held_out)?),
     };
     Ok(StylizedGrid {
         cameras: views.len(),

@@ -31,7 +31,7 @@ pub mod upsample;
 pub use cameras::{front_camera, turntable, CameraSet, Cameras, Lens};
 pub use feedforward::{stylize_with_model, LoadedModel, ModelReport, ModelSettings};
 pub use frame::{stylize_frame_file, stylize_grid, FrameReport, StylizedGrid};
-pub use look::PREVIEW_HEIGHT;
+pub use look::{HeldOut, PREVIEW_HEIGHT};
 pub use nst3d_core::{Reporter, Silent};
 pub use preview::{preview, PreviewReport, PreviewSettings};
 pub use sequence::{flicker_of_outputs, stylize_sequence_files, SequenceReport, SequenceSummary};

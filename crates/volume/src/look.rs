@@ -47,6 +47,42 @@ pub fn views_of(cameras: &[Camera], gamma: f32, equalize: bool) -> Vec<ViewSpec>
     cameras.iter().map(|c| ViewSpec { camera: Some(*c), gamma, exposure: gamma, equalize }).collect()
 }
 
+/// The style loss of a result from each held-out view (`--eval-cameras`),
+/// before and after: the judge of docs/FEEDFORWARD.md reads its mean and
+/// its worst view.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HeldOut {
+    /// Per view, the input's loss.
+    pub before: Vec<f32>,
+    /// Per view, the result's loss.
+    pub after: Vec<f32>,
+}
+
+impl HeldOut {
+    /// Per-view losses of `before` and `after` from `views`.
+    pub fn measure(loss: &ViewLoss, before: &Grid3, after: &Grid3, views: &[ViewSpec]) -> Result<Self> {
+        let each = |d: &Grid3| views.iter().map(|v| Ok(loss.loss(d, v)?)).collect::<Result<Vec<f32>>>();
+        Ok(Self { before: each(before)?, after: each(after)? })
+    }
+
+    /// Mean loss over the views, before and after.
+    pub fn means(&self) -> (f32, f32) {
+        let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len().max(1) as f32;
+        (mean(&self.before), mean(&self.after))
+    }
+
+    /// The largest after / before ratio over the views, and its view: the
+    /// side from which the result moved least towards the painting.
+    pub fn worst(&self) -> (f32, usize) {
+        self.before
+            .iter()
+            .zip(&self.after)
+            .map(|(b, a)| if *b > 0.0 { a / b } else { 1.0 })
+            .enumerate()
+            .fold((f32::NEG_INFINITY, 0), |best, (i, r)| if r > best.0 { (r, i) } else { best })
+    }
+}
+
 /// Mean style loss of `d` over `views` (0 for none).
 pub fn mean_loss(loss: &ViewLoss, d: &Grid3, views: &[ViewSpec]) -> Result<f32> {
     let mut total = 0.0;

@@ -251,10 +251,17 @@ pub fn run(args: VolumeArgs) -> Result<()> {
     let settings = args.settings();
     match nst3d_volume::stylize(&settings, &mut Console::default())? {
         VolumeReport::Frame(r) => {
-            if let Some((before, after)) = r.held_out {
+            if let Some(h) = &r.held_out {
+                let cams = settings.eval_cameras.as_deref().unwrap_or("");
+                let (before, after) = h.means();
+                println!("held-out cameras {cams}: mean style loss {before:.4e} -> {after:.4e}");
+                let (worst, view) = h.worst();
+                let each: Vec<String> = h.before.iter().zip(&h.after).map(|(b, a)| format!("{b:.4e}->{a:.4e}")).collect();
                 println!(
-                    "held-out cameras {}: mean style loss {before:.4e} -> {after:.4e}",
-                    settings.eval_cameras.as_deref().unwrap_or("")
+                    "held-out cameras {cams}: per view {}; worst view {} of {}, ratio {worst:.3}",
+                    each.join(" "),
+                    view + 1,
+                    h.before.len()
                 );
             }
             println!(
