@@ -87,6 +87,17 @@ def _options(**kw: Any) -> Dict[str, Any]:
     return out
 
 
+def _camera(camera: Optional[str], projection: Optional[str]) -> Optional[str]:
+    """``camera`` (the command line's ``--camera``), or its old name ``projection``."""
+    if projection is not None:
+        import warnings
+
+        warnings.warn("'projection' is now 'camera' (as nst3d volume --camera)", DeprecationWarning, stacklevel=3)
+        if camera is None:
+            return projection
+    return camera
+
+
 def _grid_bytes(density: "np.ndarray") -> Tuple[bytes, Tuple[int, int, int]]:
     a = np.asarray(density)
     if a.ndim != 3:
@@ -120,7 +131,7 @@ def stylize_volume(
     layers: Optional[Sequence[str]] = None,
     absorption: Optional[float] = None,
     equalize: Optional[bool] = None,
-    projection: Optional[str] = None,
+    camera: Optional[str] = None,
     fov: Optional[float] = None,
     up: Optional[str] = None,
     weights: Optional[PathLike] = None,
@@ -131,6 +142,7 @@ def stylize_volume(
     preview: Optional[PathLike] = None,
     progress: Optional[Progress] = None,
     report: Optional[Dict[str, Any]] = None,
+    projection: Optional[str] = None,
 ) -> "np.ndarray":
     """Stylizes one density grid with a painting (volumetric paper, Sec. 3).
 
@@ -151,7 +163,7 @@ def stylize_volume(
     opts = _options(
         mode=mode, octaves=octaves, iters=iters, lr=lr, vmax=vmax, smin=smin, smax=smax,
         style_scale=style_scale, strength=strength, style_color=style_color, layers=layers,
-        absorption=absorption, equalize=equalize, projection=projection, fov=fov, up=up,
+        absorption=absorption, equalize=equalize, camera=_camera(camera, projection), fov=fov, up=up,
         weights=weights, cameras=cameras, camera_seed=camera_seed, eval_cameras=eval_cameras,
         upsample=upsample, preview=preview,
     )
@@ -192,7 +204,7 @@ def stylize_vdb(
     layers: Optional[Sequence[str]] = None,
     absorption: Optional[float] = None,
     equalize: Optional[bool] = None,
-    projection: Optional[str] = None,
+    camera: Optional[str] = None,
     fov: Optional[float] = None,
     up: Optional[str] = None,
     weights: Optional[PathLike] = None,
@@ -203,6 +215,7 @@ def stylize_vdb(
     upsample: Union[str, int, None] = None,
     preview: Optional[PathLike] = None,
     progress: Optional[Progress] = None,
+    projection: Optional[str] = None,
 ) -> Dict[str, Any]:
     """Stylizes an OpenVDB file into ``out``, exactly as ``nst3d volume``.
 
@@ -220,7 +233,7 @@ def stylize_vdb(
         model=model, tile=tile, tile_margin=tile_margin, mode=mode, octaves=octaves, iters=iters,
         lr=lr, vmax=vmax, smin=smin, smax=smax, style_scale=style_scale, strength=strength,
         style_color=style_color, layers=layers, absorption=absorption, equalize=equalize,
-        projection=projection, fov=fov, up=up, weights=weights, cameras=cameras,
+        camera=_camera(camera, projection), fov=fov, up=up, weights=weights, cameras=cameras,
         camera_file=camera_file, camera_seed=camera_seed, eval_cameras=eval_cameras,
         upsample=upsample, preview=preview,
     )
@@ -356,7 +369,7 @@ def train(
     style: PathLike,
     out: PathLike,
     *,
-    frames: Optional[str] = None,
+    frames: Union[str, Sequence[str], None] = None,
     mode: Optional[str] = None,
     grid: Optional[str] = None,
     channels: Optional[int] = None,
@@ -376,52 +389,20 @@ def train(
     painting into ``out`` (``.safetensors``), exactly as ``nst3d train``.
 
     ``input`` is a VDB file, a list of files, or a ``####`` pattern with
-    ``frames`` (``"1-40"``). A checkpoint is written beside ``out``; calling
-    again with the same arguments resumes (``minutes`` bounds one call).
+    ``frames`` (``"1-40"``; a list gives one per input). A checkpoint is
+    written beside ``out``; calling again with the same arguments resumes.
+    ``minutes`` alone sizes the schedule to fill that time; with ``steps``
+    it bounds one call.
     """
-    if frames is not None:
-        pattern = os.fspath(input)  # type: ignore[arg-type]
-        files = [_expand(pattern, f) for f in _frame_numbers(frames)]
-    elif isinstance(input, (str, os.PathLike)):
-        files = [os.fspath(input)]
-    else:
-        files = [os.fspath(p) for p in input]
+    inputs = [os.fspath(input)] if isinstance(input, (str, os.PathLike)) else [os.fspath(p) for p in input]
+    # The command line's frame lists, one per input, parsed by the library.
+    frame_lists = [] if frames is None else [frames] if isinstance(frames, str) else list(frames)
     opts = _options(
         mode=mode, grid=grid, channels=channels, patch=patch, steps=steps, minutes=minutes,
         theta=theta, phi=phi, style_scale=style_scale, octaves=octaves, seed=seed,
         checkpoint_every=checkpoint_every, weights=weights,
     )
-    return _nst3d.train(files, os.fspath(style), os.fspath(out), opts, progress, _to_log)
-
-
-def _frame_numbers(spec: str) -> list:
-    """``1-40``, ``1-3,5,7-20:2``: the command line's frame lists."""
-    frames = []
-    for part in spec.split(","):
-        step = 1
-        if ":" in part:
-            part, s = part.split(":")
-            step = int(s)
-        if "-" in part[1:]:
-            i = part.index("-", 1)
-            a, b = int(part[:i]), int(part[i + 1:])
-            frames.extend(range(a, b + 1, step))
-        else:
-            frames.append(int(part))
-    if not frames:
-        raise ValueError(f"no frames in '{spec}'")
-    return frames
-
-
-def _expand(pattern: str, frame: int) -> str:
-    import re
-
-    m = re.search(r"#+", pattern)
-    if m:
-        return pattern[: m.start()] + str(frame).zfill(len(m.group())) + pattern[m.end():]
-    if "%0" in pattern or "%d" in pattern:
-        return pattern % frame
-    raise ValueError(f"'{pattern}' has no #### or %04d for the frame number")
+    return _nst3d.train(inputs, frame_lists, os.fspath(style), os.fspath(out), opts, progress, _to_log)
 
 
 class Model:

@@ -27,7 +27,13 @@ def stylize_groom_file(
     progress: _Progress = None, log: _Log = None,
 ) -> Dict[str, Any]: ...
 def train(
-    frames: List[str], style: str, out: str, options: Dict[str, Any], progress: _Progress = None, log: _Log = None
+    inputs: List[str],
+    frame_lists: List[str],
+    style: str,
+    out: str,
+    options: Dict[str, Any],
+    progress: _Progress = None,
+    log: _Log = None,
 ) -> Dict[str, Any]: ...
 def read_groom(path: str) -> Tuple[bytes, List[int]]: ...
 def read_mesh(path: str) -> Tuple[bytes, List[int]]: ...

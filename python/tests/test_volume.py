@@ -199,3 +199,53 @@ def test_ctrl_c_stops_a_running_job(tmp_path, style):
     out, _ = p.communicate(timeout=120)
     assert out.strip() == "interrupted"
     assert time.perf_counter() - t0 < 10, "the job did not stop at its next iteration"
+
+
+def test_a_model_run_checks_the_mode_as_the_command_line_does(tmp_path, data, nst3d_bin):
+    """``mode`` with ``model`` is checked against the model's, as ``--mode``
+    is (it used to be dropped: a velocity model ran as asked for density)."""
+    model = need_model("starry_velocity")
+    src = data / "volumes" / "smoke_000003.vdb"
+    with pytest.raises(nst3d.Nst3dError) as e:
+        nst3d.stylize_vdb(src, tmp_path / "py.vdb", model=model, mode="density")
+    r = run_cli(nst3d_bin, "volume", "--model", model, "--mode", "density", "--input", src,
+                "--out", tmp_path / "cli.vdb", check=False)
+    assert r.returncode == 1
+    assert r.stderr.strip().endswith(f"nst3d: error: {e.value}")
+    assert not (tmp_path / "py.vdb").exists()
+
+
+@pytest.mark.parametrize("frames", ["1-10:0", "5-1", "1-x", ""])
+def test_train_frame_lists_are_the_command_lines(tmp_path, data, style, nst3d_bin, frames):
+    """``train(frames=...)`` goes through the library's frame-list parser:
+    the same errors as ``nst3d train --frames`` (the package once had its own
+    parser, with Python's errors and without sorting or de-duplication)."""
+    pattern = str(data / "volumes" / "smoke_######.vdb")
+    with pytest.raises(nst3d.Nst3dError) as e:
+        nst3d.train(pattern, style, tmp_path / "m.safetensors", frames=frames, steps=1)
+    r = run_cli(nst3d_bin, "train", "--input", pattern, "--frames", frames, "--style", style,
+                "--out", tmp_path / "m.safetensors", "--steps", "1", check=False)
+    assert r.returncode == 1
+    assert r.stderr.strip().endswith(f"nst3d: error: {e.value}")
+
+
+def test_train_frame_lists_are_sorted_and_deduplicated(tmp_path, data, style):
+    """``"3,1-2,2"`` trains on frames 1, 2, 3 once each: the checkpoint of
+    that run is the one of ``"1-3"`` (its fingerprint lists the files)."""
+    pattern = str(data / "volumes" / "smoke_######.vdb")
+    out = tmp_path / "m.safetensors"
+    small = dict(steps=2, patch=16, channels=2, checkpoint_every=1, minutes=0)
+    nst3d.train(pattern, style, out, frames="3,1-2,2", **small)
+    # Resuming with the plain list accepts the checkpoint (a different file
+    # list would be "a checkpoint of a different training run").
+    rep = nst3d.train(pattern, style, out, frames="1-3", **{**small, "minutes": None})
+    assert rep["resumed_at"] == 1 and rep["steps"] == 2
+
+
+def need_model(name):
+    import pathlib
+
+    path = pathlib.Path(__file__).resolve().parents[2] / "models" / f"{name}.safetensors"
+    if not path.exists():
+        raise FileNotFoundError(f"committed model missing: {path}")
+    return path

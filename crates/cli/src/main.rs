@@ -50,6 +50,16 @@ enum Command {
     Train(train::TrainArgs),
 }
 
+/// A clap parser for a library settings enum: its names (`named_enum!`'s
+/// `NAMES`) as the possible values --help lists, its `FromStr` for the
+/// value. The CLI keeps no copy of the enum.
+pub(crate) fn named<T>(names: impl IntoIterator<Item = &'static str>) -> impl clap::builder::TypedValueParser<Value = T>
+where
+    T: std::str::FromStr<Err = String> + Clone + Send + Sync + 'static,
+{
+    clap::builder::TypedValueParser::try_map(clap::builder::PossibleValuesParser::new(names), |s: String| s.parse::<T>())
+}
+
 fn parse_precision(s: &str) -> Result<nst3d_core::precision::Precision, String> {
     s.parse()
 }

@@ -3,9 +3,8 @@
 
 use std::path::PathBuf;
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use clap::Args;
-use nst3d_sequence::{expand_pattern, FrameSpec};
 use nst3d_stylize::Mode;
 use nst3d_train::TrainSettings;
 
@@ -76,20 +75,7 @@ pub struct TrainArgs {
 
 /// Runs `nst3d train`.
 pub fn run(args: TrainArgs) -> Result<()> {
-    if !args.frames.is_empty() && args.frames.len() != args.input.len() {
-        bail!("give one --frames per --input ({} inputs, {} frame specs)", args.input.len(), args.frames.len());
-    }
-    let mut frames = Vec::new();
-    for (i, input) in args.input.iter().enumerate() {
-        match args.frames.get(i) {
-            Some(spec) => {
-                for &f in FrameSpec::parse(spec)?.frames() {
-                    frames.push(PathBuf::from(expand_pattern(input, f)?));
-                }
-            }
-            None => frames.push(PathBuf::from(input)),
-        }
-    }
+    let frames = nst3d_train::job::training_frames(&args.input, &args.frames)?;
     let settings = TrainSettings {
         frames,
         grid: args.grid,

@@ -16,6 +16,7 @@ pub mod linalg;
 pub mod math;
 pub mod memory;
 pub mod mesh;
+pub mod names;
 pub mod microkernel;
 pub mod precision;
 pub mod report;

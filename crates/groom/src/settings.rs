@@ -20,6 +20,13 @@ pub enum Temporal {
     Off,
 }
 
+nst3d_core::named_enum!(Temporal, "a temporal filter", {
+    EmaOneEuro => "ema-one-euro",
+    Ema => "ema",
+    OneEuro => "one-euro",
+    Off => "off",
+});
+
 /// Everything `nst3d strands` can be asked, for one groom or an animation.
 #[derive(Clone, Debug)]
 pub struct StrandSettings {

@@ -263,21 +263,24 @@ fn stylize_groom_file<'py>(
     Ok(d)
 }
 
-/// Trains the feed-forward network (`nst3d train`) on `frames` (files).
+/// Trains the feed-forward network (`nst3d train`) on `inputs`: files, or
+/// with `frame_lists` (one per input) `####` patterns, expanded by the
+/// library's frame-list parser as the command line does.
 #[pyfunction]
-#[pyo3(signature = (frames, style, out, options, progress=None, log=None))]
+#[pyo3(signature = (inputs, frame_lists, style, out, options, progress=None, log=None))]
+#[allow(clippy::too_many_arguments)]
 fn train<'py>(
     py: Python<'py>,
-    frames: Vec<PathBuf>,
+    inputs: Vec<String>,
+    frame_lists: Vec<String>,
     style: PathBuf,
     out: PathBuf,
     options: &Dict<'py>,
     progress: Option<Py<PyAny>>,
     log: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    if frames.is_empty() {
-        return Err(PyValueError::new_err("train: no frames given"));
-    }
+    let frames = nst3d_train::job::training_frames(&inputs, &frame_lists)
+        .map_err(|e| Nst3dError::new_err(nst3d_core::report::one_line(e.as_ref())))?;
     let mut s = nst3d_train::TrainSettings::new(frames, style, out);
     apply_train(&mut s, Options::new(options)?)?;
     let r = run_job(py, progress, log, move |rep| nst3d_train::train(&s, rep))?;

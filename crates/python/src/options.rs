@@ -7,10 +7,8 @@
 use std::path::PathBuf;
 
 use nst3d_features::VggLayer;
-use nst3d_groom::{StrandSettings, Temporal};
-use nst3d_render::Projection;
-use nst3d_strands::EmaClock;
-use nst3d_volume::{ModelSettings, SequenceSettings, UpAxis, VolumeSettings};
+use nst3d_groom::StrandSettings;
+use nst3d_volume::{ModelSettings, SequenceSettings, VolumeSettings};
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -111,7 +109,11 @@ macro_rules! set {
 pub fn apply_volume(s: &mut VolumeSettings, mut o: Options<'_>) -> PyResult<()> {
     set!(o.path("preview") => Some s.preview);
     set!(o.string("grid") => s.grid);
-    set!(o.parsed("mode", |m| m.parse()) => s.mode);
+    // Kept for --model too: the CLI checks a given mode against the model's.
+    let mode = o.parsed("mode", |m| m.parse())?;
+    if let Some(m) = mode {
+        s.mode = m;
+    }
     set!(o.usize("octaves") => s.octaves);
     set!(o.usize("iters") => s.iters);
     set!(o.f32("lr") => Some s.lr);
@@ -134,9 +136,9 @@ pub fn apply_volume(s: &mut VolumeSettings, mut o: Options<'_>) -> PyResult<()> 
     }
     set!(o.f32("absorption") => Some s.absorption);
     set!(o.bool("equalize") => s.equalize);
-    set!(o.parsed("projection", projection) => s.projection);
+    set!(o.parsed("camera", |v| v.parse()) => s.projection);
     set!(o.f32("fov") => s.fov);
-    set!(o.parsed("up", up) => s.up);
+    set!(o.parsed("up", |v| v.parse()) => s.up);
     set!(o.path("weights") => Some s.weights);
     set!(o.string("cameras") => s.cameras);
     set!(o.path("camera_file") => Some s.camera_file);
@@ -166,6 +168,7 @@ pub fn apply_volume(s: &mut VolumeSettings, mut o: Options<'_>) -> PyResult<()> 
         let mut m = ModelSettings::new(path);
         set!(o.usize("tile") => m.tile);
         set!(o.usize("tile_margin") => m.margin);
+        m.mode = mode;
         s.model = Some(m);
     }
     o.finish("stylize_vdb")
@@ -186,10 +189,10 @@ pub fn apply_strands(s: &mut StrandSettings, mut o: Options<'_>) -> PyResult<()>
     set!(o.string("frames") => Some s.frames);
     set!(o.bool("force") => s.force);
     set!(o.path("work_dir") => Some s.work_dir);
-    set!(o.parsed("temporal", temporal) => s.temporal);
+    set!(o.parsed("temporal", |v| v.parse()) => s.temporal);
     set!(o.f32("ema_sigma") => Some s.ema_sigma);
     set!(o.f32("ema_nu") => Some s.ema_nu);
-    set!(o.parsed("ema_clock", ema_clock) => s.ema_clock);
+    set!(o.parsed("ema_clock", |v| v.parse()) => s.ema_clock);
     set!(o.f32("one_euro_alpha") => Some s.one_euro_alpha);
     set!(o.f32("one_euro_beta") => Some s.one_euro_beta);
     set!(o.f32("one_euro_fmin") => Some s.one_euro_fmin);
@@ -233,38 +236,4 @@ pub fn apply_train(s: &mut nst3d_train::TrainSettings, mut o: Options<'_>) -> Py
     set!(o.u64("seed") => s.seed);
     set!(o.u64("checkpoint_every") => s.checkpoint_every);
     o.finish("train")
-}
-
-fn projection(s: &str) -> Result<Projection, String> {
-    match s {
-        "perspective" => Ok(Projection::Perspective),
-        "orthographic" => Ok(Projection::Orthographic),
-        _ => Err(format!("'{s}' is not perspective or orthographic")),
-    }
-}
-
-fn up(s: &str) -> Result<UpAxis, String> {
-    match s {
-        "y" => Ok(UpAxis::Y),
-        "z" => Ok(UpAxis::Z),
-        _ => Err(format!("'{s}' is not y or z")),
-    }
-}
-
-fn temporal(s: &str) -> Result<Temporal, String> {
-    match s {
-        "ema-one-euro" => Ok(Temporal::EmaOneEuro),
-        "ema" => Ok(Temporal::Ema),
-        "one-euro" => Ok(Temporal::OneEuro),
-        "off" => Ok(Temporal::Off),
-        _ => Err(format!("'{s}' is not ema-one-euro, ema, one-euro or off")),
-    }
-}
-
-fn ema_clock(s: &str) -> Result<EmaClock, String> {
-    match s {
-        "scale" => Ok(EmaClock::Scale),
-        "frame" => Ok(EmaClock::Frame),
-        _ => Err(format!("'{s}' is not scale or frame")),
-    }
 }

@@ -25,6 +25,8 @@ pub enum Projection {
     Perspective,
 }
 
+nst3d_core::named_enum!(Projection, "a camera projection", { Orthographic => "orthographic", Perspective => "perspective" });
+
 /// A camera in the grid's index space (voxel units, voxel centres at integer
 /// coordinates); the caller maps world space to index space.
 #[derive(Clone, Copy, Debug, PartialEq)]

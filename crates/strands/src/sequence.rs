@@ -129,6 +129,8 @@ pub enum EmaClock {
     Frame,
 }
 
+nst3d_core::named_enum!(EmaClock, "an EMA clock", { Scale => "scale", Frame => "frame" });
+
 /// What carries the previous frame's field and drives the 1€ speed.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Flow {

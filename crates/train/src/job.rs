@@ -15,6 +15,7 @@ use nst3d_core::{math::SplitMix64, Grid3, Reporter};
 use nst3d_features::Vgg19;
 use nst3d_network::{FeedForward, Model};
 use nst3d_optim::OneCycle;
+use nst3d_sequence::{expand_pattern, FrameSpec};
 use nst3d_stylize::{StyleSpec, ViewLoss, ViewSpec};
 
 use crate::patch::{rotated_patch, Rotation};
@@ -82,6 +83,31 @@ impl TrainSettings {
             checkpoint_every: 50,
         }
     }
+}
+
+/// The frame files of `nst3d train --input ... [--frames ...]` (and of the
+/// Python `train`): each input is a file, or, with a frame list (one per
+/// input, in order, as `--frames`), a `####` / `%04d` pattern expanded by the
+/// sequence crate's parser.
+pub fn training_frames(inputs: &[String], frame_lists: &[String]) -> Result<Vec<PathBuf>> {
+    if !frame_lists.is_empty() && frame_lists.len() != inputs.len() {
+        bail!("give one --frames per --input ({} inputs, {} frame lists)", inputs.len(), frame_lists.len());
+    }
+    if inputs.is_empty() {
+        bail!("no training frames given");
+    }
+    let mut frames = Vec::new();
+    for (i, input) in inputs.iter().enumerate() {
+        match frame_lists.get(i) {
+            Some(spec) => {
+                for &f in FrameSpec::parse(spec)?.frames() {
+                    frames.push(PathBuf::from(expand_pattern(input, f)?));
+                }
+            }
+            None => frames.push(PathBuf::from(input)),
+        }
+    }
+    Ok(frames)
 }
 
 /// The schedule's length when neither `steps` nor `minutes` is given.

@@ -21,6 +21,8 @@ pub enum UpAxis {
     Z,
 }
 
+nst3d_core::named_enum!(UpAxis, "an up axis", { Y => "y", Z => "z" });
+
 /// Everything `nst3d volume` can be asked, for one frame or a sequence.
 #[derive(Clone, Debug)]
 pub struct VolumeSettings {

@@ -30,8 +30,8 @@ pub struct StrandsArgs {
     #[arg(long, required = true)]
     style: Option<PathBuf>,
     /// Table 1 preset.
-    #[arg(long, value_enum, default_value = "short-hair")]
-    preset: PresetArg,
+    #[arg(long, default_value = "short-hair", value_parser = crate::named::<Preset>(Preset::ALL.map(Preset::key)))]
+    preset: Preset,
     /// Output groom, .usda or .ply (written atomically); with --frames a pattern.
     #[arg(long, required = true)]
     out: Option<PathBuf>,
@@ -53,8 +53,8 @@ pub struct StrandsArgs {
     work_dir: Option<PathBuf>,
     /// Temporal coherency of a sequence: `ema-one-euro` (the paper),
     /// `ema`, `one-euro`, or `off` (every frame stylized on its own).
-    #[arg(long, value_enum, default_value = "ema-one-euro")]
-    temporal: TemporalArg,
+    #[arg(long, default_value = "ema-one-euro", value_parser = crate::named::<Temporal>(Temporal::NAMES.iter().copied()))]
+    temporal: Temporal,
     /// EMA coefficient σ (default: the preset's, Table 1).
     #[arg(long)]
     ema_sigma: Option<f32>,
@@ -64,8 +64,8 @@ pub struct StrandsArgs {
     /// What the EMA's iteration count m runs over: each `scale` (Alg. 1's
     /// inner counter: every scale restarts from the previous frame's field),
     /// or the whole `frame` (measured to flicker more, docs/STRANDS.md).
-    #[arg(long, value_enum, default_value = "scale")]
-    ema_clock: EmaClockArg,
+    #[arg(long, default_value = "scale", value_parser = crate::named::<EmaClock>(EmaClock::NAMES.iter().copied()))]
+    ema_clock: EmaClock,
     /// 1€ blending parameter α (default: the preset's).
     #[arg(long)]
     one_euro_alpha: Option<f32>,
@@ -188,59 +188,6 @@ enum GenerateKindArg {
     Grass,
 }
 
-/// `--temporal` choices.
-#[derive(Clone, Copy, Debug, PartialEq, ValueEnum)]
-enum TemporalArg {
-    #[value(name = "ema-one-euro")]
-    EmaOneEuro,
-    Ema,
-    #[value(name = "one-euro")]
-    OneEuro,
-    Off,
-}
-
-/// `--ema-clock` choices.
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum EmaClockArg {
-    Frame,
-    Scale,
-}
-
-/// The presets by command-line name.
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum PresetArg {
-    ShortHair,
-    #[value(name = "short-hair-360")]
-    ShortHair360,
-    LongHair,
-    Cat,
-    FurBall,
-    Grass,
-}
-
-impl PresetArg {
-    fn preset(self) -> Preset {
-        match self {
-            PresetArg::ShortHair => Preset::ShortHair,
-            PresetArg::ShortHair360 => Preset::ShortHair360,
-            PresetArg::LongHair => Preset::LongHair,
-            PresetArg::Cat => Preset::Cat,
-            PresetArg::FurBall => Preset::FurBall,
-            PresetArg::Grass => Preset::Grass,
-        }
-    }
-}
-
-impl From<TemporalArg> for Temporal {
-    fn from(t: TemporalArg) -> Self {
-        match t {
-            TemporalArg::EmaOneEuro => Temporal::EmaOneEuro,
-            TemporalArg::Ema => Temporal::Ema,
-            TemporalArg::OneEuro => Temporal::OneEuro,
-            TemporalArg::Off => Temporal::Off,
-        }
-    }
-}
 
 impl StrandsArgs {
     /// The library's settings: the arguments as they are, typed.
@@ -263,17 +210,14 @@ impl StrandsArgs {
             style: need(self.style, "--style")?,
             out: need(self.out, "--out")?,
             preview: self.preview,
-            preset: self.preset.preset(),
+            preset: self.preset,
             frames: self.frames,
             force: self.force,
             work_dir: self.work_dir,
-            temporal: self.temporal.into(),
+            temporal: self.temporal,
             ema_sigma: self.ema_sigma,
             ema_nu: self.ema_nu,
-            ema_clock: match self.ema_clock {
-                EmaClockArg::Frame => EmaClock::Frame,
-                EmaClockArg::Scale => EmaClock::Scale,
-            },
+            ema_clock: self.ema_clock,
             one_euro_alpha: self.one_euro_alpha,
             one_euro_beta: self.one_euro_beta,
             one_euro_fmin: self.one_euro_fmin,
@@ -429,4 +373,26 @@ fn generate(g: GenerateArgs) -> Result<()> {
         r.mesh.as_ref().map_or(String::new(), |m| format!("; mesh {}", m.display()))
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod defaults {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: StrandsArgs,
+    }
+
+    /// Every default of `nst3d strands` is the library's (the Python
+    /// package's): the parsed settings print exactly as `StrandSettings::new`'s.
+    #[test]
+    fn library_defaults_are_the_command_lines() {
+        let argv = ["nst3d", "--groom", "g.ply", "--mesh", "m.ply", "--style", "p.jpg", "--out", "o.usda"];
+        let a = Cli::parse_from(argv).args.settings().unwrap();
+        let d = StrandSettings::new("g.ply", "m.ply", "p.jpg", "o.usda");
+        assert_eq!(format!("{a:#?}"), format!("{d:#?}"));
+    }
 }

@@ -6,7 +6,7 @@ pub mod preview;
 use std::path::PathBuf;
 
 use anyhow::Result;
-use clap::{Args, ValueEnum};
+use clap::Args;
 use nst3d_features::VggLayer;
 use nst3d_render::Projection;
 use nst3d_stylize::Mode;
@@ -109,14 +109,14 @@ pub struct VolumeArgs {
     #[arg(long)]
     pub equalize: bool,
     /// Camera projection.
-    #[arg(long, value_enum, default_value = "perspective")]
-    pub camera: CameraKind,
+    #[arg(long, default_value = "perspective", value_parser = crate::named::<Projection>(Projection::NAMES.iter().copied()))]
+    pub camera: Projection,
     /// Vertical field of view of the perspective camera, degrees.
     #[arg(long, default_value_t = 30.0)]
     pub fov: f32,
     /// Which index axis points up in the file (Blender caches are z-up, Houdini y-up).
-    #[arg(long, value_enum, default_value = "z")]
-    pub up: UpArg,
+    #[arg(long, default_value = "z", value_parser = crate::named::<UpAxis>(UpAxis::NAMES.iter().copied()))]
+    pub up: UpAxis,
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache; see tools/fetch_weights.sh).
     #[arg(long)]
     pub weights: Option<PathBuf>,
@@ -156,38 +156,6 @@ pub struct VolumeArgs {
     pub work_dir: Option<PathBuf>,
 }
 
-/// Camera projection, as named on the command line.
-#[derive(Clone, Copy, ValueEnum)]
-pub enum CameraKind {
-    Orthographic,
-    Perspective,
-}
-
-impl From<CameraKind> for Projection {
-    fn from(k: CameraKind) -> Self {
-        match k {
-            CameraKind::Orthographic => Projection::Orthographic,
-            CameraKind::Perspective => Projection::Perspective,
-        }
-    }
-}
-
-/// The file's up axis, as named on the command line.
-#[derive(Clone, Copy, ValueEnum)]
-pub enum UpArg {
-    Y,
-    Z,
-}
-
-impl From<UpArg> for UpAxis {
-    fn from(u: UpArg) -> Self {
-        match u {
-            UpArg::Y => UpAxis::Y,
-            UpArg::Z => UpAxis::Z,
-        }
-    }
-}
-
 impl VolumeArgs {
     /// The library's settings: the arguments as they are, typed.
     fn settings(self) -> VolumeSettings {
@@ -221,9 +189,9 @@ impl VolumeArgs {
             layers: self.layers,
             absorption: self.absorption,
             equalize: self.equalize,
-            projection: self.camera.into(),
+            projection: self.camera,
             fov: self.fov,
-            up: self.up.into(),
+            up: self.up,
             weights: self.weights,
             cameras: self.cameras,
             camera_file: self.camera_file,
@@ -307,4 +275,37 @@ pub fn run(args: VolumeArgs) -> Result<()> {
         ),
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: VolumeArgs,
+    }
+
+    fn parsed(extra: &[&str]) -> VolumeSettings {
+        let mut argv = vec!["nst3d", "--input", "a.vdb", "--style", "p.jpg", "--out", "o.vdb"];
+        argv.extend_from_slice(extra);
+        Cli::parse_from(argv).args.settings()
+    }
+
+    /// Every default of `nst3d volume` is the library's (what the Python
+    /// package runs with when an option is not given): the parsed settings
+    /// print exactly as `VolumeSettings::new`'s, field by field.
+    #[test]
+    fn library_defaults_are_the_command_lines() {
+        let d = VolumeSettings::new("a.vdb", "p.jpg", "o.vdb");
+        assert_eq!(format!("{:#?}", parsed(&[])), format!("{d:#?}"));
+        let mut seq = d.clone();
+        seq.sequence = Some(SequenceSettings { frames: "1-3".into(), ..SequenceSettings::default() });
+        assert_eq!(format!("{:#?}", parsed(&["--frames", "1-3"])), format!("{seq:#?}"));
+        let mut model = d;
+        model.model = Some(ModelSettings::new("m.safetensors"));
+        assert_eq!(format!("{:#?}", parsed(&["--model", "m.safetensors"])), format!("{model:#?}"));
+    }
 }

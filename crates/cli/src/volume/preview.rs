@@ -7,9 +7,9 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
-use nst3d_volume::{PreviewSettings, PREVIEW_HEIGHT};
+use nst3d_render::Projection;
+use nst3d_volume::{PreviewSettings, UpAxis, PREVIEW_HEIGHT};
 
-use super::{CameraKind, UpArg};
 use crate::console::plural;
 
 /// Arguments of `nst3d preview`.
@@ -43,11 +43,11 @@ pub struct PreviewArgs {
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub elevation: f32,
     /// Camera projection.
-    #[arg(long, value_enum, default_value = "perspective")]
-    pub camera: CameraKind,
+    #[arg(long, default_value = "perspective", value_parser = crate::named::<Projection>(Projection::NAMES.iter().copied()))]
+    pub camera: Projection,
     /// Which index axis points up in the file (Blender caches are z-up, Houdini y-up).
-    #[arg(long, value_enum, default_value = "z")]
-    pub up: UpArg,
+    #[arg(long, default_value = "z", value_parser = crate::named::<UpAxis>(UpAxis::NAMES.iter().copied()))]
+    pub up: UpAxis,
     /// Absorption γ per unit density and voxel (default: the densest ray of
     /// --input, or of its densest frame, gets optical depth 3; the same γ is
     /// then used for --compare and every frame, so brightness does not pump).
@@ -88,8 +88,8 @@ pub fn run(args: PreviewArgs) -> Result<()> {
         frames: args.frames,
         turntable: args.turntable,
         elevation: args.elevation,
-        projection: args.camera.into(),
-        up: args.up.into(),
+        projection: args.camera,
+        up: args.up,
         absorption: args.absorption,
         height: args.height,
     };
