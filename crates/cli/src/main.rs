@@ -77,6 +77,11 @@ fn main() {
         eprintln!("nst3d: internal error: {msg}{at} (please report this)");
     }));
     let cli = Cli::parse();
+    // The docs test (crates/cli/tests/docs.rs) checks that every command
+    // line the docs show still parses, without running any of them.
+    if std::env::var_os("NST3D_PARSE_ONLY").is_some() {
+        return;
+    }
     signals::install();
     if let Some(n) = cli.threads {
         if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global() {
