@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use nst3d_core::Image;
 use nst3d_io::groom::{write_ply_strands, write_usda_curves_with, Groom, GroomFile, UsdPrimvars};
 use nst3d_io::image::{luminance_rgb, resize_to_height, side_by_side, write_png};
@@ -174,6 +174,19 @@ pub struct Checks {
     pub inside: usize,
 }
 
+/// Largest relative change of each written strand's length against the
+/// input's `input_lengths`; the two must hold the same strands.
+fn largest_length_change(input_lengths: &[f64], written: &FlatStrands) -> Result<f64> {
+    if written.strand_count() != input_lengths.len() {
+        bail!("{} strands written for an input of {}", written.strand_count(), input_lengths.len());
+    }
+    Ok(input_lengths
+        .iter()
+        .enumerate()
+        .map(|(s, len)| ((polyline_length(written.strand(s)) - len) / len.max(1e-30)).abs())
+        .fold(0.0f64, f64::max))
+}
+
 impl Checks {
     /// `guides`: the optimized (re-sampled) guides; `written`: what goes to
     /// the file, in the input's topology.
@@ -185,11 +198,15 @@ impl Checks {
         head: Option<&TriMesh>,
     ) -> Result<Self> {
         let input_lengths: Vec<f64> = groom.strands.iter().map(|s| polyline_length(&s.points)).collect();
-        let vs_input = (0..written.strand_count())
-            .map(|s| ((polyline_length(written.strand(s)) - input_lengths[s]) / input_lengths[s].max(1e-30)).abs())
-            .fold(0.0f64, f64::max);
-        let rest_guides =
-            FlatStrands { points: scene.rest.points[..guides.points.len()].to_vec(), offsets: guides.offsets.clone() };
+        let vs_input = largest_length_change(&input_lengths, written)?;
+        let Some(rest) = scene.rest.points.get(..guides.points.len()) else {
+            bail!(
+                "the optimised guides have {} points, the scene's rest pose {}",
+                guides.points.len(),
+                scene.rest.points.len()
+            );
+        };
+        let rest_guides = FlatStrands { points: rest.to_vec(), offsets: guides.offsets.clone() };
         let vs_rest = max_length_change(&rest_guides, guides);
         // The scene's collider is this mesh's BVH already.
         let built;
@@ -224,4 +241,19 @@ pub fn frame_path(pattern: &Path, frame: i64, what: &str) -> Result<PathBuf> {
 /// Whether `path` names a frame pattern rather than one file.
 pub fn is_pattern(path: &Path) -> bool {
     path.to_str().is_some_and(|p| expand_pattern(p, 0).is_ok())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A written groom with other strands than the input's is an error, not
+    /// an index out of bounds; the same strands give their largest change.
+    #[test]
+    fn length_checks_refuse_a_mismatched_groom() {
+        let written = FlatStrands { points: vec![[0.0; 3], [0.0, 2.0, 0.0], [0.0; 3], [0.0, 1.0, 0.0]], offsets: vec![0, 2, 4] };
+        let e = largest_length_change(&[1.0], &written).unwrap_err().to_string();
+        assert!(e.contains("2 strands written for an input of 1"), "{e}");
+        assert!((largest_length_change(&[1.0, 1.0], &written).unwrap() - 1.0).abs() < 1e-12);
+    }
 }

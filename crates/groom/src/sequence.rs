@@ -13,7 +13,7 @@ use nst3d_core::Reporter;
 use nst3d_features::Vgg19;
 use nst3d_io::groom::{read_groom, read_groom_file};
 use nst3d_io::mesh::read_mesh;
-use nst3d_sequence::{default_work_dir, job_fingerprint, FrameSpec};
+use nst3d_sequence::{default_work_dir, job_fingerprint, settings_key, FrameSpec};
 use nst3d_strands::{check_topology, FlatStrands, Flow, SequenceParams, SequenceStylizer, TemporalParams};
 
 use crate::files::{attribute_notes, frame_path, is_pattern, write_groom, write_preview, Checks};
@@ -242,6 +242,5 @@ fn job_hash(
         stamped.push(groom_at(f)?);
         stamped.extend(mesh_at(f)?);
     }
-    let settings = format!("{a:?}|threads {}", rayon::current_num_threads());
-    Ok(job_fingerprint(&settings, std::slice::from_ref(&s.style), &stamped)?)
+    Ok(job_fingerprint(&settings_key(&a, true), std::slice::from_ref(&s.style), &stamped)?)
 }

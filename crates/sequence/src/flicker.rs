@@ -11,9 +11,13 @@ use nst3d_transport as transport;
 /// Mean absolute difference per pixel between consecutive renders after
 /// carrying the earlier frame along its velocity. `velocities[t]` is `u_t` in
 /// voxels per frame (`None`: the frame is compared unwarped).
-pub fn flicker(frames: &[Grid3], velocities: &[Option<Vec<[f32; 3]>>], render: impl Fn(&Grid3) -> Image) -> f32 {
+pub fn flicker<E>(
+    frames: &[Grid3],
+    velocities: &[Option<Vec<[f32; 3]>>],
+    render: impl Fn(&Grid3) -> Result<Image, E>,
+) -> Result<f32, E> {
     if frames.len() < 2 {
-        return 0.0;
+        return Ok(0.0);
     }
     let mut total = 0.0f64;
     for t in 1..frames.len() {
@@ -25,9 +29,9 @@ pub fn flicker(frames: &[Grid3], velocities: &[Option<Vec<[f32; 3]>>], render: i
             }
             None => prev.clone(),
         };
-        let (a, b) = (render(&frames[t]), render(&warped));
+        let (a, b) = (render(&frames[t])?, render(&warped)?);
         let diff: f64 = a.data.iter().zip(&b.data).map(|(x, y)| (x - y).abs() as f64).sum();
         total += diff / a.data.len().max(1) as f64;
     }
-    (total / (frames.len() - 1) as f64) as f32
+    Ok((total / (frames.len() - 1) as f64) as f32)
 }

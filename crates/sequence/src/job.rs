@@ -15,6 +15,19 @@ fn fnv1a(bytes: &[u8], mut h: u64) -> u64 {
     h
 }
 
+/// The settings part of a job's fingerprint: the `Debug` form of its
+/// settings, after the caller cleared the fields that do not change what
+/// the job computes (output folders, previews, `force`). Every other field,
+/// including one added later, is in it: the safe side. `threads_matter`
+/// adds the thread count for jobs that are reproducible bit for bit only on
+/// the same count.
+pub fn settings_key<S: std::fmt::Debug>(settings: &S, threads_matter: bool) -> String {
+    match threads_matter {
+        true => format!("{settings:?}|threads {}", rayon::current_num_threads()),
+        false => format!("{settings:?}"),
+    }
+}
+
 /// A stable hash of a job: its `settings` text, the contents of the files
 /// in `read` (small: a painting, a camera file) and the path, size and
 /// modification time of the files in `stamped` (the input frames, which may

@@ -14,6 +14,6 @@ pub mod lock;
 pub mod store;
 
 pub use frames::{expand_pattern, FrameSpec, FramesError};
-pub use job::{default_work_dir, job_fingerprint};
+pub use job::{default_work_dir, job_fingerprint, settings_key};
 pub use lock::WorkLock;
 pub use store::DiskStore;

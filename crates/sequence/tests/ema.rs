@@ -62,7 +62,7 @@ fn ema_cuts_flicker() {
         stylize_sequence(&sim, &loss, std::slice::from_ref(&view), &params, &mut store, &mut |_| {}).unwrap();
         let frames: Vec<Grid3> = (0..sim.len()).map(|t| stylized_density(&sim, &mut store, t).unwrap()).collect();
         let vels: Vec<_> = (0..sim.len()).map(|t| sim.velocity(t).unwrap()).collect();
-        let f = flicker(&frames, &vels, |d| loss.image(d, &view).unwrap());
+        let f = flicker(&frames, &vels, |d| loss.image(d, &view)).unwrap();
         let l: f32 = frames.iter().map(|d| loss.loss(d, &view).unwrap()).sum::<f32>() / frames.len() as f32;
         (f, l)
     };

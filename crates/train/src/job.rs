@@ -195,24 +195,14 @@ fn load_frames(s: &TrainSettings) -> Result<Vec<Grid3>> {
     Ok(out)
 }
 
-/// What must match for a checkpoint to be resumed.
+/// What must match for a checkpoint to be resumed: every setting but the
+/// budget, the output path and the checkpoint interval, and the thread
+/// count (a resumed run repeats an uninterrupted one bit for bit only on
+/// the same count).
 fn fingerprint(s: &TrainSettings) -> String {
-    format!(
-        "{:?}|{}|{:?}|{}|{}|{}|{}|{}|{:?}|{}|{}|{}|{}",
-        s.frames,
-        s.grid,
-        s.style,
-        s.style_scale,
-        s.velocity,
-        s.channels,
-        s.patch,
-        s.octaves,
-        s.steps,
-        s.theta_deg,
-        s.phi_deg,
-        s.seed,
-        rayon::current_num_threads()
-    )
+    let mut a = s.clone();
+    (a.minutes, a.out, a.checkpoint_every) = (None, PathBuf::new(), 0);
+    nst3d_sequence::settings_key(&a, true)
 }
 
 struct Checkpoint {

@@ -11,16 +11,23 @@ use nst3d_io::vdb::DenseBox;
 pub fn paste(src: &Grid3, src_origin: [i32; 3], dst: &mut Grid3, dst_origin: [i32; 3]) {
     let [nx, ny, nz] = src.dims;
     let dims = dst.dims;
+    // Along x a row is clipped on both sides (its first `skip` voxels lie
+    // left of `dst`); along y and z whole rows fall outside.
+    let ox = i64::from(src_origin[0]) - i64::from(dst_origin[0]);
+    let skip = (-ox).max(0) as usize;
+    let dx = ox.max(0) as usize;
+    if skip >= nx || dx >= dims[0] {
+        return;
+    }
+    let n = (nx - skip).min(dims[0] - dx);
     for z in 0..nz {
         for y in 0..ny {
             let (oy, oz) = (src_origin[1] + y as i32 - dst_origin[1], src_origin[2] + z as i32 - dst_origin[2]);
-            let ox = src_origin[0] - dst_origin[0];
-            if oy < 0 || oz < 0 || oy as usize >= dims[1] || oz as usize >= dims[2] || ox < 0 {
+            if oy < 0 || oz < 0 || oy as usize >= dims[1] || oz as usize >= dims[2] {
                 continue;
             }
-            let at = dst.index(ox as usize, oy as usize, oz as usize);
-            let n = nx.min(dims[0] - ox as usize);
-            dst.data[at..at + n].copy_from_slice(&src.data[src.index(0, y, z)..][..n]);
+            let at = dst.index(dx, oy as usize, oz as usize);
+            dst.data[at..at + n].copy_from_slice(&src.data[src.index(skip, y, z)..][..n]);
         }
     }
 }
@@ -76,5 +83,24 @@ mod tests {
         let mut dst = Grid3::zeros([2, 1, 2]);
         paste(&src, [0, 0, 0], &mut dst, [0, 1, 0]);
         assert_eq!(dst.data, vec![3.0, 4.0, 7.0, 8.0]);
+    }
+
+    /// A source sticking out of the destination on the left along x keeps
+    /// the part inside (the rows were once dropped whole), and one past
+    /// either end along x is dropped without a panic.
+    #[test]
+    fn paste_clips_rows_on_both_sides_along_x() {
+        let mut src = Grid3::zeros([4, 1, 1]);
+        src.data = vec![1.0, 2.0, 3.0, 4.0];
+        let mut dst = Grid3::zeros([3, 1, 1]);
+        paste(&src, [-2, 0, 0], &mut dst, [0, 0, 0]);
+        assert_eq!(dst.data, vec![3.0, 4.0, 0.0]);
+        let mut dst = Grid3::zeros([3, 1, 1]);
+        paste(&src, [1, 0, 0], &mut dst, [0, 0, 0]);
+        assert_eq!(dst.data, vec![0.0, 1.0, 2.0]);
+        let mut dst = Grid3::zeros([3, 1, 1]);
+        paste(&src, [5, 0, 0], &mut dst, [0, 0, 0]);
+        paste(&src, [-9, 0, 0], &mut dst, [0, 0, 0]);
+        assert_eq!(dst.data, vec![0.0; 3]);
     }
 }

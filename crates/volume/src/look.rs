@@ -12,13 +12,31 @@ pub use nst3d_io::image::PREVIEW_HEIGHT;
 /// Absorption giving the densest ray an optical depth of 3: dense enough to
 /// show shape, thin enough that the image does not flatten to white.
 pub fn auto_absorption(d: &Grid3, camera: &Camera) -> Result<f32> {
+    match absorption_in_view(d, camera)? {
+        Some(g) => Ok(g),
+        None => bail!("the density is zero everywhere in view: nothing to stylize"),
+    }
+}
+
+/// The smallest [`auto_absorption`] over `pairs`; `None` when no smoke is
+/// in any view. A camera the renderer refuses is an error.
+pub fn smallest_absorption<'a>(pairs: impl Iterator<Item = (&'a Grid3, &'a Camera)>) -> Result<Option<f32>> {
+    let mut best: Option<f32> = None;
+    for (d, c) in pairs {
+        if let Some(g) = absorption_in_view(d, c)? {
+            best = Some(best.map_or(g, |b| b.min(g)));
+        }
+    }
+    Ok(best)
+}
+
+/// [`auto_absorption`], `None` when no smoke is in view; a camera the
+/// renderer refuses is an error (it once read as "zero everywhere").
+fn absorption_in_view(d: &Grid3, camera: &Camera) -> Result<Option<f32>> {
     // With γ = 0 the render is the plain column sum of density along each ray.
     let (sums, _) = nst3d_render::render(d, camera, 0.0)?;
     let max = sums.data.iter().copied().fold(0.0f32, f32::max);
-    if !(max > 0.0) {
-        bail!("the density is zero everywhere in view: nothing to stylize");
-    }
-    Ok(3.0 / max)
+    Ok((max > 0.0).then(|| 3.0 / max))
 }
 
 /// Absorption from `explicit`, or the smallest [`auto_absorption`] over
@@ -27,18 +45,10 @@ pub fn absorption_for<'a>(explicit: Option<f32>, pairs: impl Iterator<Item = (&'
     match explicit {
         Some(g) if g.is_finite() && g > 0.0 => Ok(g),
         Some(g) => bail!("--absorption must be a positive number, got {g}"),
-        None => {
-            let mut best = f32::INFINITY;
-            for (d, c) in pairs {
-                if let Ok(g) = auto_absorption(d, c) {
-                    best = best.min(g);
-                }
-            }
-            if !best.is_finite() {
-                bail!("the density is zero everywhere in view: nothing to stylize");
-            }
-            Ok(best)
-        }
+        None => match smallest_absorption(pairs)? {
+            Some(g) => Ok(g),
+            None => bail!("the density is zero everywhere in view: nothing to stylize"),
+        },
     }
 }
 
@@ -104,4 +114,32 @@ pub fn transmittance_image(d: &Grid3, cam: &Camera, gamma: f32) -> Result<Image>
     let (mut img, _) = nst3d_render::render(d, cam, gamma)?;
     img.data.iter_mut().for_each(|v| *v *= gamma);
     Ok(img)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nst3d_render::Projection;
+
+    /// A camera the renderer refuses is reported as such, not as empty smoke.
+    #[test]
+    fn a_bad_camera_is_not_called_empty_smoke() {
+        let mut d = Grid3::zeros([8, 8, 8]);
+        d.data.iter_mut().for_each(|v| *v = 0.5);
+        // The view direction is parallel to the up vector: no image plane.
+        let bad = Camera {
+            projection: Projection::Orthographic,
+            eye: [3.5, 20.0, 3.5],
+            target: [3.5, 3.5, 3.5],
+            up: [0.0, 1.0, 0.0],
+            fov_y_deg: 30.0,
+            aspect: 1.0,
+        };
+        let e = absorption_for(None, [(&d, &bad)].into_iter()).unwrap_err().to_string();
+        assert!(!e.contains("zero everywhere"), "{e}");
+        let empty = Grid3::zeros([8, 8, 8]);
+        let good = Camera { eye: [3.5, 3.5, 30.0], ..bad };
+        let e = absorption_for(None, [(&empty, &good)].into_iter()).unwrap_err().to_string();
+        assert!(e.contains("zero everywhere"), "{e}");
+    }
 }

@@ -22,13 +22,13 @@ use nst3d_core::{Grid3, Reporter};
 use nst3d_io::vdb::{read_vdb, GridValues, Transform};
 use nst3d_render::Camera;
 use nst3d_sequence::ema::{stylize_sequence_with, SequenceParams, Simulation, StateStore};
-use nst3d_sequence::{default_work_dir, expand_pattern, job_fingerprint, DiskStore, FrameSpec};
+use nst3d_sequence::{default_work_dir, expand_pattern, job_fingerprint, settings_key, DiskStore, FrameSpec};
 use nst3d_stylize::{view_image, Mode, ViewLoss, ViewSpec};
 
 use crate::cameras::Cameras;
-use crate::look::{absorption_for, mean_loss, views_of};
+use crate::look::{absorption_for, mean_loss, smallest_absorption, views_of};
 use crate::output::write_stylized;
-use crate::settings::{SequenceSettings, UpAxis, VolumeSettings};
+use crate::settings::{SequenceSettings, VolumeSettings};
 use crate::simulation::{VdbSimulation, VELOCITY_NAMES};
 use crate::style::load_style_and_vgg;
 use crate::upsample::{refine_origin, refine_transform, Refined};
@@ -305,7 +305,7 @@ fn shot_absorption(
             for &t in live_all {
                 let d = full.density(t)?;
                 let cams = cams_at(t);
-                if let Ok(g) = absorption_for(None, cams.iter().map(|c| (&d, c))) {
+                if let Some(g) = smallest_absorption(cams.iter().map(|c| (&d, c)))? {
                     best = best.min(g);
                 }
             }
@@ -334,17 +334,17 @@ pub fn flicker_of_outputs(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Re
     let live_all: Vec<usize> = (0..all.len()).filter(|&i| !sv.empty[i]).collect();
     let gamma = shot_absorption(s, &full, &live_all, &|t| cameras.at(all[t] as f64, dims, &transform, origin))?;
     let written = VdbSimulation { paths: outs.clone(), ..full.clone() };
-    let at = |f: i64| all.iter().position(|&a| a == f).expect("run frames are --frames");
+    let at = |f: i64| all.iter().position(|&a| a == f).with_context(|| format!("frame {f} is not in --frames"));
     let (mut sum, mut pairs) = (0.0f64, 0usize);
     for i in 1..run_frames.len() {
-        let (t0, t1) = (at(run_frames[i - 1]), at(run_frames[i]));
+        let (t0, t1) = (at(run_frames[i - 1])?, at(run_frames[i])?);
         if t1 != t0 + 1 || sv.empty[t0] || sv.empty[t1] || !outs[i - 1].exists() || !outs[i].exists() {
             continue;
         }
         let view = views_of(&cameras.at(run_frames[i] as f64, dims, &transform, origin), gamma, s.equalize).remove(0);
-        let render = |g: &Grid3| view_image(g, &view).expect("a view of the shot's box renders");
+        let render = |g: &Grid3| view_image(g, &view);
         let frames = [written.density(i - 1)?, written.density(i)?];
-        sum += nst3d_sequence::flicker::flicker(&frames, &[full.velocity(t0)?, None], render) as f64;
+        sum += nst3d_sequence::flicker::flicker(&frames, &[full.velocity(t0)?, None], render)? as f64;
         pairs += 1;
     }
     Ok((pairs > 0).then(|| sum / pairs as f64))
@@ -353,40 +353,16 @@ pub fn flicker_of_outputs(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Re
 /// Everything the optimised states depend on, so a work folder is only
 /// reused by the same job: settings, the style image and camera file
 /// contents, and each input frame's size and modification time.
-fn job_hash(s: &VolumeSettings, seq: &SequenceSettings, run_paths: &[PathBuf]) -> Result<u64> {
-    let settings = format!(
-        "{:?}|{:?}|{:?}|{}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{:?}|{}|{}|{}|{}|{:?}|{}|{:?}|{}|{:?}|{:?}|{}",
-        s.input,
-        Some(&seq.frames),
-        seq.chunk,
-        seq.warmup,
-        s.out,
-        seq.ema,
-        seq.ema_settle,
-        seq.velocity_grid,
-        seq.velocity_scale,
-        s.grid,
-        matches!(s.mode, Mode::Velocity),
-        s.lr,
-        s.vmax,
-        s.octaves,
-        s.iters,
-        s.smin,
-        s.smax,
-        s.absorption,
-        s.layers.iter().map(|l| format!("{l:?}")).collect::<Vec<_>>(),
-        s.style_scale,
-        s.style_color,
-        s.equalize,
-        matches!(s.projection, nst3d_render::Projection::Perspective),
-        s.fov,
-        matches!(s.up, UpAxis::Z),
-        s.cameras,
-        s.camera_seed,
-        s.weights,
-        s.upsample,
-        s.strength,
-    );
+fn job_hash(s: &VolumeSettings, run_paths: &[PathBuf]) -> Result<u64> {
+    // Not what the states depend on: previews, held-out scoring, where the
+    // states go, --force; the painting and the camera file count by their
+    // contents below, not their paths.
+    let mut a = s.clone();
+    (a.preview, a.eval_cameras, a.model, a.style, a.camera_file) = (None, None, None, PathBuf::new(), None);
+    if let Some(q) = &mut a.sequence {
+        (q.force, q.work_dir) = (false, None);
+    }
+    let settings = settings_key(&a, false);
     let mut read = vec![s.style.clone()];
     read.extend(s.camera_file.clone());
     Ok(job_fingerprint(&settings, &read, run_paths)?)
@@ -446,7 +422,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
 
     let work = match &seq.work_dir {
         Some(w) => w.clone(),
-        None => default_work_dir(&s.out, job_hash(s, seq, &sim.inner.paths)?),
+        None => default_work_dir(&s.out, job_hash(s, &sim.inner.paths)?),
     };
     // Held until the job ends: a second blade on the same job exits here,
     // before the weights and the painting's features are loaded (seconds on
@@ -556,10 +532,9 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
                 if let Some((tp, dp)) = &prev {
                     if *tp + 1 == t && sim.linked(t) {
                         let vel = sim.velocity(*tp)?;
-                        let render =
-                            |g: &Grid3| loss.image(g, &views[t][0]).expect("the view rendered during optimisation");
+                        let render = |g: &Grid3| loss.image(g, &views[t][0]);
                         flicker_sum +=
-                            nst3d_sequence::flicker::flicker(&[dp.clone(), d.clone()], &[vel, None], render) as f64;
+                            nst3d_sequence::flicker::flicker(&[dp.clone(), d.clone()], &[vel, None], render)? as f64;
                         pairs += 1;
                     }
                 }
@@ -592,4 +567,40 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         flicker: if pairs > 0 { flicker_sum / pairs as f64 } else { 0.0 },
         output: s.out.to_string_lossy().to_string(),
     }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The work folder's hash follows every setting that changes the
+    /// states and none of those that do not (issue 28: it was a hand-kept
+    /// list of 30 fields).
+    #[test]
+    fn the_job_hash_follows_the_settings_that_matter() {
+        let dir = tempfile::tempdir().unwrap();
+        let style = dir.path().join("p.png");
+        std::fs::write(&style, b"painting").unwrap();
+        let mut s = VolumeSettings::new("in_####.vdb", &style, "out_####.vdb");
+        s.sequence = Some(SequenceSettings { frames: "1-3".into(), ..SequenceSettings::default() });
+        let h = |s: &VolumeSettings| job_hash(s, &[]).unwrap();
+        let base = h(&s);
+        let mut same = s.clone();
+        same.preview = Some("p_####.png".into());
+        same.eval_cameras = Some("ring:8:30".into());
+        let q = same.sequence.as_mut().unwrap();
+        (q.force, q.work_dir) = (true, Some("w".into()));
+        assert_eq!(h(&same), base);
+        // The painting counts by its contents, not its path.
+        let copy = dir.path().join("copy.png");
+        std::fs::copy(&style, &copy).unwrap();
+        assert_eq!(h(&VolumeSettings { style: copy.clone(), ..s.clone() }), base);
+        std::fs::write(&copy, b"another painting").unwrap();
+        assert_ne!(h(&VolumeSettings { style: copy, ..s.clone() }), base);
+        let mut other = s.clone();
+        other.sequence.as_mut().unwrap().ema = 0.5;
+        assert_ne!(h(&other), base);
+        assert_ne!(h(&VolumeSettings { fov: 40.0, ..s.clone() }), base);
+        assert_ne!(h(&VolumeSettings { strength: 2.0, ..s }), base);
+    }
 }
