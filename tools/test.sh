@@ -20,6 +20,9 @@ fi
 echo "== fetching VGG-19 weights"
 bash tools/fetch_weights.sh
 
+echo "== no import cycles between the modules of a crate"
+python3 tools/module_cycles.py
+
 echo "== tests"
 if cargo nextest --version >/dev/null 2>&1; then
   cargo nextest run --workspace --exclude nst3d-python --no-fail-fast

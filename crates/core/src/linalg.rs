@@ -128,7 +128,7 @@ pub fn matmul_into_precision(
     beta: f32,
     parallelism: Parallelism,
 ) {
-    match crate::bf16::Kernel::for_path(path) {
+    match path.kernel() {
         Some(kernel) if m > 0 && n > 0 && k > 0 => {
             assert!(n <= dst_row_stride && (m - 1) * dst_row_stride + n <= dst.len(), "matmul destination bounds");
             assert!((m - 1) * lhs_strides.0 + (k - 1) * lhs_strides.1 < lhs.len(), "matmul lhs bounds");

@@ -100,6 +100,17 @@ pub enum Path {
 }
 
 impl Path {
+    /// The bf16 block kernel this path runs on (`None` for fp32).
+    pub fn kernel(self) -> Option<crate::bf16::Kernel> {
+        use crate::bf16::Kernel;
+        match self {
+            Path::Fp32 => None,
+            Path::Bf16Amx => Some(Kernel::Amx),
+            Path::Bf16Avx512 => Some(Kernel::Avx512),
+            Path::Bf16Portable => Some(Kernel::without_unit()),
+        }
+    }
+
     /// Whether operands are rounded to bf16.
     pub fn is_bf16(self) -> bool {
         self != Path::Fp32

@@ -245,7 +245,7 @@ impl Conv3x3 {
         if self.algorithm != ConvAlgorithm::Auto || !conv_bf16::supports(self.cin, self.cout) {
             return None;
         }
-        bf16::Kernel::for_path(precision::path())
+        precision::path().kernel()
     }
 
     fn fwd16(&self) -> &Bf16Conv {

@@ -8,11 +8,10 @@ use nst3d_core::Image;
 use nst3d_io::groom::{write_ply_strands, write_usda_curves_with, Groom, GroomFile, UsdPrimvars};
 use nst3d_io::image::{luminance_rgb, resize_to_height, side_by_side, write_png};
 use nst3d_io::mesh::TriMesh;
-use nst3d_sequence::expand_pattern;
 use nst3d_strands::pipeline::{max_length_change, polyline_length, GroomView, StrandScene};
 use nst3d_strands::{FlatStrands, MeshBvh};
 
-use crate::settings::OutFormat;
+use crate::settings::{frame_path, OutFormat};
 
 pub use nst3d_io::image::PREVIEW_HEIGHT;
 
@@ -230,17 +229,6 @@ impl Checks {
             inside: self.inside.max(other.inside),
         }
     }
-}
-
-/// Path `pattern` at `frame` (clear error without a placeholder).
-pub fn frame_path(pattern: &Path, frame: i64, what: &str) -> Result<PathBuf> {
-    let text = pattern.to_str().with_context(|| format!("{what} {} is not valid UTF-8", pattern.display()))?;
-    Ok(PathBuf::from(expand_pattern(text, frame).with_context(|| format!("{what} with --frames"))?))
-}
-
-/// Whether `path` names a frame pattern rather than one file.
-pub fn is_pattern(path: &Path) -> bool {
-    path.to_str().is_some_and(|p| expand_pattern(p, 0).is_ok())
 }
 
 #[cfg(test)]

@@ -3,7 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
+use nst3d_sequence::expand_pattern;
 use nst3d_strands::pipeline::StylizeParams;
 use nst3d_strands::{EmaClock, Preset, TemporalParams};
 
@@ -173,7 +174,7 @@ impl StrandSettings {
         use nst3d_io::atomic::check_output;
         let at = |p: &Path, flag: &str| -> Result<PathBuf> {
             match frame {
-                Some(f) => crate::files::frame_path(p, f, flag),
+                Some(f) => frame_path(p, f, flag),
                 None => Ok(p.to_path_buf()),
             }
         };
@@ -281,4 +282,15 @@ impl OutFormat {
             _ => bail!("--out {}: the output groom must end in .usda or .ply", path.display()),
         }
     }
+}
+
+/// Path `pattern` at `frame` (clear error without a placeholder).
+pub fn frame_path(pattern: &Path, frame: i64, what: &str) -> Result<PathBuf> {
+    let text = pattern.to_str().with_context(|| format!("{what} {} is not valid UTF-8", pattern.display()))?;
+    Ok(PathBuf::from(expand_pattern(text, frame).with_context(|| format!("{what} with --frames"))?))
+}
+
+/// Whether `path` names a frame pattern rather than one file.
+pub fn is_pattern(path: &Path) -> bool {
+    path.to_str().is_some_and(|p| expand_pattern(p, 0).is_ok())
 }

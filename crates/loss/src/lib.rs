@@ -13,7 +13,6 @@
 mod gram_bf16;
 pub mod nnst;
 
-use nst3d_core::bf16::Kernel;
 use nst3d_core::linalg::{matmul, matmul_into, parallelism, Parallelism};
 use nst3d_core::{precision, FeatureView, Layout};
 use rayon::prelude::*;
@@ -88,7 +87,7 @@ pub fn gram(f: FeatureView<'_>) -> Vec<f32> {
         return vec![0.0; c * c];
     }
     let scale = 1.0 / p as f32;
-    if let Some(k) = Kernel::for_path(precision::path()) {
+    if let Some(k) = precision::path().kernel() {
         return gram_bf16::gram(k, f, scale);
     }
     let (_, col) = f.strides();
@@ -161,7 +160,7 @@ pub fn gram_backward(f: FeatureView<'_>, grad_g: &[f32]) -> Vec<f32> {
         }
     }
     if p > 0 && f.layout == Layout::ChannelsLast {
-        if let Some(k) = Kernel::for_path(precision::path()) {
+        if let Some(k) = precision::path().kernel() {
             return gram_bf16::gram_backward_channels_last(k, f, &sym, 1.0 / p as f32);
         }
     }

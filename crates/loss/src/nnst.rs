@@ -354,7 +354,7 @@ impl NnstTarget {
         let mean = channel_means(&h);
         let mut centred = h;
         centred.data.par_chunks_mut(nc).zip(&mean).for_each(|(p, m)| p.iter_mut().for_each(|v| *v -= m));
-        let indices = match bf16::Kernel::for_path(precision::path()) {
+        let indices = match precision::path().kernel() {
             Some(kernel) => self.argmax_bf16(kernel, &centred),
             None => self.argmax_fp32(&centred),
         };

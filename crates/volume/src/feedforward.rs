@@ -18,32 +18,7 @@ use nst3d_stylize::Mode;
 use nst3d_train::step::{apply, mass_ratio, Stylization};
 
 use crate::output::write_stylized_grid;
-use crate::settings::VolumeSettings;
-
-/// A trained model and how to run it.
-#[derive(Clone, Debug)]
-pub struct ModelSettings {
-    /// The model file written by `nst3d train`.
-    pub path: PathBuf,
-    /// Tile side in voxels (rounded up to a multiple of 4).
-    pub tile: usize,
-    /// Context around each tile, in voxels (rounded up to a multiple of 4).
-    pub margin: usize,
-    /// The mode the user asked for, if any: a model of the other mode is refused.
-    pub mode: Option<Mode>,
-}
-
-impl ModelSettings {
-    /// `--tile`'s default: a 128³ tile keeps memory near 1 GB at width 16.
-    pub const DEFAULT_TILE: usize = 128;
-    /// `--tile-margin`'s default: 32 voxels cover the network's reach.
-    pub const DEFAULT_MARGIN: usize = 32;
-
-    /// The command line's defaults for the model file `path`.
-    pub fn new(path: impl Into<PathBuf>) -> Self {
-        Self { path: path.into(), tile: Self::DEFAULT_TILE, margin: Self::DEFAULT_MARGIN, mode: None }
-    }
-}
+use crate::settings::{ModelSettings, VolumeSettings};
 
 /// What a feed-forward job did.
 #[derive(Clone, Debug)]

@@ -29,13 +29,13 @@ pub mod style;
 pub mod upsample;
 
 pub use cameras::{front_camera, turntable, CameraSet, Cameras, Lens};
-pub use feedforward::{stylize_with_model, LoadedModel, ModelReport, ModelSettings};
+pub use feedforward::{stylize_with_model, LoadedModel, ModelReport};
 pub use frame::{stylize_frame_file, stylize_grid, FrameReport, StylizedGrid};
 pub use look::{HeldOut, PREVIEW_HEIGHT};
 pub use nst3d_core::{Reporter, Silent};
 pub use preview::{preview, PreviewReport, PreviewSettings};
 pub use sequence::{flicker_of_outputs, stylize_sequence_files, SequenceReport, SequenceSummary};
-pub use settings::{SequenceSettings, UpAxis, VolumeSettings};
+pub use settings::{ModelSettings, SequenceSettings, UpAxis, VolumeSettings};
 pub use upsample::Upsample;
 
 /// What a volume job did: one frame, or a sequence.

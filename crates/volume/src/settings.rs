@@ -9,7 +9,6 @@ use nst3d_features::VggLayer;
 use nst3d_render::Projection;
 use nst3d_stylize::{FrameParams, Limits, Mode, StyleSpec, ViewSpec};
 
-use crate::feedforward::ModelSettings;
 use crate::upsample::Upsample;
 
 /// Which index axis of a file points up: Blender caches are z-up, Houdini's y-up.
@@ -311,5 +310,30 @@ mod tests {
         assert_eq!((p.limits.vmax, p.limits.smin, p.limits.smax, p.iterations), (3.0, 0.0, 2.0, 30));
         s.strength = 0.0;
         assert!(s.check().is_err());
+    }
+}
+
+/// A trained model and how to run it.
+#[derive(Clone, Debug)]
+pub struct ModelSettings {
+    /// The model file written by `nst3d train`.
+    pub path: PathBuf,
+    /// Tile side in voxels (rounded up to a multiple of 4).
+    pub tile: usize,
+    /// Context around each tile, in voxels (rounded up to a multiple of 4).
+    pub margin: usize,
+    /// The mode the user asked for, if any: a model of the other mode is refused.
+    pub mode: Option<Mode>,
+}
+
+impl ModelSettings {
+    /// `--tile`'s default: a 128³ tile keeps memory near 1 GB at width 16.
+    pub const DEFAULT_TILE: usize = 128;
+    /// `--tile-margin`'s default: 32 voxels cover the network's reach.
+    pub const DEFAULT_MARGIN: usize = 32;
+
+    /// The command line's defaults for the model file `path`.
+    pub fn new(path: impl Into<PathBuf>) -> Self {
+        Self { path: path.into(), tile: Self::DEFAULT_TILE, margin: Self::DEFAULT_MARGIN, mode: None }
     }
 }

@@ -4,7 +4,7 @@
 //! with one contract — AMX tiles ([`amx`]), AVX512-BF16 dot products, and
 //! an emulation for CPUs with neither (AVX-512F FMAs on the bf16 values
 //! widened exactly to f32, or scalar loops) — chosen by
-//! [`crate::precision::Path`]. The hardware kernels are checked against the
+//! `precision::Path`. The hardware kernels are checked against the
 //! scalar one on this CPU before they are first used ([`self_check`]).
 //!
 //! The contract ([`Kernel::block`]): a 32 × 32 fp32 block
@@ -206,17 +206,16 @@ pub enum Kernel {
 }
 
 impl Kernel {
-    /// The kernel of a bf16 [`crate::precision::Path`] (`None` for fp32).
-    pub fn for_path(p: crate::precision::Path) -> Option<Self> {
-        use crate::precision::Path;
-        match p {
-            Path::Fp32 => None,
-            Path::Bf16Amx => Some(Kernel::Amx),
-            Path::Bf16Avx512 => Some(Kernel::Avx512),
-            Path::Bf16Portable if has_avx512f() => Some(Kernel::Emulated),
-            Path::Bf16Portable => Some(Kernel::Portable),
+    /// The kernel for bf16 without a bf16 unit: the AVX-512F emulation, or
+    /// the scalar reference.
+    pub fn without_unit() -> Self {
+        if has_avx512f() {
+            Kernel::Emulated
+        } else {
+            Kernel::Portable
         }
     }
+
 
     /// Every kernel this machine can run, the scalar reference first.
     pub fn all_here() -> Vec<Kernel> {
