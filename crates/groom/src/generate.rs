@@ -9,7 +9,7 @@ use anyhow::{bail, Context, Result};
 use nst3d_sequence::FrameSpec;
 use nst3d_strands::{fur_ball, grass_patch, FurBallParams, GrassParams, Wind};
 
-use crate::files::write_groom;
+use crate::output::write_groom;
 use crate::settings::frame_path;
 use crate::settings::OutFormat;
 

@@ -16,13 +16,17 @@
 #![warn(missing_docs)]
 
 pub mod bench;
-pub mod files;
+pub mod checks;
 pub mod generate;
+pub mod output;
+pub mod preview;
 pub mod sequence;
 pub mod settings;
 pub mod single;
 
-pub use files::{is_groom_file, preview_groom, Checks, GroomPreviewSettings, PREVIEW_HEIGHT};
+pub use checks::Checks;
+pub use output::is_groom_file;
+pub use preview::{preview_groom, GroomPreviewSettings, PREVIEW_HEIGHT};
 pub use generate::{generate, GenerateKind, GenerateReport, GenerateSettings};
 pub use nst3d_core::{Reporter, Silent};
 pub use sequence::{stylize_groom_sequence, GroomSequenceReport, STATE_FILE};

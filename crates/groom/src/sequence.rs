@@ -16,7 +16,9 @@ use nst3d_io::mesh::read_mesh;
 use nst3d_sequence::{default_work_dir, job_fingerprint, settings_key, FrameSpec};
 use nst3d_strands::{check_topology, FlatStrands, Flow, SequenceParams, SequenceStylizer, TemporalParams};
 
-use crate::files::{attribute_notes, write_groom, write_preview, Checks};
+use crate::checks::Checks;
+use crate::output::{attribute_notes, write_groom};
+use crate::preview::write_preview;
 use crate::settings::{frame_path, is_pattern};
 use crate::settings::{OutFormat, StrandSettings, Temporal};
 use crate::NO_MESH;

@@ -16,7 +16,9 @@ use nst3d_io::mesh::read_mesh;
 use nst3d_strands::pipeline::{stylize, HeldOut, StrandScene};
 use nst3d_strands::FlatStrands;
 
-use crate::files::{attribute_notes, write_groom, write_preview, Checks};
+use crate::checks::Checks;
+use crate::output::{attribute_notes, write_groom};
+use crate::preview::write_preview;
 use crate::settings::{OutFormat, StrandSettings, Temporal};
 use crate::NO_MESH;
 

@@ -1,0 +1,94 @@
+//! Pictures of grooms: the before | after | painting preview of a job, and
+//! `nst3d preview` of groom files.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use nst3d_core::Image;
+use nst3d_io::image::{luminance_rgb, resize_to_height, side_by_side, write_png};
+use nst3d_strands::pipeline::{GroomView, StrandScene};
+use nst3d_strands::FlatStrands;
+
+use crate::settings::frame_path;
+
+pub use nst3d_io::image::PREVIEW_HEIGHT;
+
+/// Before | after | painting from the front camera.
+pub fn write_preview(path: &Path, scene: &StrandScene, after: &FlatStrands, painting: &Image) -> Result<()> {
+    let h = PREVIEW_HEIGHT;
+    let cam = scene.front_camera(h)?;
+    let before = scene.render(&scene.undeformed, &cam)?;
+    let after = scene.render(after, &cam)?;
+    let paint = resize_to_height(&luminance_rgb(painting), h);
+    write_png(path, &side_by_side(&[&before, &after, &paint]))?;
+    Ok(())
+}
+
+/// What `nst3d preview` draws of a groom.
+#[derive(Clone, Debug)]
+pub struct GroomPreviewSettings {
+    /// The groom (.hair, .data, .ply, .usda, .abc).
+    pub input: PathBuf,
+    /// A second groom with the same strands (e.g. the stylized result),
+    /// drawn to the right of `input` from the same cameras.
+    pub compare: Option<PathBuf>,
+    /// The mesh the strands grow from (front direction and culling).
+    pub mesh: Option<PathBuf>,
+    /// Output PNG; with `turntable` a pattern (`####` or `%04d`, from 1).
+    pub out: PathBuf,
+    /// Pictures at evenly spaced azimuths from the front.
+    pub turntable: Option<usize>,
+    /// Camera elevation in degrees.
+    pub elevation: f32,
+    /// Picture height in pixels.
+    pub height: usize,
+}
+
+/// Draws a groom (and its comparison) as the stylization's cameras see it,
+/// without stylizing; returns the number of pictures written.
+pub fn preview_groom(s: &GroomPreviewSettings) -> Result<usize> {
+    let n = s.turntable.unwrap_or(1);
+    if n == 0 || n > 3600 {
+        anyhow::bail!("--turntable {n}: give 1 to 3600 pictures");
+    }
+    if !(16..=8192).contains(&s.height) {
+        anyhow::bail!("--height {}: give 16 to 8192 pixels", s.height);
+    }
+    nst3d_io::atomic::check_output("--out", &s.out, &["png"], &[]).map_err(anyhow::Error::msg)?;
+    let outs: Vec<PathBuf> = match s.turntable {
+        Some(_) => (1..=n as i64).map(|i| frame_path(&s.out, i, "--out")).collect::<Result<_>>()?,
+        None => vec![s.out.clone()],
+    };
+    let groom = FlatStrands::from_groom(&nst3d_io::groom::read_groom(&s.input)?)?;
+    let compare = match &s.compare {
+        Some(p) => {
+            let c = FlatStrands::from_groom(&nst3d_io::groom::read_groom(p)?)?;
+            if c.strand_count() != groom.strand_count() {
+                anyhow::bail!(
+                    "{}: {} strands, {} has {}: not the same groom",
+                    p.display(),
+                    c.strand_count(),
+                    s.input.display(),
+                    groom.strand_count()
+                );
+            }
+            Some(c)
+        }
+        None => None,
+    };
+    let head = s.mesh.as_deref().map(nst3d_io::mesh::read_mesh).transpose()?;
+    let params = nst3d_strands::pipeline::StylizeParams::from_preset(
+        nst3d_strands::Preset::ShortHair.params(),
+        groom.strand_count(),
+    );
+    let view = GroomView::new(&groom, head.as_ref(), &params)?;
+    for (i, out) in outs.iter().enumerate() {
+        let azimuth = 360.0 * i as f32 / n as f32;
+        let mut pictures = vec![view.render(&groom, s.elevation, azimuth, s.height)?];
+        if let Some(c) = &compare {
+            pictures.push(view.render(c, s.elevation, azimuth, s.height)?);
+        }
+        write_png(out, &side_by_side(&pictures.iter().collect::<Vec<_>>()))?;
+    }
+    Ok(outs.len())
+}
