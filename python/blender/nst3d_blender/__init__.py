@@ -332,37 +332,47 @@ class NST3D_OT_stylize_hair(_Nst3dOperator, bpy.types.Operator):
         if _hair_particles(obj) is not None:
             self._particles = obj.name
             obj = _curves_from_particles(context, obj)
-        style = bpy.path.abspath(s.style)
-        if not os.path.isfile(style):
-            raise RuntimeError(f"choose a painting (not found: {style or 'none'})")
-        curves = obj.data
-        n = len(curves.points)
-        if n == 0:
-            raise RuntimeError(f"{obj.name} has no strands")
-        points = np.empty(n * 3, dtype=np.float32)
-        curves.attributes["position"].data.foreach_get("vector", points)
-        counts = np.array([c.points_length for c in curves.curves], dtype=np.int64)
-        mesh = None
-        surface = curves.surface
-        if surface is not None and surface.type == "MESH":
-            m = surface.data
-            verts = np.empty(len(m.vertices) * 3, dtype=np.float32)
-            m.vertices.foreach_get("co", verts)
-            m.calc_loop_triangles()
-            tris = np.empty(len(m.loop_triangles) * 3, dtype=np.int64)
-            m.loop_triangles.foreach_get("vertices", tris)
-            # The curves live in the object's space, the surface in its own.
-            to_curves = obj.matrix_world.inverted() @ surface.matrix_world
-            v = verts.reshape(-1, 3)
-            rot = np.array(to_curves.to_3x3(), dtype=np.float32)
-            v = v @ rot.T + np.array(to_curves.translation, dtype=np.float32)
-            mesh = (v.astype(np.float32), tris.reshape(-1, 3))
-        self._obj_name = obj.name
-        opts = dict(preset=s.preset, iters=s.hair_iters or None, render_size=s.render_size or None)
+        # A failed preparation (no painting, no strands, ...) removes the
+        # temporary Curves object here; after a job, finish() does.
+        prepared = False
+        try:
+            style = bpy.path.abspath(s.style)
+            if not os.path.isfile(style):
+                raise RuntimeError(f"choose a painting (not found: {style or 'none'})")
+            curves = obj.data
+            n = len(curves.points)
+            if n == 0:
+                raise RuntimeError(f"{obj.name} has no strands")
+            points = np.empty(n * 3, dtype=np.float32)
+            curves.attributes["position"].data.foreach_get("vector", points)
+            counts = np.array([c.points_length for c in curves.curves], dtype=np.int64)
+            mesh = None
+            surface = curves.surface
+            if surface is not None and surface.type == "MESH":
+                m = surface.data
+                verts = np.empty(len(m.vertices) * 3, dtype=np.float32)
+                m.vertices.foreach_get("co", verts)
+                m.calc_loop_triangles()
+                tris = np.empty(len(m.loop_triangles) * 3, dtype=np.int64)
+                m.loop_triangles.foreach_get("vertices", tris)
+                # The curves live in the object's space, the surface in its own.
+                to_curves = obj.matrix_world.inverted() @ surface.matrix_world
+                v = verts.reshape(-1, 3)
+                rot = np.array(to_curves.to_3x3(), dtype=np.float32)
+                v = v @ rot.T + np.array(to_curves.translation, dtype=np.float32)
+                mesh = (v.astype(np.float32), tris.reshape(-1, 3))
+            self._obj_name = obj.name
+            opts = dict(preset=s.preset, iters=s.hair_iters or None, render_size=s.render_size or None)
 
-        def work(progress):
-            return nst3d.stylize_groom(points.reshape(-1, 3), counts, style, mesh=mesh, progress=progress, **opts)
+            def work(progress):
+                return nst3d.stylize_groom(points.reshape(-1, 3), counts, style, mesh=mesh, progress=progress, **opts)
 
+            prepared = True
+        finally:
+            if not prepared and self._particles is not None:
+                data = obj.data
+                bpy.data.objects.remove(obj)
+                bpy.data.hair_curves.remove(data)
         return work
 
     def finish(self, context, result):
