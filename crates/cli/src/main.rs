@@ -57,7 +57,9 @@ pub(crate) fn named<T>(names: impl IntoIterator<Item = &'static str>) -> impl cl
 where
     T: std::str::FromStr<Err = String> + Clone + Send + Sync + 'static,
 {
-    clap::builder::TypedValueParser::try_map(clap::builder::PossibleValuesParser::new(names), |s: String| s.parse::<T>())
+    clap::builder::TypedValueParser::try_map(clap::builder::PossibleValuesParser::new(names), |s: String| {
+        s.parse::<T>()
+    })
 }
 
 fn parse_precision(s: &str) -> Result<nst3d_core::precision::Precision, String> {

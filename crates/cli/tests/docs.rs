@@ -203,7 +203,9 @@ fn help_defaults() -> BTreeMap<String, Vec<(String, String)>> {
         let help = String::from_utf8(nst3d().args([cmd, "--help"]).output().unwrap().stdout).unwrap();
         let mut flag: Option<String> = None;
         for line in help.lines() {
-            if let Some(rest) = line.strip_prefix("      --").or_else(|| line.get(8..).filter(|_| line.starts_with("  -"))) {
+            if let Some(rest) =
+                line.strip_prefix("      --").or_else(|| line.get(8..).filter(|_| line.starts_with("  -")))
+            {
                 flag = Some(rest.split_whitespace().next().unwrap_or("").to_string());
             }
             if let (Some(f), Some(i)) = (&flag, line.find("[default: ")) {
@@ -218,12 +220,7 @@ fn help_defaults() -> BTreeMap<String, Vec<(String, String)>> {
 
 /// Sentences of the docs' prose that give `--flag value` as the default.
 fn claimed_defaults(text: &str) -> Vec<(String, String, String)> {
-    let prose: String = text
-        .split("```")
-        .step_by(2)
-        .collect::<Vec<_>>()
-        .join(" ")
-        .replace('\n', " ");
+    let prose: String = text.split("```").step_by(2).collect::<Vec<_>>().join(" ").replace('\n', " ");
     let mut out = Vec::new();
     let mut rest = prose.as_str();
     while let Some(a) = rest.find("`--") {
@@ -254,7 +251,9 @@ fn defaults_quoted_in_the_docs_are_the_binarys() {
         for (flag, value, code) in claimed_defaults(&text) {
             let Some(known) = defaults.get(&flag) else { continue };
             checked += 1;
-            if !known.iter().any(|(_, d)| d == &value || d.parse::<f64>().ok() == value.parse::<f64>().ok() && d.parse::<f64>().is_ok()) {
+            if !known.iter().any(|(_, d)| {
+                d == &value || d.parse::<f64>().ok() == value.parse::<f64>().ok() && d.parse::<f64>().is_ok()
+            }) {
                 let name = f.strip_prefix(repo()).unwrap_or(Path::new("?")).display().to_string();
                 bad.push(format!("{name}: `{code}` is called the default; --help says {known:?}"));
             }
@@ -270,7 +269,12 @@ fn the_extraction_finds_what_a_reader_sees() {
     let cmds: Vec<String> = pieces(md).iter().filter_map(|(p, _)| invocation(p)).collect();
     assert_eq!(cmds, ["nst3d strands --groom g.ply   --out 'o ####.usda'", "nst3d volume --input a.vdb --out b.vdb"]);
     assert_eq!(words(&cmds[0]), ["nst3d", "strands", "--groom", "g.ply", "--out", "o ####.usda"]);
-    assert!(placeholder("GROOM") && placeholder("FrameStart-FrameEnd") && !placeholder("Bangs_100.hair") && !placeholder("-K"));
+    assert!(
+        placeholder("GROOM")
+            && placeholder("FrameStart-FrameEnd")
+            && !placeholder("Bangs_100.hair")
+            && !placeholder("-K")
+    );
     let claims = claimed_defaults("EMA `--ema 0.8` (the default) and `--lr-scale 0.3`, the default.");
     assert_eq!(claims.len(), 2);
 }

@@ -57,7 +57,10 @@ fn py_function(src: &str, name: &str) -> String {
         .find(|&i| {
             let line = &body[i..];
             let lead = line.len() - line.trim_start_matches(' ').len();
-            lead <= indent && (line.trim_start().starts_with("def ") || line.trim_start().starts_with("class ") || line.trim_start().starts_with('@'))
+            lead <= indent
+                && (line.trim_start().starts_with("def ")
+                    || line.trim_start().starts_with("class ")
+                    || line.trim_start().starts_with('@'))
         })
         .unwrap_or(body.len());
     body[..end].to_string()
@@ -143,8 +146,22 @@ const PAIRINGS: &[Pairing] = &[
         // An array in memory: no files, sequences or models (stylize_vdb,
         // Model.stylize); the camera file is read by the CLI's file job only.
         cli_only: &[
-            "input", "out", "frames", "ema", "ema_settle", "velocity_grid", "velocity_scale", "grid", "model",
-            "tile", "tile_margin", "chunk", "warmup", "force", "work_dir", "camera_file",
+            "input",
+            "out",
+            "frames",
+            "ema",
+            "ema_settle",
+            "velocity_grid",
+            "velocity_scale",
+            "grid",
+            "model",
+            "tile",
+            "tile_margin",
+            "chunk",
+            "warmup",
+            "force",
+            "work_dir",
+            "camera_file",
         ],
         python_only: &["density", "report", "projection"],
     },
@@ -163,8 +180,20 @@ const PAIRINGS: &[Pairing] = &[
         not_options: &["points", "counts", "style", "mesh", "progress", "report"],
         // Arrays in memory: one frame, no files.
         cli_only: &[
-            "groom", "out", "frames", "force", "work_dir", "temporal", "ema_sigma", "ema_nu", "ema_clock",
-            "one_euro_alpha", "one_euro_beta", "one_euro_fmin", "fps", "style_flow",
+            "groom",
+            "out",
+            "frames",
+            "force",
+            "work_dir",
+            "temporal",
+            "ema_sigma",
+            "ema_nu",
+            "ema_clock",
+            "one_euro_alpha",
+            "one_euro_beta",
+            "one_euro_fmin",
+            "fps",
+            "style_flow",
         ],
         python_only: &["points", "counts", "report"],
     },

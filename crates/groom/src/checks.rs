@@ -85,7 +85,8 @@ mod tests {
     /// an index out of bounds; the same strands give their largest change.
     #[test]
     fn length_checks_refuse_a_mismatched_groom() {
-        let written = FlatStrands { points: vec![[0.0; 3], [0.0, 2.0, 0.0], [0.0; 3], [0.0, 1.0, 0.0]], offsets: vec![0, 2, 4] };
+        let written =
+            FlatStrands { points: vec![[0.0; 3], [0.0, 2.0, 0.0], [0.0; 3], [0.0, 1.0, 0.0]], offsets: vec![0, 2, 4] };
         let e = largest_length_change(&[1.0], &written).unwrap_err().to_string();
         assert!(e.contains("2 strands written for an input of 1"), "{e}");
         assert!((largest_length_change(&[1.0, 1.0], &written).unwrap() - 1.0).abs() < 1e-12);

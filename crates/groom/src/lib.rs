@@ -25,10 +25,10 @@ pub mod settings;
 pub mod single;
 
 pub use checks::Checks;
-pub use output::is_groom_file;
-pub use preview::{preview_groom, GroomPreviewSettings, PREVIEW_HEIGHT};
 pub use generate::{generate, GenerateKind, GenerateReport, GenerateSettings};
 pub use nst3d_core::{Reporter, Silent};
+pub use output::is_groom_file;
+pub use preview::{preview_groom, GroomPreviewSettings, PREVIEW_HEIGHT};
 pub use sequence::{stylize_groom_sequence, GroomSequenceReport, STATE_FILE};
 pub use settings::{OutFormat, StrandSettings, Temporal};
 pub use single::{stylize_groom, stylize_groom_file, GroomReport, StylizedGroom};

@@ -15,7 +15,7 @@
 //! velocity grid are carried to their neighbour unmoved (identity advection),
 //! so the EMA still couples them, only without following the flow.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use nst3d_core::{Grid3, Reporter};
@@ -449,55 +449,94 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
     // A chunk of empty frames only has nothing to optimise.
     let mut store = if sim.is_empty() { None } else { Some(DiskStore::open(&work)?) };
     if let Some(store) = &mut store {
-        let n = sim.len();
-        let per_octave = s.iterations() * n;
-        let mut done_steps = 0;
-        if let Some(r) = store.resume_point() {
-            done_steps = (r.octave * s.iterations() + r.sweeps_done) * n;
-            if r.octave + 1 == r.octaves && r.sweeps_done == s.iterations() {
-                reporter.status(&format!(
-                    "optimisation already complete in {}; writing the missing frames",
-                    work.display()
-                ));
-            } else {
-                reporter.status(&format!(
-                    "resuming at octave {} sweep {} from {}",
-                    r.octave + 1,
-                    r.sweeps_done + 1,
-                    work.display()
-                ));
-            }
-        }
-        // A resumed run counts only the steps left.
-        reporter.begin((s.octaves * per_octave).saturating_sub(done_steps) as u64);
-        stylize_sequence_with(&sim, &loss, &|t| views[t].clone(), &params, store, &mut |p| {
-            reporter.step(&format!(
-                "octave {} sweep {}/{} frame {} loss {:.4e}",
-                p.octave + 1,
-                p.iteration,
-                s.iterations(),
-                live[p.frame],
-                p.loss
-            ))
-        })?;
-        reporter.end();
+        optimise(s, &work, &sim, &loss, &views, &live, &params, store, reporter)?;
     }
 
-    // Write every frame we can; one that fails is reported and the others still land.
+    let sources = todo
+        .iter()
+        .map(|&i| all.iter().position(|&a| a == run_frames[i]).map(|p| paths[p].clone()))
+        .collect::<Option<Vec<PathBuf>>>()
+        .context("a frame of the run is not in --frames")?;
+    let frames = RunFrames {
+        todo: &todo,
+        run_frames: &run_frames,
+        outs: &outs,
+        sources: &sources,
+        sim_index: (0..run_frames.len()).map(sim_of).collect(),
+    };
+    let Tally { stylized, unchanged, losses, flicker_sum, pairs } =
+        write_frames(s, &frames, &sim, store.as_mut(), &loss, &views, (&transform, origin), reporter)?;
+    // Every frame landed: the states are no longer needed (they are large).
+    // Only the store's own files go: the work folder may hold other things.
+    let _ = DiskStore::remove(&work);
+    Ok(SequenceReport::Done(SequenceSummary {
+        stylized,
+        unchanged,
+        mode: s.mode,
+        ema: seq.ema,
+        cameras: views.first().map_or(0, |v| v.len()),
+        mean_loss: losses / stylized.max(1) as f32,
+        flicker: if pairs > 0 { flicker_sum / pairs as f64 } else { 0.0 },
+        output: s.out.to_string_lossy().to_string(),
+    }))
+}
+
+/// Where each frame of a run comes from and goes to.
+struct RunFrames<'a> {
+    /// Places in `run_frames` of the frames to write.
+    todo: &'a [usize],
+    /// Frame numbers of the run (warm-up included).
+    run_frames: &'a [i64],
+    /// Output file of each run frame.
+    outs: &'a [PathBuf],
+    /// Input file of each frame to write (`todo` order).
+    sources: &'a [PathBuf],
+    /// Each run frame's place among the optimised frames (`None`: empty).
+    sim_index: Vec<Option<usize>>,
+}
+
+/// What writing a run's frames gave.
+#[derive(Default)]
+struct Tally {
+    stylized: usize,
+    unchanged: usize,
+    /// Sum of the stylized frames' mean style loss.
+    losses: f32,
+    /// Sum of the flicker of consecutive written frames, over `pairs`.
+    flicker_sum: f64,
+    pairs: usize,
+}
+
+/// Writes the frames of `frames.todo`: an optimised frame transported by
+/// its stored field (every other grid of its file kept), an empty one
+/// copied byte for byte; scores what it wrote.
+#[allow(clippy::too_many_arguments)]
+fn write_frames(
+    s: &VolumeSettings,
+    frames: &RunFrames<'_>,
+    sim: &Refined<VdbSimulation>,
+    store: Option<&mut DiskStore>,
+    loss: &ViewLoss,
+    views: &[Vec<ViewSpec>],
+    placement: (&Transform, [i32; 3]),
+    reporter: &mut dyn Reporter,
+) -> Result<Tally> {
+    // Every frame we can is written; one that fails is reported and the others still land.
+    let RunFrames { todo, run_frames, outs, sources, sim_index } = frames;
+    let (transform, origin) = placement;
     let mut failures = Vec::new();
-    let mut losses = 0.0;
-    let (mut stylized, mut unchanged) = (0usize, 0usize);
-    let (mut flicker_sum, mut pairs) = (0.0f64, 0usize);
+    let mut tally = Tally::default();
     let mut prev: Option<(usize, Grid3)> = None;
     let mut dropped_noted = false;
-    for &i in &todo {
-        let Some(t) = sim_of(i) else {
+    let mut store = store;
+    for (n, &i) in todo.iter().enumerate() {
+        let Some(t) = sim_index[i] else {
             // An empty frame: the input file byte for byte, so every grid is as it was.
-            let src = &paths[all.iter().position(|&a| a == run_frames[i]).expect("run frames are --frames")];
+            let src = &sources[n];
             let copied =
                 std::fs::read(src).and_then(|bytes| nst3d_io::atomic::write_atomic(&outs[i], |w| w.write_all(&bytes)));
             match copied {
-                Ok(()) => unchanged += 1,
+                Ok(()) => tally.unchanged += 1,
                 Err(e) => {
                     reporter.warn(&format!("frame {} failed: {}: {e}", run_frames[i], outs[i].display()));
                     failures.push(run_frames[i]);
@@ -507,7 +546,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         };
         let result = (|| -> Result<(Grid3, Vec<String>)> {
             let d = sim.density(t)?;
-            let store = store.as_mut().expect("frames with smoke were optimised");
+            let store = store.as_deref_mut().context("frames with smoke were not optimised")?;
             let st = store.load(t)?.context("the frame has no optimised field")?;
             let d = st.field.transport(&d);
             if d.data.iter().any(|v| !v.is_finite()) {
@@ -515,7 +554,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
             }
             let file = read_vdb(&sim.inner.paths[t])?;
             file.grid(&s.grid).context("the grid vanished")?;
-            let dropped = write_stylized(&outs[i], &file, &s.grid, &transform, origin, &d)?;
+            let dropped = write_stylized(&outs[i], &file, &s.grid, transform, origin, &d)?;
             Ok((d, dropped))
         })();
         match result {
@@ -525,17 +564,17 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
                     reporter.note(&format!("{} not copied to the outputs", dropped.join(", ")));
                     dropped_noted = true;
                 }
-                stylized += 1;
-                losses += mean_loss(&loss, &d, &views[t])?;
+                tally.stylized += 1;
+                tally.losses += mean_loss(loss, &d, &views[t])?;
                 // Flicker of consecutive written frames, computed pairwise so
                 // memory holds two frames.
                 if let Some((tp, dp)) = &prev {
                     if *tp + 1 == t && sim.linked(t) {
                         let vel = sim.velocity(*tp)?;
                         let render = |g: &Grid3| loss.image(g, &views[t][0]);
-                        flicker_sum +=
+                        tally.flicker_sum +=
                             nst3d_sequence::flicker::flicker(&[dp.clone(), d.clone()], &[vel, None], render)? as f64;
-                        pairs += 1;
+                        tally.pairs += 1;
                     }
                 }
                 prev = Some((t, d));
@@ -554,19 +593,55 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
             failures
         );
     }
-    // Every frame landed: the states are no longer needed (they are large).
-    // Only the store's own files go: the work folder may hold other things.
-    let _ = DiskStore::remove(&work);
-    Ok(SequenceReport::Done(SequenceSummary {
-        stylized,
-        unchanged,
-        mode: s.mode,
-        ema: seq.ema,
-        cameras: views.first().map_or(0, |v| v.len()),
-        mean_loss: losses / stylized.max(1) as f32,
-        flicker: if pairs > 0 { flicker_sum / pairs as f64 } else { 0.0 },
-        output: s.out.to_string_lossy().to_string(),
-    }))
+    Ok(tally)
+}
+
+/// Runs Algorithm 1 over the frames with smoke (`sim`), each state saved
+/// in `store`, or resumes it where a killed run stopped; the progress bar
+/// counts only the steps left.
+#[allow(clippy::too_many_arguments)]
+fn optimise(
+    s: &VolumeSettings,
+    work: &Path,
+    sim: &Refined<VdbSimulation>,
+    loss: &ViewLoss,
+    views: &[Vec<ViewSpec>],
+    live: &[i64],
+    params: &SequenceParams,
+    store: &mut DiskStore,
+    reporter: &mut dyn Reporter,
+) -> Result<()> {
+    let n = sim.len();
+    let per_octave = s.iterations() * n;
+    let mut done_steps = 0;
+    if let Some(r) = store.resume_point() {
+        done_steps = (r.octave * s.iterations() + r.sweeps_done) * n;
+        if r.octave + 1 == r.octaves && r.sweeps_done == s.iterations() {
+            reporter
+                .status(&format!("optimisation already complete in {}; writing the missing frames", work.display()));
+        } else {
+            reporter.status(&format!(
+                "resuming at octave {} sweep {} from {}",
+                r.octave + 1,
+                r.sweeps_done + 1,
+                work.display()
+            ));
+        }
+    }
+    // A resumed run counts only the steps left.
+    reporter.begin((s.octaves * per_octave).saturating_sub(done_steps) as u64);
+    stylize_sequence_with(sim, loss, &|t| views[t].clone(), params, store, &mut |p| {
+        reporter.step(&format!(
+            "octave {} sweep {}/{} frame {} loss {:.4e}",
+            p.octave + 1,
+            p.iteration,
+            s.iterations(),
+            live[p.frame],
+            p.loss
+        ))
+    })?;
+    reporter.end();
+    Ok(())
 }
 
 #[cfg(test)]

@@ -188,7 +188,6 @@ enum GenerateKindArg {
     Grass,
 }
 
-
 impl StrandsArgs {
     /// The library's settings: the arguments as they are, typed.
     fn settings(self) -> Result<StrandSettings> {

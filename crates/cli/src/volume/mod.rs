@@ -224,7 +224,8 @@ pub fn run(args: VolumeArgs) -> Result<()> {
                 let (before, after) = h.means();
                 println!("held-out cameras {cams}: mean style loss {before:.4e} -> {after:.4e}");
                 let (worst, view) = h.worst();
-                let each: Vec<String> = h.before.iter().zip(&h.after).map(|(b, a)| format!("{b:.4e}->{a:.4e}")).collect();
+                let each: Vec<String> =
+                    h.before.iter().zip(&h.after).map(|(b, a)| format!("{b:.4e}->{a:.4e}")).collect();
                 println!(
                     "held-out cameras {cams}: per view {}; worst view {} of {}, ratio {worst:.3}",
                     each.join(" "),

@@ -216,7 +216,6 @@ impl Kernel {
         }
     }
 
-
     /// Every kernel this machine can run, the scalar reference first.
     pub fn all_here() -> Vec<Kernel> {
         let mut k = vec![Kernel::Portable];
