@@ -31,11 +31,30 @@ fn bangs_densify_deform_constrain() {
     let proxies = densify(&guides, Some(&head), &params).unwrap();
     assert_eq!(proxies, densify(&guides, Some(&head), &params).unwrap());
     assert_eq!(proxies.strand_count(), 400);
-    let root_tree = KdTree::new(&guides.roots());
+    // Every proxy root lies in the root region: within twice the guide
+    // roots' mean nearest-neighbour spacing of a guide root (the default
+    // radius), measured here by brute force — an eighth of the head, where
+    // the old bound (half the head's diagonal) could not fail.
+    let groots = guides.roots();
+    let dist = |a: [f32; 3], b: [f32; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>().sqrt();
+    let nearest = |p: [f32; 3], skip: Option<usize>| {
+        groots.iter().enumerate().filter(|(j, _)| Some(*j) != skip).map(|(_, &g)| dist(p, g)).fold(f32::INFINITY, f32::min)
+    };
+    let spacing = groots.iter().enumerate().map(|(i, &g)| nearest(g, Some(i))).sum::<f32>() / groots.len() as f32;
+    let radius = 2.0 * spacing;
+    assert!(radius < 0.2 * diag, "guide roots {spacing} apart on a head of {diag}");
+    let mut near_guide = vec![false; groots.len()];
     for r in proxies.roots() {
         assert!(bvh.signed_distance(r).abs() < 1e-3 * diag, "proxy root off the scalp");
-        assert!(root_tree.nearest(r).unwrap().0.sqrt() < 0.5 * diag);
+        let d = nearest(r, None);
+        assert!(d <= radius * (1.0 + 1e-5), "proxy root {d} from the nearest guide root, outside the region {radius}");
+        for (j, &g) in groots.iter().enumerate() {
+            near_guide[j] |= dist(r, g) <= radius;
+        }
     }
+    // And the proxies spread over the scalp instead of crowding one guide.
+    let covered = near_guide.iter().filter(|&&c| c).count();
+    assert!(covered * 10 >= groots.len() * 8, "only {covered} of {} guides have a proxy nearby", groots.len());
     let mut all = guides.clone();
     all.append(&proxies);
 
