@@ -102,3 +102,72 @@ fn a_trained_model_stylizes_a_frame_it_never_saw() {
     let o = nst3d(&["volume", "--model", s(&model), "--input", s(&empty), "--out", s(&bad)]);
     fails_with(&o, &bad, "empty");
 }
+
+/// A training process killed between two checkpoints (SIGKILL: no chance
+/// to write anything) resumes from the last checkpoint and ends with the
+/// same model, byte for byte, as a run never interrupted.
+#[test]
+fn a_training_killed_between_checkpoints_resumes_to_the_same_model() {
+    use std::io::{BufRead, BufReader};
+    use std::process::{Command, Stdio};
+    let dir = tempfile::tempdir().unwrap();
+    let plume = shared("volumes/plume48").join("fluid_data_####.vdb");
+    let style = shared("styles/starry_night.jpg");
+    let args = |out: &Path| -> Vec<String> {
+        [
+            "--threads",
+            "1",
+            "train",
+            "--input",
+            s(&plume),
+            "--frames",
+            "20-22",
+            "--style",
+            s(&style),
+            "--out",
+            s(out),
+            "--steps",
+            "9",
+            "--checkpoint-every",
+            "3",
+            "--patch",
+            "16",
+            "--channels",
+            "2",
+        ]
+        .iter()
+        .map(|a| a.to_string())
+        .collect()
+    };
+    let whole = dir.path().join("whole.safetensors");
+    let o = Command::new(env!("CARGO_BIN_EXE_nst3d")).args(args(&whole)).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let killed = dir.path().join("killed.safetensors");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_nst3d"))
+        .args(args(&killed))
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Step 4 is past the checkpoint of step 3 and before the one of step 6.
+    let mut seen = false;
+    for line in BufReader::new(child.stderr.take().unwrap()).lines() {
+        if line.unwrap().contains("step 4/9") {
+            seen = true;
+            child.kill().unwrap();
+            break;
+        }
+    }
+    child.wait().unwrap();
+    assert!(seen, "never saw step 4 in the progress lines");
+    let ckpt = nst3d_train::job::checkpoint_path(&killed);
+    assert!(ckpt.exists(), "no checkpoint left by the killed run");
+
+    let o = Command::new(env!("CARGO_BIN_EXE_nst3d")).args(args(&killed)).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("resuming at step 4 of 9"), "did not resume from the step-3 checkpoint: {err}");
+    assert!(String::from_utf8_lossy(&o.stdout).contains("(resumed at step 4)"));
+    assert_eq!(std::fs::read(&whole).unwrap(), std::fs::read(&killed).unwrap(), "the resumed model differs");
+}

@@ -38,7 +38,12 @@ fn bangs_densify_deform_constrain() {
     let groots = guides.roots();
     let dist = |a: [f32; 3], b: [f32; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>().sqrt();
     let nearest = |p: [f32; 3], skip: Option<usize>| {
-        groots.iter().enumerate().filter(|(j, _)| Some(*j) != skip).map(|(_, &g)| dist(p, g)).fold(f32::INFINITY, f32::min)
+        groots
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| Some(*j) != skip)
+            .map(|(_, &g)| dist(p, g))
+            .fold(f32::INFINITY, f32::min)
     };
     let spacing = groots.iter().enumerate().map(|(i, &g)| nearest(g, Some(i))).sum::<f32>() / groots.len() as f32;
     let radius = 2.0 * spacing;
