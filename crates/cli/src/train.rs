@@ -96,12 +96,13 @@ pub fn run(args: TrainArgs) -> Result<()> {
     };
     let r = nst3d_train::train(&settings, &mut Console::default())?;
     let how = if r.resumed_at > 0 { format!(" (resumed at step {})", r.resumed_at + 1) } else { String::new() };
-    let left = if r.steps < r.planned_steps { "; time budget reached, rerun to continue" } else { "" };
-    let sized = if r.sized { " (schedule sized to the time budget)" } else { "" };
+    let left = if r.schedule_done { "" } else { "; time budget reached, rerun to continue" };
+    let steps = match r.sized {
+        true => format!("{} steps, a {}-step OneCycle schedule paced to the time budget", r.steps, r.planned_steps),
+        false => format!("{} of {} steps", r.steps, r.planned_steps),
+    };
     println!(
-        "trained {} of {} steps{sized}{how}; loss {:.4e} (first 10 %) -> {:.4e} (last 10 %){left}; wrote {}",
-        r.steps,
-        r.planned_steps,
+        "trained {steps}{how}; loss {:.4e} (first 10 %) -> {:.4e} (last 10 %){left}; wrote {}",
         r.loss_first,
         r.loss_last,
         r.out.display()

@@ -134,8 +134,10 @@ pub struct TrainReport {
     pub resumed_at: u64,
     /// Length of the OneCycle schedule (given, default or sized to the budget).
     pub planned_steps: u64,
-    /// Whether the schedule was sized from the measured step time.
+    /// Whether the schedule was sized from the measured step time (and paced by the clock).
     pub sized: bool,
+    /// Whether the schedule ran to its end (not stopped by a budget or a signal).
+    pub schedule_done: bool,
     /// Mean loss of the first and of the last 10 % of the steps.
     pub loss_first: f32,
     /// See `loss_first`.
@@ -211,22 +213,36 @@ struct Checkpoint {
     v: Vec<f32>,
     step: u64,
     planned_steps: u64,
+    position: f64,
     rng: u64,
     losses: Vec<f32>,
+    lrs: Vec<f32>,
 }
 
-fn save_checkpoint(path: &Path, s: &TrainSettings, t: &TrainStep, rng: &SplitMix64, losses: &[f32]) -> Result<()> {
+fn save_checkpoint(
+    path: &Path,
+    s: &TrainSettings,
+    t: &TrainStep,
+    rng: &SplitMix64,
+    (losses, lrs): (&[f32], &[f32]),
+) -> Result<()> {
     let (m, v, adam_step) = t.adam_state();
     let mut meta = BTreeMap::new();
     meta.insert("fingerprint".to_string(), fingerprint(s));
     meta.insert("step".to_string(), t.steps().to_string());
     meta.insert("planned_steps".to_string(), t.schedule.total_steps.to_string());
+    meta.insert("position".to_string(), t.position().to_string());
     meta.insert("adam_step".to_string(), adam_step.to_string());
     meta.insert("rng".to_string(), rng.state().to_string());
     let model = Model { net: t.net.clone(), info: meta };
     // The model's bytes then the optimiser's tensors, in one safetensors file.
     let bytes = nst3d_weights::safetensors_bytes(
-        &[("adam.m", &[m.len()], m), ("adam.v", &[v.len()], v), ("losses", &[losses.len()], losses)],
+        &[
+            ("adam.m", &[m.len()], m),
+            ("adam.v", &[v.len()], v),
+            ("losses", &[losses.len()], losses),
+            ("lrs", &[lrs.len()], lrs),
+        ],
         &BTreeMap::new(),
     );
     nst3d_io::atomic::write_atomic(path, |w| {
@@ -263,8 +279,10 @@ fn load_checkpoint(path: &Path, s: &TrainSettings) -> Result<Option<Checkpoint>>
         v: get("adam.v")?,
         step: num("step")?,
         planned_steps: num("planned_steps")?,
+        position: model.info.get("position").and_then(|v| v.parse::<f64>().ok()).with_context(bad)?,
         rng: num("rng")?,
         losses: get("losses")?,
+        lrs: get("lrs")?,
     }))
 }
 
@@ -272,7 +290,7 @@ fn load_checkpoint(path: &Path, s: &TrainSettings) -> Result<Option<Checkpoint>>
 fn write_outputs(
     s: &TrainSettings,
     t: &TrainStep,
-    losses: &[f32],
+    (losses, lrs): (&[f32], &[f32]),
     style_sha: &str,
     style_size: [usize; 2],
 ) -> Result<()> {
@@ -297,8 +315,8 @@ fn write_outputs(
     let log = log_path(&s.out);
     nst3d_io::atomic::write_atomic(&log, |w| {
         writeln!(w, "step,loss,lr")?;
-        for (i, l) in losses.iter().enumerate() {
-            writeln!(w, "{},{l},{}", i + 1, t.schedule.at(i as u64).0)?;
+        for (i, (l, lr)) in losses.iter().zip(lrs).enumerate() {
+            writeln!(w, "{},{l},{lr}", i + 1)?;
         }
         Ok(())
     })
@@ -344,15 +362,16 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     let mut trainer = TrainStep::new(net, stylization, OneCycle::new(1e-4, planned, 20.0));
     trainer.octaves = s.octaves;
     let mut rng = SplitMix64::new(s.seed ^ 0x7261_696e);
-    let mut losses = Vec::new();
+    let (mut losses, mut lrs) = (Vec::new(), Vec::new());
     let ckpt = checkpoint_path(&s.out);
     // Two blades training one model would interleave their checkpoints.
     let _lock = nst3d_sequence::WorkLock::acquire(&ckpt).map_err(anyhow::Error::msg)?;
     if let Some(c) = load_checkpoint(&ckpt, s)? {
         trainer.net = c.net;
         trainer.set_adam_state(&c.m, &c.v, c.step)?;
+        trainer.set_position(c.position);
         rng = SplitMix64::new(c.rng);
-        losses = c.losses;
+        (losses, lrs) = (c.losses, c.lrs);
         // A resumed run keeps the schedule it was planned with.
         trainer.schedule = OneCycle::new(1e-4, c.planned_steps, 20.0);
         sizing = false;
@@ -363,8 +382,9 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     let view = ViewSpec { camera: None, gamma: 8.0 / s.patch as f32, exposure: 1.0, equalize: false };
     let t0 = Instant::now();
     let sized = sizing;
+    let (mut last_step, mut step_s) = (Instant::now(), 0.0f64);
     reporter.begin(trainer.schedule.total_steps - resumed_at);
-    while trainer.steps() < trainer.schedule.total_steps {
+    while !trainer.schedule_done() {
         let d = &frames[(rng.next_u64() % frames.len() as u64) as usize];
         let origin: [usize; 3] = std::array::from_fn(|a| (rng.next_u64() % (d.dims[a] - s.patch + 1) as u64) as usize);
         let rot = Rotation {
@@ -378,43 +398,51 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
             bail!("the loss became {l} at step {} (try a smaller learning rate)", trainer.steps());
         }
         losses.push(l);
-        // Sized twice: after the calibration steps, and again at a fifth of
-        // the schedule (still in OneCycle's rise, where a new length only
-        // bends the warm-up) from the rate over all steps so far, so a
-        // machine that got busier or quieter still ends on time.
-        let done = trainer.steps() - resumed_at;
-        let resize = sizing && (done == CALIBRATION_STEPS || trainer.steps() == trainer.schedule.total_steps / 5);
-        if resize {
-            let budget = 60.0 * s.minutes.unwrap_or_default();
+        lrs.push(trainer.last_lr());
+        // Given only a budget: after the calibration steps the schedule is
+        // sized to the steps the measured rate fits in it; from then on the
+        // schedule is paced by the clock (each step advances it by what is
+        // left of it over the steps the recent rate still fits), so it ends
+        // with the budget however busy the machine gets.
+        let now = Instant::now();
+        let dt = (now - last_step).as_secs_f64();
+        last_step = now;
+        if sizing {
+            let budget = 0.98 * 60.0 * s.minutes.unwrap_or_default();
             let elapsed = t0.elapsed().as_secs_f64();
-            let total = sized_steps(trainer.steps(), elapsed, budget);
-            let first = done == CALIBRATION_STEPS;
-            trainer.schedule = OneCycle::new(1e-4, total, 20.0);
-            if first {
+            let done = trainer.steps() - resumed_at;
+            if done == CALIBRATION_STEPS {
+                let total = sized_steps(trainer.steps(), elapsed, budget / 0.98);
+                trainer.schedule = OneCycle::new(1e-4, total, 20.0);
                 reporter.status(&format!(
-                    "{:.0} ms a step over the first {}: the OneCycle schedule is sized to {total} steps for {} min",
+                    "{:.0} ms a step over the first {done}: the OneCycle schedule is sized to {total} steps \
+                     for {} min and paced by the clock",
                     1e3 * elapsed / done as f64,
-                    done,
                     s.minutes.unwrap_or_default()
                 ));
-            } else {
-                sizing = false;
-                reporter.status(&format!(
-                    "{:.0} ms a step over {done}: the schedule is resized to {total} steps",
-                    1e3 * elapsed / done as f64
-                ));
+                reporter.end();
+                reporter.begin(total - trainer.steps());
+                step_s = elapsed / done as f64;
+            } else if done > CALIBRATION_STEPS {
+                // The recent rate: a machine that got busier is seen within ~20 steps.
+                step_s = 0.9 * step_s + 0.1 * dt;
+                let steps_left = ((budget - elapsed) / step_s.max(1e-9)).max(1.0);
+                let left = trainer.schedule.total_steps as f64 - trainer.position();
+                trainer.pace = (left / steps_left).clamp(0.0, 8.0);
             }
-            reporter.end();
-            reporter.begin(total - trainer.steps());
         }
-        reporter.step(&format!("step {}/{} loss {l:.4e}", trainer.steps(), trainer.schedule.total_steps));
+        reporter.step(&format!(
+            "step {}/{} loss {l:.4e}",
+            trainer.position().floor() as u64,
+            trainer.schedule.total_steps
+        ));
         let out_of_time = s.minutes.is_some_and(|m| t0.elapsed().as_secs_f64() >= 60.0 * m);
         // A stopped run checkpoints first, so rerunning it resumes at this step.
         let stop = nst3d_core::stop::requested();
-        let last = trainer.steps() == trainer.schedule.total_steps;
+        let last = trainer.schedule_done();
         if trainer.steps().is_multiple_of(s.checkpoint_every) || last || out_of_time || stop {
-            save_checkpoint(&ckpt, s, &trainer, &rng, &losses)?;
-            write_outputs(s, &trainer, &losses, &style_sha, [style_img.width, style_img.height])?;
+            save_checkpoint(&ckpt, s, &trainer, &rng, (&losses, &lrs))?;
+            write_outputs(s, &trainer, (&losses, &lrs), &style_sha, [style_img.width, style_img.height])?;
         }
         nst3d_core::stop::check()?;
         if out_of_time {
@@ -428,6 +456,7 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         steps: trainer.steps(),
         resumed_at,
         planned_steps: trainer.schedule.total_steps,
+        schedule_done: trainer.schedule_done(),
         sized,
         loss_first: mean(&losses[..tenth.min(losses.len())]),
         loss_last: mean(&losses[losses.len().saturating_sub(tenth)..]),

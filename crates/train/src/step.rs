@@ -144,6 +144,11 @@ pub struct TrainStep {
     pub octaves: usize,
     adam: Adam,
     steps: u64,
+    /// Where the OneCycle schedule stands, in its steps: `steps` unless a
+    /// time budget paces it ([`TrainStep::pace`]).
+    position: f64,
+    /// Schedule steps advanced per training step (1 unless paced).
+    pub pace: f64,
 }
 
 impl TrainStep {
@@ -154,12 +159,37 @@ impl TrainStep {
     pub fn new(net: FeedForward, stylization: Stylization, schedule: OneCycle) -> Self {
         assert_eq!(net.out_channels(), stylization.channels(), "network output channels vs stylization");
         let n = net.flat().len();
-        Self { net, stylization, clip: 1.0, schedule, octaves: 2, adam: Adam::new(n, 0.0), steps: 0 }
+        Self {
+            net,
+            stylization,
+            clip: 1.0,
+            schedule,
+            octaves: 2,
+            adam: Adam::new(n, 0.0),
+            steps: 0,
+            position: 0.0,
+            pace: 1.0,
+        }
     }
 
     /// Steps taken.
     pub fn steps(&self) -> u64 {
         self.steps
+    }
+
+    /// The learning rate of the last step.
+    pub fn last_lr(&self) -> f32 {
+        self.adam.lr
+    }
+
+    /// Where the schedule stands (schedule steps done).
+    pub fn position(&self) -> f64 {
+        self.position
+    }
+
+    /// Whether the schedule has reached its last step.
+    pub fn schedule_done(&self) -> bool {
+        self.position >= self.schedule.total_steps as f64 - 1e-9
     }
 
     /// Adam's moments and step count (for a checkpoint).
@@ -172,7 +202,13 @@ impl TrainStep {
     pub fn set_adam_state(&mut self, m: &[f32], v: &[f32], step: u64) -> Result<(), nst3d_optim::OptimError> {
         self.adam.set_state(m, v, step)?;
         self.steps = step;
+        self.position = step as f64;
         Ok(())
+    }
+
+    /// Restores a checkpoint's schedule position (after [`TrainStep::set_adam_state`]).
+    pub fn set_position(&mut self, position: f64) {
+        self.position = position;
     }
 
     /// One step on `patch` (densities in `[0, 1]`, sides a multiple of 4)
@@ -188,13 +224,14 @@ impl TrainStep {
         let grad_o = apply_backward(patch, &o, self.stylization, &grad_raw);
         let mut grads = FeedForward::flat_grads(&self.net.backward(&tape, &grad_o));
         clip_grad_norm(&mut [&mut grads], self.clip);
-        let (lr, beta1) = self.schedule.at(self.steps);
+        let (lr, beta1) = self.schedule.at(self.position.floor() as u64);
         self.adam.lr = lr as f32;
         self.adam.beta1 = beta1 as f32;
         let mut params = self.net.flat();
         self.adam.step(&mut params, &grads);
         self.net.set_flat(&params);
         self.steps += 1;
+        self.position += self.pace;
         Ok(l)
     }
 }
