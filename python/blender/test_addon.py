@@ -173,6 +173,18 @@ def hair_points(obj):
 
 before_hair = hair_points(scalp)
 h = scalp.nst3d
+# A missing painting fails the operator and leaves no temporary Curves
+# object behind (issue 28: it used to leak one).
+h.style = os.path.join(OUT, "no_such_painting.jpg")
+with bpy.context.temp_override(object=scalp, active_object=scalp, selected_objects=[scalp]):
+    try:
+        failed = bpy.ops.nst3d.stylize_hair()
+    except RuntimeError as e:  # an operator's error report raises in background mode
+        failed = {"CANCELLED"}
+        print(f"(expected) {str(e).strip().splitlines()[-1]}")
+check(failed == {"CANCELLED"}, f"Stylize hair without a painting is cancelled ({failed})")
+check(not any(o.type == "CURVES" for o in bpy.data.objects), "a failed Stylize hair leaves no Curves object")
+check(len(bpy.data.hair_curves) == 0, "nor its curves data")
 h.style = STYLE
 h.hair_iters = 9
 h.render_size = 128

@@ -631,6 +631,29 @@ mod tests {
         }
     }
 
+    /// A ReLU mask applied while copying (the backward's input) gives the
+    /// convolution of the masked map, channel padding and both paddings too.
+    #[test]
+    fn bf16_masked_source_is_the_masked_map() {
+        for (cin, cout, h, w, mode) in [(16, 32, 7, 9, Padding::Reflect), (64, 32, 6, 40, Padding::Zero)] {
+            let x = FeatureMap::from_vec(h, w, cin, pseudo_random(h * w * cin, 61));
+            let m = FeatureMap::from_vec(h, w, cin, pseudo_random(h * w * cin, 62));
+            let masked = FeatureMap::from_vec(
+                h,
+                w,
+                cin,
+                x.data.iter().zip(&m.data).map(|(v, k)| if *k > 0.0 { *v } else { 0.0 }).collect(),
+            );
+            let wt = pseudo_random(cout * cin * 9, 63);
+            let packed = conv_bf16::Bf16Conv::new(&wt, cin, cout);
+            for k in bf16_kernels() {
+                let a = packed.run(k, Source { map: &x, pad: 1, mode, mask: Some(&m) }, h, w, None, false);
+                let b = packed.run(k, Source { map: &masked, pad: 1, mode, mask: None }, h, w, None, false);
+                assert_eq!(a.data, b.data, "{k:?} {cin}->{cout} {mode:?}");
+            }
+        }
+    }
+
     /// The public calls take the bf16 path under `bf16` (fused ReLU, masked
     /// backward, reflection folding) and stay within the tolerance of fp32.
     #[test]

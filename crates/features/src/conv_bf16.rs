@@ -144,32 +144,89 @@ fn epilogue(c: &[f32; MB * NB], npx: usize, nn: usize, bias: &[f32], relu: bool,
 
 /// The padded bf16 copy of `src`: `ph x pw` pixels of `cinp` channels
 /// (zeros past the source's channels, at zero-padding and where the ReLU
-/// mask is off), then `MB + 2` pixels of zero slack.
+/// mask is off), then `MB + 2` pixels of zero slack. Every value is written
+/// once — no clearing pass over the whole buffer — and each run of
+/// consecutive source pixels of a row is converted in one call (the
+/// interior of a row is one run when the channels need no padding).
 fn fill_padded(buf: &mut Vec<u16>, src: Source<'_>, ph: usize, pw: usize, cinp: usize) {
     let (map, mask) = (src.map, src.mask);
     let c = map.channels;
-    let len = (ph * pw + MB + 2) * cinp;
-    buf.clear();
-    buf.resize(len, 0);
+    buf.resize((ph * pw + MB + 2) * cinp, 0);
+    let (body, slack) = buf.split_at_mut(ph * pw * cinp);
+    slack.fill(0);
     let (ys, xs) = (src.axis_map(ph, map.height), src.axis_map(pw, map.width));
-    buf[..ph * pw * cinp].par_chunks_mut(pw * cinp).zip(&ys).for_each(|(row, sy)| {
-        let Some(sy) = *sy else { return };
-        for (px, sx) in xs.iter().enumerate() {
-            let Some(sx) = *sx else { continue };
+    let runs = column_runs(&xs);
+    body.par_chunks_mut(pw * cinp).zip(&ys).for_each(|(row, sy)| {
+        let Some(sy) = *sy else {
+            row.fill(0);
+            return;
+        };
+        for &(px, sx, n) in &runs {
+            let dst = &mut row[px * cinp..(px + n) * cinp];
+            let Some(sx) = sx else {
+                dst.fill(0);
+                continue;
+            };
             let s = (sy * map.width + sx) * c;
-            let dst = &mut row[px * cinp..px * cinp + c];
-            match mask {
-                None => bf16::convert(&map.data[s..s + c], dst),
-                Some(m) => {
-                    for ((d, v), mv) in dst.iter_mut().zip(&map.data[s..s + c]).zip(&m.data[s..s + c]) {
-                        *d = if *mv > 0.0 { bf16::from_f32(*v) } else { 0 };
-                    }
+            if cinp == c {
+                let (from, to) = (&map.data[s..s + n * c], dst);
+                match mask {
+                    None => bf16::convert(from, to),
+                    Some(m) => bf16::convert_masked(from, &m.data[s..s + n * c], to),
                 }
+                continue;
+            }
+            for (k, px_dst) in dst.chunks_exact_mut(cinp).enumerate() {
+                let (from, (to, tail)) = (&map.data[s + k * c..s + (k + 1) * c], px_dst.split_at_mut(c));
+                match mask {
+                    None => bf16::convert(from, to),
+                    Some(m) => bf16::convert_masked(from, &m.data[s + k * c..s + (k + 1) * c], to),
+                }
+                tail.fill(0);
             }
         }
     });
 }
 
+/// The padded columns `xs` (source column of each, `None` for zero
+/// padding) as runs `(first padded column, first source column, length)`
+/// of consecutive source columns, or of zero columns.
+fn column_runs(xs: &[Option<usize>]) -> Vec<(usize, Option<usize>, usize)> {
+    let mut runs: Vec<(usize, Option<usize>, usize)> = Vec::new();
+    for (px, &sx) in xs.iter().enumerate() {
+        if let Some((_, start, n)) = runs.last_mut() {
+            let extends = match (*start, sx) {
+                (None, None) => true,
+                (Some(a), Some(b)) => b == a + *n,
+                _ => false,
+            };
+            if extends {
+                *n += 1;
+                continue;
+            }
+        }
+        runs.push((px, sx, 1));
+    }
+    runs
+}
+
 /// The padded map of the last finished convolution, handed to the next one
 /// (a fresh multi-MB buffer per layer costs page faults).
 static PADDED: std::sync::Mutex<Vec<u16>> = std::sync::Mutex::new(Vec::new());
+
+#[cfg(test)]
+mod tests {
+    use super::column_runs;
+
+    #[test]
+    fn column_runs_split_at_jumps_and_padding() {
+        // Zero padding: a zero column, the row, a zero column.
+        assert_eq!(column_runs(&[None, Some(0), Some(1), Some(2), None]), [(0, None, 1), (1, Some(0), 3), (4, None, 1)]);
+        // Reflection: 1 | 0 1 2 | 1.
+        assert_eq!(
+            column_runs(&[Some(1), Some(0), Some(1), Some(2), Some(1)]),
+            [(0, Some(1), 1), (1, Some(0), 3), (4, Some(1), 1)]
+        );
+        assert!(column_runs(&[]).is_empty());
+    }
+}

@@ -70,6 +70,32 @@ pub fn convert(src: &[f32], dst: &mut [u16]) {
     convert_plain(src, dst)
 }
 
+/// Converts `src` where `mask` is positive and writes 0 elsewhere (a ReLU's
+/// mask applied on the way), vectorised where AVX-512 is available.
+pub fn convert_masked(src: &[f32], mask: &[f32], dst: &mut [u16]) {
+    assert!(src.len() == dst.len() && mask.len() == dst.len(), "bf16 masked conversion lengths");
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx512f") {
+        // SAFETY: the CPU has the enabled features.
+        return unsafe { convert_masked_avx512(src, mask, dst) };
+    }
+    convert_masked_plain(src, mask, dst)
+}
+
+#[inline(always)]
+fn convert_masked_plain(src: &[f32], mask: &[f32], dst: &mut [u16]) {
+    for ((d, s), m) in dst.iter_mut().zip(src).zip(mask) {
+        // from_f32(0.0) is 0: select the value, then convert (no branch).
+        *d = from_f32(if *m > 0.0 { *s } else { 0.0 });
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx2")]
+unsafe fn convert_masked_avx512(src: &[f32], mask: &[f32], dst: &mut [u16]) {
+    convert_masked_plain(src, mask, dst)
+}
+
 #[inline(always)]
 fn convert_plain(src: &[f32], dst: &mut [u16]) {
     for (d, s) in dst.iter_mut().zip(src) {
