@@ -4,6 +4,8 @@
 #
 #   bash tools/device_bf16.sh pack            # here: fills devbin/ (git-ignored)
 #   bash tools/device_bf16.sh run [ROUNDS]    # there: tests, then benchmarks
+#   bash tools/device_bf16.sh quick           # there: unit tests, VGG-19, volume-iter
+#                                             # and the network's auto path, ~3 min
 #
 # `run` prints the CPU's bf16 flags, runs the bf16/precision tests of core,
 # features, loss and network on the dispatched path (AMX or AVX512-BF16 where
@@ -32,7 +34,8 @@ pack)
   grep -qx "/$D/" .git/info/exclude || echo "/$D/" >>.git/info/exclude
   du -sh "$D"
   ;;
-run)
+run | quick)
+  MODE=$1
   ROUNDS=${2:-1}
   LOG=${OUT:-/tmp}/bf16.log
   mkdir -p "$(dirname "$LOG")"
@@ -62,6 +65,17 @@ run)
   for p in fp32 auto; do echo "nst3d $p: $(NST3D_PRECISION=$p pin "$D/bench-vgg" 256 5 2>&1 | tail -1)"; done
   pin "$PY" "$D/bench/vgg_torch.py" --runs 5 2>&1 | tail -2
   pin "$PY" "$D/bench/vgg_torch.py" --runs 5 --bf16 2>&1 | tail -2
+  if [ "$MODE" = quick ]; then
+    for r in 1 2; do
+      for w in velocity density; do
+        echo "volume-$w round $r: nst3d fp32 $(nst fp32 volume-iter --n 128 --mode $w)  nst3d auto $(nst auto volume-iter --n 128 --mode $w)  torch bf16 $(tor "$D/bench/torch_ref.py" --n 128 --mode $w --bf16) (ms)"
+      done
+    done
+    echo "train-density: nst3d fp32 $(nst fp32 train-step --patch 64 --mode density)  nst3d auto $(nst auto train-step --patch 64 --mode density) (ms)"
+    pin "$D/nst3d" --threads 2 bench train-step --patch 64 --iters 1 2>&1 | grep -i precision
+    echo "infer: nst3d fp32 $(nst fp32 infer --n 128)  nst3d auto $(nst auto infer --n 128) (ms)"
+    exit 0
+  fi
   echo "== NNST matching (cargo bench nnst shape)"
   for p in fp32 auto; do echo "nst3d $p: $(NST3D_PRECISION=$p pin "$D/bench-nnst" 2>&1 | tail -1)"; done
   echo "torch fp32: $(pin "$PY" "$D/bench/nnst_match_torch.py" 2>&1 | tail -1)"
