@@ -20,7 +20,7 @@ train() { # name, extra args...
 }
 train minutes --minutes "$MIN"
 train default
-for f in ../shared/data/volumes/smoke_00000[123].vdb; do
+for f in ../shared/data/volumes/smoke_00000[23].vdb; do  # smoke_000001 is empty
   n=$(basename "$f" .vdb)
   for m in minutes default; do
     "$BIN" volume --model "$OUT/$m.safetensors" --input "$f" --out "$OUT/${n}_$m.vdb" > /dev/null
