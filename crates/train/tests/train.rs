@@ -83,7 +83,9 @@ fn a_minutes_budget_sizes_the_schedule() {
     s.minutes = Some(0.1);
     s.checkpoint_every = 1000;
     let t0 = std::time::Instant::now();
-    let r = train(&s, &mut Silent).unwrap();
+    // fp32: the emulated bf16 pass of CI takes most of a 6 s budget for the
+    // 8 timed steps alone; what is tested here is the clock, not the arithmetic.
+    let r = nst3d_core::precision::fp32(|| train(&s, &mut Silent)).unwrap();
     let secs = t0.elapsed().as_secs_f64();
     assert!(r.sized && r.planned_steps > 8 && r.steps >= 9, "{r:?}");
     // Paced by the clock, the schedule ends with the budget.
