@@ -221,7 +221,10 @@ mod tests {
     #[test]
     fn column_runs_split_at_jumps_and_padding() {
         // Zero padding: a zero column, the row, a zero column.
-        assert_eq!(column_runs(&[None, Some(0), Some(1), Some(2), None]), [(0, None, 1), (1, Some(0), 3), (4, None, 1)]);
+        assert_eq!(
+            column_runs(&[None, Some(0), Some(1), Some(2), None]),
+            [(0, None, 1), (1, Some(0), 3), (4, None, 1)]
+        );
         // Reflection: 1 | 0 1 2 | 1.
         assert_eq!(
             column_runs(&[Some(1), Some(0), Some(1), Some(2), Some(1)]),
