@@ -408,11 +408,11 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         let dt = (now - last_step).as_secs_f64();
         last_step = now;
         if sizing {
-            let budget = 0.98 * 60.0 * s.minutes.unwrap_or_default();
+            let budget_s = 60.0 * s.minutes.unwrap_or_default();
             let elapsed = t0.elapsed().as_secs_f64();
             let done = trainer.steps() - resumed_at;
             if done == CALIBRATION_STEPS {
-                let total = sized_steps(trainer.steps(), elapsed, budget / 0.98);
+                let total = sized_steps(trainer.steps(), elapsed, budget_s);
                 trainer.schedule = OneCycle::new(1e-4, total, 20.0);
                 reporter.status(&format!(
                     "{:.0} ms a step over the first {done}: the OneCycle schedule is sized to {total} steps \
@@ -426,7 +426,8 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
             } else if done > CALIBRATION_STEPS {
                 // The recent rate: a machine that got busier is seen within ~20 steps.
                 step_s = 0.9 * step_s + 0.1 * dt;
-                let steps_left = ((budget - elapsed) / step_s.max(1e-9)).max(1.0);
+                // 2 % kept back for the checkpoints and the final write, as in sizing.
+                let steps_left = ((0.98 * budget_s - elapsed) / step_s.max(1e-9)).max(1.0);
                 let left = trainer.schedule.total_steps as f64 - trainer.position();
                 trainer.pace = (left / steps_left).clamp(0.0, 8.0);
             }
