@@ -254,6 +254,7 @@ def stylize_groom(
     scale_iters: Optional[Sequence[int]] = None,
     render_size: Optional[int] = None,
     proxies: Optional[int] = None,
+    up: Optional[str] = None,
     seed: Optional[int] = None,
     lr_scale: Optional[float] = None,
     views_per_scale: Optional[int] = None,
@@ -275,8 +276,10 @@ def stylize_groom(
     is no collision handling. The result has the same shape and order, with
     every strand's length kept. ``preset`` is a Table 1 example
     (``"short-hair"`` default, ``"short-hair-360"``, ``"long-hair"``,
-    ``"cat"``, ``"fur-ball"``, ``"grass"``); the other options are
-    ``nst3d strands``'s.
+    ``"cat"``, ``"fur-ball"``, ``"grass"``). ``up`` is the axis the
+    points and mesh stand on (``"y"`` default, ``"z"`` for Blender): the
+    cameras circle it and the result is in the same axes. The other options
+    are ``nst3d strands``'s.
     """
     p = np.ascontiguousarray(points, dtype="<f4")
     if p.ndim != 2 or p.shape[1] != 3:
@@ -284,7 +287,7 @@ def stylize_groom(
     c = [int(n) for n in np.asarray(counts).ravel()]
     opts = _options(
         preset=preset, iters=iters, scale_iters=scale_iters, render_size=render_size, proxies=proxies,
-        seed=seed, lr_scale=lr_scale, views_per_scale=views_per_scale, eval_views=eval_views,
+        up=up, seed=seed, lr_scale=lr_scale, views_per_scale=views_per_scale, eval_views=eval_views,
         strand_width=strand_width, rematch=rematch, weights=weights, preview=preview,
     )
     mesh_file = None
@@ -331,6 +334,7 @@ def stylize_groom_file(
     scale_iters: Optional[Sequence[int]] = None,
     render_size: Optional[int] = None,
     proxies: Optional[int] = None,
+    up: Optional[str] = None,
     seed: Optional[int] = None,
     lr_scale: Optional[float] = None,
     views_per_scale: Optional[int] = None,
@@ -343,7 +347,8 @@ def stylize_groom_file(
 ) -> Dict[str, Any]:
     """Stylizes a groom file (``.hair .data .ply .usda .abc``) into ``out``
     (``.usda`` or ``.ply``, same topology, colours, widths and USD primvars),
-    exactly as ``nst3d strands``.
+    exactly as ``nst3d strands``. ``up`` (``"y"`` or ``"z"``) defaults to a
+    ``.usda`` layer's ``upAxis``, else ``"y"``; Blender's grooms are z-up.
 
     With ``frames`` (e.g. ``"1-24"``) ``groom``, ``out`` (and ``mesh``,
     ``preview``) are ``####`` patterns of an animated groom, stylized with
@@ -354,8 +359,8 @@ def stylize_groom_file(
         preset=preset, frames=frames, force=force, work_dir=work_dir, temporal=temporal,
         ema_sigma=ema_sigma, ema_nu=ema_nu, ema_clock=ema_clock, one_euro_alpha=one_euro_alpha,
         one_euro_beta=one_euro_beta, one_euro_fmin=one_euro_fmin, fps=fps, style_flow=style_flow,
-        iters=iters, scale_iters=scale_iters, render_size=render_size, proxies=proxies, seed=seed,
-        lr_scale=lr_scale, views_per_scale=views_per_scale, eval_views=eval_views,
+        iters=iters, scale_iters=scale_iters, render_size=render_size, proxies=proxies, up=up,
+        seed=seed, lr_scale=lr_scale, views_per_scale=views_per_scale, eval_views=eval_views,
         strand_width=strand_width, rematch=rematch, weights=weights, preview=preview,
     )
     return _nst3d.stylize_groom_file(

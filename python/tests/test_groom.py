@@ -39,6 +39,14 @@ def test_points_in_points_out_on_the_real_groom(data, style):
     # A mesh file gives the same result as the same mesh as arrays.
     again = nst3d.stylize_groom(points, counts, style, mesh=data / "grooms" / "Bangs_head.ply", **FAST)
     np.testing.assert_array_equal(out, again)
+    # The same groom and head turned z-up (as Blender holds them), with
+    # up="z": the cameras circle z, and the result is the y-up one turned
+    # the same way, to the bit.
+    def to_z(p):
+        return np.ascontiguousarray(np.stack([p[:, 0], -p[:, 2], p[:, 1]], axis=1), dtype=np.float32)
+
+    z = nst3d.stylize_groom(to_z(points), counts, style, mesh=(to_z(verts), tris), up="z", **FAST)
+    np.testing.assert_array_equal(z, to_z(out))
 
 
 def test_the_file_job_matches_the_command_line_byte_for_byte(tmp_path, data, style, nst3d_bin):
@@ -59,5 +67,7 @@ def test_bad_grooms_are_refused_with_a_message(style):
         nst3d.stylize_groom(np.zeros((5, 2), np.float32), [5], style)
     with pytest.raises(ValueError, match="poodle"):
         nst3d.stylize_groom(np.random.rand(4, 3).astype(np.float32), [2, 2], style, preset="poodle")
+    with pytest.raises(ValueError, match="up"):
+        nst3d.stylize_groom(np.random.rand(4, 3).astype(np.float32), [2, 2], style, up="x")
     with pytest.raises(nst3d.Nst3dError):
         nst3d.read_groom("/nonexistent.hair")

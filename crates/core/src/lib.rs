@@ -6,6 +6,7 @@
 
 #![warn(missing_docs)]
 
+pub mod axis;
 pub mod bf16;
 pub mod fixture;
 pub mod gradcheck;
@@ -22,6 +23,7 @@ pub mod precision;
 pub mod report;
 pub mod stop;
 
+pub use axis::UpAxis;
 pub use grid::Grid3;
 pub use groom::{Groom, GroomError, Strand, StrandSpline};
 pub use image::{FeatureView, Image, Layout};

@@ -15,9 +15,11 @@
 
 #![warn(missing_docs)]
 
+pub mod axis;
 pub mod bench;
 pub mod checks;
 pub mod generate;
+pub mod judge;
 pub mod output;
 pub mod preview;
 pub mod sequence;
@@ -26,9 +28,9 @@ pub mod single;
 
 pub use checks::Checks;
 pub use generate::{generate, GenerateKind, GenerateReport, GenerateSettings};
-pub use nst3d_core::{Reporter, Silent};
+pub use nst3d_core::{Reporter, Silent, UpAxis};
 pub use output::is_groom_file;
-pub use preview::{preview_groom, GroomPreviewSettings, PREVIEW_HEIGHT};
+pub use preview::{preview_groom, GroomPreviewReport, GroomPreviewSettings, PREVIEW_HEIGHT};
 pub use sequence::{stylize_groom_sequence, GroomSequenceReport, STATE_FILE};
 pub use settings::{OutFormat, StrandSettings, Temporal};
 pub use single::{stylize_groom, stylize_groom_file, GroomReport, StylizedGroom};

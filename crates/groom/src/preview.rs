@@ -4,11 +4,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use nst3d_core::Image;
+use nst3d_core::{Image, UpAxis};
 use nst3d_io::image::{luminance_rgb, resize_to_height, side_by_side, write_png};
 use nst3d_strands::pipeline::{GroomView, StrandScene};
 use nst3d_strands::FlatStrands;
 
+use crate::axis;
+use crate::judge::GramJudge;
 use crate::settings::frame_path;
 
 pub use nst3d_io::image::PREVIEW_HEIGHT;
@@ -42,11 +44,35 @@ pub struct GroomPreviewSettings {
     pub elevation: f32,
     /// Picture height in pixels.
     pub height: usize,
+    /// Which axis points up (`--up`); `None`: a `.usda` layer's `upAxis`,
+    /// else y. The turntable circles it.
+    pub up: Option<UpAxis>,
+    /// A painting to judge every picture against ([`GramJudge`]).
+    pub style: Option<PathBuf>,
+}
+
+/// What [`preview_groom`] drew, and with a painting its judgement.
+#[derive(Clone, Debug, Default)]
+pub struct GroomPreviewReport {
+    /// Pictures written.
+    pub pictures: usize,
+    /// Per picture, the Gram style loss of `input` to the painting.
+    pub input_loss: Vec<f32>,
+    /// Per picture, that of `compare`.
+    pub compare_loss: Vec<f32>,
+}
+
+impl GroomPreviewReport {
+    /// Per picture, `compare`'s loss over `input`'s: below 1, the compared
+    /// groom is nearer the painting from that side.
+    pub fn ratios(&self) -> Vec<f32> {
+        self.compare_loss.iter().zip(&self.input_loss).map(|(c, i)| c / i).collect()
+    }
 }
 
 /// Draws a groom (and its comparison) as the stylization's cameras see it,
-/// without stylizing; returns the number of pictures written.
-pub fn preview_groom(s: &GroomPreviewSettings) -> Result<usize> {
+/// without stylizing, and with `s.style` judges each picture.
+pub fn preview_groom(s: &GroomPreviewSettings) -> Result<GroomPreviewReport> {
     let n = s.turntable.unwrap_or(1);
     if n == 0 || n > 3600 {
         anyhow::bail!("--turntable {n}: give 1 to 3600 pictures");
@@ -59,10 +85,12 @@ pub fn preview_groom(s: &GroomPreviewSettings) -> Result<usize> {
         Some(_) => (1..=n as i64).map(|i| frame_path(&s.out, i, "--out")).collect::<Result<_>>()?,
         None => vec![s.out.clone()],
     };
-    let groom = FlatStrands::from_groom(&nst3d_io::groom::read_groom(&s.input)?)?;
+    let input = nst3d_io::groom::read_groom_file(&s.input)?;
+    let (up, _) = axis::resolve(s.up, &input);
+    let groom = FlatStrands::from_groom(&axis::groom_to_y_up(&input.groom, up))?;
     let compare = match &s.compare {
         Some(p) => {
-            let c = FlatStrands::from_groom(&nst3d_io::groom::read_groom(p)?)?;
+            let c = FlatStrands::from_groom(&axis::groom_to_y_up(&nst3d_io::groom::read_groom(p)?, up))?;
             if c.strand_count() != groom.strand_count() {
                 anyhow::bail!(
                     "{}: {} strands, {} has {}: not the same groom",
@@ -77,18 +105,27 @@ pub fn preview_groom(s: &GroomPreviewSettings) -> Result<usize> {
         None => None,
     };
     let head = s.mesh.as_deref().map(nst3d_io::mesh::read_mesh).transpose()?;
+    let head = head.as_ref().map(|h| axis::mesh_to_y_up(h, up));
     let params = nst3d_strands::pipeline::StylizeParams::from_preset(
         nst3d_strands::Preset::ShortHair.params(),
         groom.strand_count(),
     );
-    let view = GroomView::new(&groom, head.as_ref(), &params)?;
+    let view = GroomView::new(&groom, head.as_deref(), &params)?;
+    let judge = s.style.as_deref().map(|p| GramJudge::new(p, s.height, None)).transpose()?;
+    let mut report = GroomPreviewReport { pictures: outs.len(), ..Default::default() };
     for (i, out) in outs.iter().enumerate() {
         let azimuth = 360.0 * i as f32 / n as f32;
         let mut pictures = vec![view.render(&groom, s.elevation, azimuth, s.height)?];
         if let Some(c) = &compare {
             pictures.push(view.render(c, s.elevation, azimuth, s.height)?);
         }
+        if let Some(j) = &judge {
+            report.input_loss.push(j.loss(&pictures[0])?);
+            if let Some(p) = pictures.get(1) {
+                report.compare_loss.push(j.loss(p)?);
+            }
+        }
         write_png(out, &side_by_side(&pictures.iter().collect::<Vec<_>>()))?;
     }
-    Ok(outs.len())
+    Ok(report)
 }

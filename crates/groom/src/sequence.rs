@@ -16,11 +16,13 @@ use nst3d_io::mesh::read_mesh;
 use nst3d_sequence::{default_work_dir, job_fingerprint, settings_key, FrameSpec};
 use nst3d_strands::{check_topology, FlatStrands, Flow, SequenceParams, SequenceStylizer, TemporalParams};
 
+use crate::axis;
 use crate::checks::Checks;
 use crate::output::{attribute_notes, write_groom};
 use crate::preview::write_preview;
 use crate::settings::{frame_path, is_pattern};
 use crate::settings::{OutFormat, StrandSettings, Temporal};
+use crate::single::with_axis;
 use crate::NO_MESH;
 
 /// Name of the saved sequence state in the work folder.
@@ -65,15 +67,16 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
             m => Ok(m.clone()),
         }
     };
-    let flow = match s.style_flow {
-        None => Flow::Animation,
-        Some(v) => Flow::Style(v),
-    };
 
     // Every frame's groom up front: present, readable, same topology.
     let first_path = groom_at(frames[0])?;
     let first_file = read_groom_file(&first_path)?;
     for note in attribute_notes(&first_file, format) {
+        reporter.note(&format!("{}: {note}", first_path.display()));
+    }
+    // The first frame's file decides the axis of the whole sequence.
+    let (up, note) = axis::resolve(s.up, &first_file);
+    if let Some(note) = note {
         reporter.note(&format!("{}: {note}", first_path.display()));
     }
     let first = first_file.groom;
@@ -83,6 +86,7 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
         check_topology(&first, f, &g).with_context(|| path.display().to_string())?;
     }
     let fixed_mesh = if mesh_varies { None } else { s.mesh.as_deref().map(read_mesh).transpose()? };
+    let fixed_mesh = fixed_mesh.map(|m| axis::mesh_to_y_up(&m, up).into_owned());
     if s.mesh.is_none() {
         reporter.note(NO_MESH);
     }
@@ -114,7 +118,11 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
         Temporal::Off => (false, false),
     };
     params.ema_clock = s.ema_clock;
-    params.flow = flow;
+    // The style flow is a velocity in the file's axes.
+    params.flow = match s.style_flow {
+        None => Flow::Animation,
+        Some(v) => Flow::Style(up.to_y_up(v)),
+    };
     let mut seq = SequenceStylizer::new(&vgg, &painting, params)?;
 
     // Resume: the state saved after the last finished frame of this job.
@@ -172,12 +180,12 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
     reporter.begin(per_frame as u64 * (frames.len() - done) as u64);
     for (i, &f) in frames.iter().enumerate().skip(done) {
         let input = read_groom_file(&groom_at(f)?)?;
-        let groom = &input.groom;
+        let groom = &*axis::groom_to_y_up(&input.groom, up);
         let frame_mesh;
         let mesh = match (&fixed_mesh, mesh_at(f)?) {
             (Some(m), _) => Some(m),
             (None, Some(path)) => {
-                frame_mesh = read_mesh(&path)?;
+                frame_mesh = axis::mesh_to_y_up(&read_mesh(&path)?, up).into_owned();
                 Some(&frame_mesh)
             }
             (None, None) => None,
@@ -193,11 +201,12 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
         })?;
         let out = out_at(f)?;
         let written = r.scene.to_input_topology(&FlatStrands::from_groom(groom)?, &r.guides)?;
-        write_groom(&out, format, &written, Some(&input))?;
+        worst = worst.worst(Checks::new(groom, &r.scene, &r.guides, &written, mesh)?);
+        let written = axis::strands_from_y_up(written, up);
+        write_groom(&out, format, &written, Some(&with_axis(input, up)))?;
         if let Some(p) = &s.preview {
             write_preview(&frame_path(p, f, "--preview")?, &r.scene, &r.strands, &painting)?;
         }
-        worst = worst.worst(Checks::new(groom, &r.scene, &r.guides, &written, mesh)?);
         reporter.result(&format!(
             "frame {f}: NNST loss {:.4e} -> {:.4e} (output {:.4e}){}; wrote {}",
             r.eval_before,

@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use nst3d_core::UpAxis;
 use nst3d_sequence::expand_pattern;
 use nst3d_strands::pipeline::StylizeParams;
 use nst3d_strands::{EmaClock, Preset, TemporalParams};
@@ -77,6 +78,10 @@ pub struct StrandSettings {
     pub render_size: Option<usize>,
     /// Proxy strands to grow (default: the preset's proxy/guide ratio).
     pub proxies: Option<usize>,
+    /// Which axis of the groom and mesh points up (`--up`); `None`: a
+    /// `.usda` layer's `upAxis`, else y ([`crate::axis::resolve`]). The
+    /// cameras circle it, the previews stand on it, the output keeps it.
+    pub up: Option<UpAxis>,
     /// Seed of densification and camera sampling.
     pub seed: u64,
     /// Multiplier on the preset's learning rates (scaled by the groom's radius).
@@ -127,6 +132,7 @@ impl StrandSettings {
             iters: None,
             render_size: None,
             proxies: None,
+            up: None,
             seed: 0,
             lr_scale: 1.0,
             views_per_scale: 8,

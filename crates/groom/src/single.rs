@@ -9,13 +9,14 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use nst3d_core::{Groom, Reporter, TriMesh};
+use nst3d_core::{Groom, Reporter, TriMesh, UpAxis};
 use nst3d_features::Vgg19;
-use nst3d_io::groom::read_groom_file;
+use nst3d_io::groom::{read_groom_file, GroomFile};
 use nst3d_io::mesh::read_mesh;
 use nst3d_strands::pipeline::{stylize, HeldOut, StrandScene};
 use nst3d_strands::FlatStrands;
 
+use crate::axis;
 use crate::checks::Checks;
 use crate::output::{attribute_notes, write_groom};
 use crate::preview::write_preview;
@@ -83,9 +84,14 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
     for note in attribute_notes(&input, format) {
         reporter.note(&format!("{}: {note}", s.groom.display()));
     }
+    let (up, note) = axis::resolve(s.up, &input);
+    if let Some(note) = note {
+        reporter.note(&format!("{}: {note}", s.groom.display()));
+    }
     let head = s.mesh.as_deref().map(read_mesh).transpose()?;
-    let r = stylize_groom(s, groom, head.as_ref(), reporter)?;
-    write_groom(&s.out, format, &r.strands, Some(&input))?;
+    let s = StrandSettings { up: Some(up), ..s.clone() };
+    let r = stylize_groom(&s, groom, head.as_ref(), reporter)?;
+    write_groom(&s.out, format, &r.strands, Some(&with_axis(input, up)))?;
     Ok(r.report)
 }
 
@@ -99,10 +105,18 @@ pub struct StylizedGroom {
     pub report: GroomReport,
 }
 
+/// The input file as the output should describe it: the job's up axis in
+/// the layer (a z-up `.ply` written as `.usda` says `upAxis = "Z"`).
+pub(crate) fn with_axis(mut input: GroomFile, up: UpAxis) -> GroomFile {
+    input.usd_primvars.up_axis = Some(up.usd_name().to_string());
+    input
+}
+
 /// Stylizes `groom` grown on `head` (if any) with the settings of a single
 /// groom; `s.groom`, `s.mesh` and `s.out` are not read or written (a front
 /// end with the groom in memory passes it here), `s.preview` is written
-/// when set.
+/// when set. Both are in the axes `s.up` names (`None`: y-up), and so are
+/// the returned strands.
 pub fn stylize_groom(
     s: &StrandSettings,
     groom: &Groom,
@@ -110,6 +124,10 @@ pub fn stylize_groom(
     reporter: &mut dyn Reporter,
 ) -> Result<StylizedGroom> {
     s.check()?;
+    let up = s.up.unwrap_or(UpAxis::Y);
+    let groom = &*axis::groom_to_y_up(groom, up);
+    let head_y_up = head.map(|h| axis::mesh_to_y_up(h, up));
+    let head = head_y_up.as_deref();
     if head.is_none() {
         reporter.note(NO_MESH);
     }
@@ -141,6 +159,7 @@ pub fn stylize_groom(
         write_preview(preview, &scene, &result.strands, &painting)?;
     }
     let checks = Checks::new(groom, &scene, &result.guides, &written, head)?;
+    let written = axis::strands_from_y_up(written, up);
     let report = GroomReport {
         groom: s.groom.clone(),
         strands: written.strand_count(),

@@ -203,6 +203,7 @@ pub fn apply_strands(s: &mut StrandSettings, mut o: Options<'_>) -> PyResult<()>
     }
     set!(o.usize("render_size") => Some s.render_size);
     set!(o.usize("proxies") => Some s.proxies);
+    set!(o.parsed("up", |v| v.parse()) => Some s.up);
     set!(o.u64("seed") => s.seed);
     set!(o.f32("lr_scale") => s.lr_scale);
     set!(o.usize("views_per_scale") => s.views_per_scale);

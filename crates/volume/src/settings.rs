@@ -11,16 +11,7 @@ use nst3d_stylize::{FrameParams, Limits, Mode, StyleSpec, ViewSpec};
 
 use crate::upsample::Upsample;
 
-/// Which index axis of a file points up: Blender caches are z-up, Houdini's y-up.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum UpAxis {
-    /// Houdini, Maya: the front camera looks along −z.
-    Y,
-    /// Blender, the OpenUSD sample: the front camera looks along +y.
-    Z,
-}
-
-nst3d_core::named_enum!(UpAxis, "an up axis", { Y => "y", Z => "z" });
+pub use nst3d_core::UpAxis;
 
 /// Everything `nst3d volume` can be asked, for one frame or a sequence.
 #[derive(Clone, Debug)]

@@ -362,7 +362,9 @@ class NST3D_OT_stylize_hair(_Nst3dOperator, bpy.types.Operator):
                 v = v @ rot.T + np.array(to_curves.translation, dtype=np.float32)
                 mesh = (v.astype(np.float32), tris.reshape(-1, 3))
             self._obj_name = obj.name
-            opts = dict(preset=s.preset, iters=s.hair_iters or None, render_size=s.render_size or None)
+            # Blender is z-up: the cameras circle z and the result stays in
+            # the object's axes (issue 27).
+            opts = dict(preset=s.preset, iters=s.hair_iters or None, render_size=s.render_size or None, up="z")
 
             def work(progress):
                 return nst3d.stylize_groom(points.reshape(-1, 3), counts, style, mesh=mesh, progress=progress, **opts)

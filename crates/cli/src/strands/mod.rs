@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
-use nst3d_groom::{GenerateKind, GenerateSettings, StrandSettings, Temporal};
+use nst3d_groom::{GenerateKind, GenerateSettings, StrandSettings, Temporal, UpAxis};
 use nst3d_strands::{EmaClock, Preset, Wind};
 
 use crate::console::Console;
@@ -92,6 +92,10 @@ pub struct StrandsArgs {
     /// Proxy strands to grow (default: the preset's proxy/guide ratio).
     #[arg(long)]
     proxies: Option<usize>,
+    /// Which axis of the groom and mesh points up: the cameras circle it and the
+    /// output keeps it (default: a .usda's upAxis, else y; Blender grooms are z-up).
+    #[arg(long, value_parser = crate::named::<UpAxis>(UpAxis::NAMES.iter().copied()))]
+    up: Option<UpAxis>,
     /// Seed of densification and camera sampling.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -225,6 +229,7 @@ impl StrandsArgs {
             iters: self.iters,
             render_size: self.render_size,
             proxies: self.proxies,
+            up: self.up,
             seed: self.seed,
             lr_scale: self.lr_scale,
             views_per_scale: self.views_per_scale,

@@ -45,9 +45,10 @@ pub struct PreviewArgs {
     /// Camera projection.
     #[arg(long, default_value = "perspective", value_parser = crate::named::<Projection>(Projection::NAMES.iter().copied()))]
     pub camera: Projection,
-    /// Which index axis points up in the file (Blender caches are z-up, Houdini y-up).
-    #[arg(long, default_value = "z", value_parser = crate::named::<UpAxis>(UpAxis::NAMES.iter().copied()))]
-    pub up: UpAxis,
+    /// Which axis points up in the file (default: z for a volume, as Blender caches are;
+    /// for a groom a .usda's upAxis, else y)
+    #[arg(long, value_parser = crate::named::<UpAxis>(UpAxis::NAMES.iter().copied()))]
+    pub up: Option<UpAxis>,
     /// Absorption γ per unit density and voxel (default: the densest ray of
     /// --input, or of its densest frame, gets optical depth 3; the same γ is
     /// then used for --compare and every frame, so brightness does not pump).
@@ -56,6 +57,11 @@ pub struct PreviewArgs {
     /// Picture height in pixels (a compare sheet is two pictures wide).
     #[arg(long, default_value_t = PREVIEW_HEIGHT)]
     pub height: usize,
+    /// For a groom: judge every picture against this painting (VGG-19 Gram style
+    /// loss of the picture to the painting's luminance; with --compare the ratio
+    /// compare/input per picture, and the median and worst).
+    #[arg(long)]
+    pub style: Option<PathBuf>,
 }
 
 /// Runs `nst3d preview`.
@@ -63,6 +69,11 @@ pub fn run(args: PreviewArgs) -> Result<()> {
     if nst3d_groom::is_groom_file(&args.input) {
         if args.frames.is_some() || args.absorption.is_some() || args.grid != "density" {
             anyhow::bail!("--frames, --absorption and --grid apply to volumes; {} is a groom", args.input.display());
+        }
+        if let Some(s) = &args.style {
+            if !s.is_file() {
+                anyhow::bail!("--style {}: no such painting", s.display());
+            }
         }
         let settings = nst3d_groom::GroomPreviewSettings {
             input: args.input,
@@ -72,13 +83,17 @@ pub fn run(args: PreviewArgs) -> Result<()> {
             turntable: args.turntable,
             elevation: args.elevation,
             height: args.height,
+            up: args.up,
+            style: args.style,
         };
-        let n = nst3d_groom::preview_groom(&settings)?;
+        let r = nst3d_groom::preview_groom(&settings)?;
+        let n = r.pictures;
         println!("wrote {n} preview picture{} of the groom ({})", plural(n), settings.out.display());
+        print_judgement(&r);
         return Ok(());
     }
-    if args.mesh.is_some() {
-        anyhow::bail!("--mesh applies to grooms; {} is a volume", args.input.display());
+    if args.mesh.is_some() || args.style.is_some() {
+        anyhow::bail!("--mesh and --style apply to grooms; {} is a volume", args.input.display());
     }
     let settings = PreviewSettings {
         input: args.input,
@@ -89,7 +104,7 @@ pub fn run(args: PreviewArgs) -> Result<()> {
         turntable: args.turntable,
         elevation: args.elevation,
         projection: args.camera,
-        up: args.up,
+        up: args.up.unwrap_or(UpAxis::Z),
         absorption: args.absorption,
         height: args.height,
     };
@@ -102,4 +117,26 @@ pub fn run(args: PreviewArgs) -> Result<()> {
         r.absorption
     );
     Ok(())
+}
+
+/// The judge's lines: the loss of each picture, and with a comparison the
+/// ratio per picture (lower: nearer the painting) and its median and worst.
+fn print_judgement(r: &nst3d_groom::GroomPreviewReport) {
+    if r.input_loss.is_empty() {
+        return;
+    }
+    let list = |v: &[f32], f: &dyn Fn(f32) -> String| v.iter().map(|x| f(*x)).collect::<Vec<_>>().join(" ");
+    println!("style loss per picture: input {}", list(&r.input_loss, &|x| format!("{x:.4e}")));
+    if r.compare_loss.is_empty() {
+        return;
+    }
+    println!("style loss per picture: compare {}", list(&r.compare_loss, &|x| format!("{x:.4e}")));
+    let ratios = r.ratios();
+    let worst = ratios.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    println!(
+        "compare/input per picture {}; median {:.3}, worst {:.3}",
+        list(&ratios, &|x| format!("{x:.3}")),
+        nst3d_groom::judge::median(&ratios),
+        worst
+    );
 }

@@ -13,8 +13,10 @@
 //!   box (centre) and enclosing sphere (radius). *Front* is the direction the
 //!   groom faces, the mean of the head's pseudo-normals at the guide roots
 //!   (falling back to the mesh-centre → groom-centre direction, then +Z, when
-//!   the normals cancel, as on a fur ball). *Up* is +Y (the groom formats we
-//!   read are Y-up), or +Z when the front is nearly vertical.
+//!   the normals cancel, as on a fur ball), made horizontal. *Up* is +Y:
+//!   the scene is always y-up (`nst3d_groom` turns a z-up file into this
+//!   frame and the result back), so the cameras circle the up axis and the
+//!   polar angle 0 is the horizon.
 //! - Units: the paper's assets are about one unit across, ours can be
 //!   hundreds (the Bangs head is ~240 units). The preset's camera distance
 //!   `r` and learning rates `η` are therefore read in units of `R`: the eye

@@ -86,18 +86,22 @@ pub(super) fn view_frame(
     let mean: V3 = mean.map(|c| (c / guide_normals.len().max(1) as f64) as f32);
     let head_centre =
         head.and_then(|h| h.bbox()).map(|(l, h)| std::array::from_fn(|a| 0.5 * (l[a] + h[a]))).unwrap_or(centre);
-    let front = if norm(mean) > 0.2 { normalize(mean) } else { None }
-        .or_else(|| {
-            let d = sub(centre, head_centre);
-            if norm(d) > 0.05 * radius {
-                normalize(d)
-            } else {
-                None
-            }
-        })
+    // The scene is y-up (the groom crate turns a z-up file into this frame),
+    // and the cameras go around that axis: the front is the horizontal part
+    // of the direction the groom faces, so polar 0 is the horizon and the
+    // preview stands upright whatever way the roots point on average.
+    let up: V3 = [0.0, 1.0, 0.0];
+    let horizontal = |v: V3, min: f32| {
+        let h = sub(v, scale(up, dot(v, up)));
+        if norm(h) > min {
+            normalize(h)
+        } else {
+            None
+        }
+    };
+    let front = horizontal(mean, 0.2)
+        .or_else(|| horizontal(sub(centre, head_centre), 0.05 * radius))
         .unwrap_or([0.0, 0.0, 1.0]);
-    let world_up = if dot(front, [0.0, 1.0, 0.0]).abs() < 0.95 { [0.0, 1.0, 0.0] } else { [0.0, 0.0, 1.0] };
-    let up = normalize(sub(world_up, scale(front, dot(world_up, front)))).unwrap_or([0.0, 1.0, 0.0]);
     let side = cross(front, up);
     Ok(ViewFrame { centre, radius, front, up, side })
 }

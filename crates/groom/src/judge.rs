@@ -1,0 +1,70 @@
+//! A judge of how far a groom went towards a painting (issue 27), apart
+//! from the optimised loss: the real VGG-19 Gram style loss (relu1_1 …
+//! relu4_1, equal weights, as Gatys et al. and the volume pipeline's
+//! judge) of each picture `nst3d preview` draws, to the painting's
+//! luminance at the picture's height. It reads files only, so it scores any
+//! groom the same way, from views no optimisation used (a turntable around
+//! the up axis at an elevation of your choosing).
+
+use std::path::Path;
+
+use anyhow::Result;
+use nst3d_core::Image;
+use nst3d_features::{Vgg19, VggLayer};
+use nst3d_io::image::{luminance_rgb, resize_to_height};
+use nst3d_loss::{style_loss, StyleTarget};
+
+/// Gram matrices of a painting, for scoring pictures of one height.
+pub struct GramJudge {
+    vgg: Vgg19,
+    target: StyleTarget,
+}
+
+const LAYERS: [VggLayer; 4] = [VggLayer::Relu1_1, VggLayer::Relu2_1, VggLayer::Relu3_1, VggLayer::Relu4_1];
+
+impl GramJudge {
+    /// The painting at `style`, as grey, resized to `height` rows (the
+    /// pictures' height: its strokes keep their size relative to the frame).
+    pub fn new(style: &Path, height: usize, weights: Option<&Path>) -> Result<Self> {
+        let painting = nst3d_io::image::load_style(style, 1.0)?;
+        let vgg = Vgg19::load(weights)?;
+        let grey = resize_to_height(&luminance_rgb(&painting), height);
+        let fwd = vgg.forward(&grey, &LAYERS, false);
+        let target = StyleTarget::from_features(&fwd.features(), &[1.0; 4])?;
+        Ok(Self { vgg, target })
+    }
+
+    /// The Gram style loss of a picture (RGB or grey) to the painting.
+    pub fn loss(&self, picture: &Image) -> Result<f32> {
+        let rgb = if picture.channels == 1 {
+            Image::from_vec(3, picture.height, picture.width, [picture.data.as_slice(); 3].concat())
+        } else {
+            picture.clone()
+        };
+        let fwd = self.vgg.forward(&rgb, &LAYERS, false);
+        Ok(style_loss(&fwd.features(), &self.target)?.0)
+    }
+}
+
+/// Median of `v` (the mean of the middle two for an even count).
+pub fn median(v: &[f32]) -> f32 {
+    let mut s = v.to_vec();
+    s.sort_by(f32::total_cmp);
+    match s.len() {
+        0 => f32::NAN,
+        n if n % 2 == 1 => s[n / 2],
+        n => 0.5 * (s[n / 2 - 1] + s[n / 2]),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn median_of_odd_and_even_counts() {
+        assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(&[4.0, 1.0, 3.0, 2.0]), 2.5);
+        assert!(median(&[]).is_nan());
+    }
+}
