@@ -114,7 +114,7 @@ pub fn apply_volume(s: &mut VolumeSettings, mut o: Options<'_>) -> PyResult<()> 
     if let Some(m) = mode {
         s.mode = m;
     }
-    set!(o.usize("octaves") => s.octaves);
+    set!(o.usize("octaves") => Some s.octaves);
     set!(o.usize("iters") => s.iters);
     set!(o.f32("lr") => Some s.lr);
     set!(o.f32("vmax") => Some s.vmax);

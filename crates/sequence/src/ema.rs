@@ -275,7 +275,7 @@ pub fn stylize_sequence_with(
                     grad_dstar.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
                 }
                 // The transport's backward is linear in ∂L/∂d*: one pass for all views.
-                let grad = st.field.backward(&d, &tape, &grad_dstar);
+                let grad = st.field.descent(st.field.backward(&d, &tape, &grad_dstar), d.dims);
                 let mut adam = Adam::new(st.field.len(), fp.learning_rate);
                 adam.set_state(&st.m, &st.v, st.step)
                     .map_err(|e| SequenceError::Frame { frame: t, message: e.to_string() })?;

@@ -47,7 +47,7 @@ fn main() {
             let gi = render::upsample2x_backward(&nst3d_stylize::view::rgb_to_grey_backward(&grgb));
             let gd = render::march_backward(&ds, 8.0 / n as f32, &gi);
             lap("render backward");
-            let gp = field.backward(&d, &tape, &gd.data);
+            let gp = field.descent(field.backward(&d, &tape, &gd.data), d.dims);
             lap("transport backward");
             adam.step(field.params_mut(), &gp);
             lap("adam");

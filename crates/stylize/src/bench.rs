@@ -73,7 +73,7 @@ pub fn volume_iter(n: usize, mode: Mode, iters: usize) -> BenchReport {
         let t0 = Instant::now();
         let (dstar, tape) = field.forward(&d);
         let (l, grad_dstar) = loss.loss_and_grad(&dstar, &view).expect("the benchmark view renders");
-        let grad = field.backward(&d, &tape, &grad_dstar.data);
+        let grad = field.descent(field.backward(&d, &tape, &grad_dstar.data), d.dims);
         adam.step(field.params_mut(), &grad);
         if let Field::Scale(s) = &mut field {
             transport::clamp_scale(s, 0.0, 2.0);

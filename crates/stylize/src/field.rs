@@ -5,7 +5,6 @@
 
 use nst3d_core::Grid3;
 use nst3d_transport as transport;
-use rayon::prelude::*;
 
 /// Which field is optimised.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -34,22 +33,11 @@ pub enum Field {
     /// grid. The density moves by their smooth version `v = S w`
     /// ([`Field::velocity`]; docs/VOLUME_LOOK.md section 2 says why).
     Velocity(Vec<[f32; 3]>),
-    /// Per-voxel density scale parameters `s`; the density is multiplied by
-    /// their smooth version `1 + S (s − 1)` ([`Field::scale`]).
+    /// Per-voxel density scales `s`: the density is multiplied by `s`
+    /// itself, and the optimiser steps along the tent-smoothed gradient
+    /// ([`Field::descent`]; docs/VOLUME_LOOK.md, "Density mode: a smoothed
+    /// step, not a smoothed field").
     Scale(Vec<f32>),
-}
-
-/// The scale the density is multiplied by, `1 + S (s − 1)`: the smoothed
-/// deviation from 1, so the grid's outside reads as "no change". Per-voxel
-/// scales drew small grid-aligned marks in dense smoke (docs/VOLUME_LOOK.md
-/// section 2), as per-voxel velocities drew blocks. `S` averages with
-/// non-negative weights summing to at most 1, so the result stays within
-/// `[smin, smax]` whenever 1 is inside it.
-fn smooth_scale(s: &[f32], dims: [usize; 3]) -> Vec<f32> {
-    let dev: Vec<f32> = s.par_iter().map(|v| v - 1.0).collect();
-    let mut out = transport::tent_smooth_flat(&dev, 1, dims);
-    out.par_iter_mut().for_each(|v| *v += 1.0);
-    out
 }
 
 /// What [`Field::backward`] needs from [`Field::forward`]: the smoothed
@@ -146,19 +134,16 @@ impl Field {
         }
     }
 
-    /// The scale `1 + S (s − 1)` that multiplies the density (density mode),
-    /// for a field on a grid of `dims` voxels; `None` for a velocity field.
-    ///
-    /// # Panics
-    /// If the field does not have one value per voxel of `dims`.
-    pub fn scale(&self, dims: [usize; 3]) -> Option<Vec<f32>> {
+    /// The scale `s` that multiplies the density (density mode); `None` for
+    /// a velocity field.
+    pub fn scale(&self) -> Option<&[f32]> {
         match self {
-            Field::Scale(s) => Some(smooth_scale(s, dims)),
+            Field::Scale(s) => Some(s),
             Field::Velocity(_) => None,
         }
     }
 
-    /// `d* = T(d, field)`: `I(d, g + S w)` or `d · (1 + S (s − 1))`.
+    /// `d* = T(d, field)`: `I(d, g + S w)` or `d · s`.
     pub fn transport(&self, d: &Grid3) -> Grid3 {
         self.forward(d).0
     }
@@ -171,7 +156,7 @@ impl Field {
                 let v = self.velocity(d.dims).expect("velocity field");
                 (transport::advect_linear(d, &v), Tape { velocity: Some(v) })
             }
-            Field::Scale(s) => (transport::modulate(d, &smooth_scale(s, d.dims)), Tape { velocity: None }),
+            Field::Scale(s) => (transport::modulate(d, s), Tape { velocity: None }),
         }
     }
 
@@ -198,9 +183,32 @@ impl Field {
             Field::Scale(s) => {
                 let mut g = vec![0.0f32; s.len()];
                 transport::modulate_backward(d, grad_out, &mut g);
-                // ∂L/∂s = S ∂L/∂s_eff (S is its own adjoint).
-                transport::tent_smooth_flat(&g, 1, d.dims)
+                g
             }
+        }
+    }
+
+    /// The direction the optimiser is given for a gradient `grad` of this
+    /// field's parameters on a grid of `dims` voxels: the gradient itself in
+    /// velocity mode (its smoothing is in the parameterisation, `v = S w`),
+    /// the tent-smoothed gradient `S ∇` in density mode.
+    ///
+    /// Why density mode smooths the step and not the field: stepped along
+    /// the raw gradient, per-voxel scales drew small grid-aligned marks in
+    /// dense smoke — Adam moves every voxel by about `±lr` however small
+    /// its gradient, so the patterns the renders cannot tell apart
+    /// (neighbouring voxels pulling opposite ways) grow as fast as the ones
+    /// they can. `S` removes them from every step (it has no response at
+    /// the grid's Nyquist frequency). Smoothing the field instead,
+    /// `d · (1 + S (s − 1))`, also removed them, but it smoothed twice
+    /// (the field and, through its adjoint, the gradient), and the strokes
+    /// lost about a third of their strength from views the optimiser never
+    /// saw (docs/VOLUME_LOOK.md). `S` is positive semi-definite (its
+    /// frequency response is `cos²`), so `S ∇` is still a descent direction.
+    pub fn descent(&self, grad: Vec<f32>, dims: [usize; 3]) -> Vec<f32> {
+        match self {
+            Field::Velocity(_) => grad,
+            Field::Scale(_) => transport::tent_smooth_flat(&grad, 1, dims),
         }
     }
 

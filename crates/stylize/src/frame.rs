@@ -158,7 +158,7 @@ pub fn stylize_frame_views(
                 l += lv;
                 grad_dstar.data.iter_mut().zip(&gv.data).for_each(|(a, b)| *a += b);
             }
-            let grad = f.backward(level, &tape, &grad_dstar.data);
+            let grad = f.descent(f.backward(level, &tape, &grad_dstar.data), level.dims);
             adam.step(f.params_mut(), &grad);
             f.constrain(&params.limits, vmax_here);
             progress(&Progress { octave: k, octaves, iteration: it + 1, iterations: params.iterations, loss: l });

@@ -177,10 +177,12 @@ fn velocity_mode_moves_the_smoke_by_a_smooth_field() {
     assert!(max > 0.5, "the velocity did not move");
 }
 
-/// Density mode's counterpart: per-voxel scales drew small grid-aligned
-/// marks in dense smoke. The same optimiser loop on the same fixed voxel
-/// pattern must leave the applied scale `1 + S (s − 1)` smooth (roughness
-/// 1.00 with per-voxel scales, 0.54 smoothed).
+/// Density mode's counterpart: per-voxel scales stepped along the raw
+/// gradient drew small grid-aligned marks in dense smoke. The same
+/// optimiser loop on the same fixed voxel pattern, stepping along
+/// [`Field::descent`], must leave the scale smooth (roughness 1.00 along the
+/// raw gradient, 0.51 along the smoothed one; 0.54 when the field itself
+/// was smoothed).
 #[test]
 fn density_mode_scales_the_smoke_by_a_smooth_field() {
     let d = synthetic_smoke(24, 9);
@@ -188,14 +190,22 @@ fn density_mode_scales_the_smoke_by_a_smooth_field() {
     let limits = Limits { vmax: 1.0, smin: 0.0, smax: 2.0 };
     let mut field = Field::identity(Mode::Density, d.len());
     let mut adam = nst3d_optim::Adam::new(field.len(), 0.1);
+    let mut raw = field.clone();
+    let mut raw_adam = nst3d_optim::Adam::new(field.len(), 0.1);
     for _ in 0..20 {
-        let g = field.transport_backward(&d, &grad_dstar);
+        let g = field.descent(field.transport_backward(&d, &grad_dstar), d.dims);
         adam.step(field.params_mut(), &g);
         field.constrain(&limits, 1.0);
+        let g = raw.transport_backward(&d, &grad_dstar);
+        raw_adam.step(raw.params_mut(), &g);
+        raw.constrain(&limits, 1.0);
     }
-    let s = field.scale(d.dims).unwrap();
-    let dev: Vec<[f32; 3]> = s.iter().map(|v| [v - 1.0, 0.0, 0.0]).collect();
-    let rough = roughness(&dev, &d);
+    // The control: along the raw gradient the scale is voxel-scale noise.
+    let dev = |s: &[f32]| -> Vec<[f32; 3]> { s.iter().map(|v| [v - 1.0, 0.0, 0.0]).collect() };
+    let raw_rough = roughness(&dev(raw.scale().unwrap()), &d);
+    assert!(raw_rough > 0.95, "the control is not noisy: roughness {raw_rough:.3}");
+    let s = field.scale().unwrap();
+    let rough = roughness(&dev(s), &d);
     assert!(rough < 0.9, "voxel-scale scale noise: roughness {rough:.3}");
     assert!(s.iter().all(|v| (0.0..=2.0).contains(v)), "scale left [smin, smax]");
     assert!(s.iter().any(|v| (v - 1.0).abs() > 0.3), "the scale did not move");

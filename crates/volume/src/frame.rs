@@ -192,7 +192,7 @@ pub fn stylize_grid(
         None => Vec::new(),
     };
 
-    reporter.begin((s.octaves * s.iterations()) as u64);
+    reporter.begin((s.octaves() * s.iterations()) as u64);
     let result = stylize_frame_views(&padded, &loss, &params, &views, &mut |p| {
         reporter.step(&format!(
             "octave {}/{} iteration {}/{} loss {:.4e}",

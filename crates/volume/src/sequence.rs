@@ -629,7 +629,7 @@ fn optimise(
         }
     }
     // A resumed run counts only the steps left.
-    reporter.begin((s.octaves * per_octave).saturating_sub(done_steps) as u64);
+    reporter.begin((s.octaves() * per_octave).saturating_sub(done_steps) as u64);
     stylize_sequence_with(sim, loss, &|t| views[t].clone(), params, store, &mut |p| {
         reporter.step(&format!(
             "octave {} sweep {}/{} frame {} loss {:.4e}",

@@ -25,7 +25,7 @@ fn written_frames_score_the_flicker_the_run_reported() {
     );
     s.mode = Mode::Density;
     s.iters = 2;
-    s.octaves = 1;
+    s.octaves = Some(1);
     s.upsample = Upsample::Factor(1);
     s.sequence = Some(SequenceSettings { frames: "20-23".into(), ema: 0.0, ..SequenceSettings::default() });
     let reported = match stylize_sequence_files(&s, &mut Silent).unwrap() {

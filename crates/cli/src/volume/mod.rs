@@ -67,13 +67,13 @@ pub struct VolumeArgs {
     /// --model: context around each tile, in voxels (32 covers the network's reach).
     #[arg(long, default_value_t = ModelSettings::DEFAULT_MARGIN)]
     pub tile_margin: usize,
-    /// Octaves (coarse-to-fine levels).
-    #[arg(long, default_value_t = 2)]
-    pub octaves: usize,
+    /// Octaves (coarse-to-fine levels; default 2 in velocity mode, 3 in density mode).
+    #[arg(long)]
+    pub octaves: Option<usize>,
     /// Adam iterations per octave.
     #[arg(long, default_value_t = 20)]
     pub iters: usize,
-    /// Adam learning rate (default: 0.5 voxels per step in velocity mode, 0.1 in density mode).
+    /// Adam learning rate (default: 0.5 voxels per step in velocity mode, 0.2 in density mode).
     #[arg(long)]
     pub lr: Option<f32>,
     /// Largest stylization velocity, in voxels (velocity mode; default 4% of
