@@ -378,8 +378,14 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         reporter.status(&format!("resuming at step {} of {} from {}", c.step + 1, c.planned_steps, ckpt.display()));
     }
     let resumed_at = trainer.steps();
-    // γ = 8/P as the benchmark: the densest ray of a full patch gets optical depth ~8.
-    let view = ViewSpec { camera: None, gamma: 8.0 / s.patch as f32, exposure: 1.0, equalize: false };
+    // γ = 8/P as the benchmark: the densest ray of a full patch gets optical
+    // depth ~8. Exposure γ, as every picture the optimisation, the previews
+    // and the judges draw: grey = γ Σ d τ ≈ the ray's opacity, in [0, 1)
+    // like the painting. (Exposure 1, the benchmark's, drew dense smoke up
+    // to 1/γ = P/8 times too bright for VGG — 4 at the default patch — and
+    // the network learned its look on pictures nobody sees; until 2026-11-26.)
+    let gamma = 8.0 / s.patch as f32;
+    let view = ViewSpec { camera: None, gamma, exposure: gamma, equalize: false };
     let t0 = Instant::now();
     let sized = sizing;
     let (mut last_step, mut step_s) = (Instant::now(), 0.0f64);
