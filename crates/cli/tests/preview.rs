@@ -329,6 +329,10 @@ fn a_groom_is_judged_against_a_painting_from_every_picture() {
     let losses = |out: &str| out.lines().find(|l| l.contains("input ")).unwrap().to_string();
     assert_eq!(losses(&y), losses(&z), "a z-up copy drawn with --up z: the same pictures");
 
+    // A turntable needs a numbered --out, and says so in its own words.
+    let o = nst3d(&["--input", s(&hair), "--out", s(&dir.path().join("t.png")), "--turntable", "2"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("with --turntable needs"));
+
     // Only grooms are judged.
     let o = nst3d(&["--input", s(&plume(40)), "--out", s(&dir.path().join("v.png")), "--style", s(&style)]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("apply to grooms"));

@@ -81,6 +81,9 @@ pub fn preview_groom(s: &GroomPreviewSettings) -> Result<GroomPreviewReport> {
         anyhow::bail!("--height {}: give 16 to 8192 pixels", s.height);
     }
     nst3d_io::atomic::check_output("--out", &s.out, &["png"], &[]).map_err(anyhow::Error::msg)?;
+    if s.turntable.is_some() && !crate::settings::is_pattern(&s.out) {
+        anyhow::bail!("--out {} with --turntable needs a frame placeholder (#### or %04d)", s.out.display());
+    }
     let outs: Vec<PathBuf> = match s.turntable {
         Some(_) => (1..=n as i64).map(|i| frame_path(&s.out, i, "--out")).collect::<Result<_>>()?,
         None => vec![s.out.clone()],
