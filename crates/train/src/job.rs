@@ -389,7 +389,7 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     let t0 = Instant::now();
     let sized = sizing;
     let (mut last_step, mut step_s) = (Instant::now(), 0.0f64);
-    reporter.begin(trainer.schedule.total_steps - resumed_at);
+    reporter.begin(trainer.schedule.total_steps.saturating_sub(trainer.position().floor() as u64));
     while !trainer.schedule_done() {
         let d = &frames[(rng.next_u64() % frames.len() as u64) as usize];
         let origin: [usize; 3] = std::array::from_fn(|a| (rng.next_u64() % (d.dims[a] - s.patch + 1) as u64) as usize);
@@ -399,7 +399,17 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
             mirror: rng.uniform_f32() < 0.5,
         };
         let patch = rotated_patch(d, origin, s.patch, &rot);
+        let before = trainer.position().floor() as u64;
         let l = trainer.step(&patch, &loss, &view)?;
+        // The bar counts the schedule's steps: a paced run takes more or
+        // fewer training steps than its schedule has, as the clock says.
+        for _ in before..trainer.position().floor() as u64 {
+            reporter.step(&format!(
+                "step {}/{} loss {l:.4e}",
+                trainer.position().floor() as u64,
+                trainer.schedule.total_steps
+            ));
+        }
         if !l.is_finite() {
             bail!("the loss became {l} at step {} (try a smaller learning rate)", trainer.steps());
         }
@@ -427,7 +437,7 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
                     s.minutes.unwrap_or_default()
                 ));
                 reporter.end();
-                reporter.begin(total - trainer.steps());
+                reporter.begin(total.saturating_sub(trainer.position().floor() as u64));
                 step_s = elapsed / done as f64;
             } else if done > CALIBRATION_STEPS {
                 // The recent rate: a machine that got busier is seen within ~20 steps.
@@ -438,11 +448,6 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
                 trainer.pace = (left / steps_left).clamp(0.0, 8.0);
             }
         }
-        reporter.step(&format!(
-            "step {}/{} loss {l:.4e}",
-            trainer.position().floor() as u64,
-            trainer.schedule.total_steps
-        ));
         let out_of_time = s.minutes.is_some_and(|m| t0.elapsed().as_secs_f64() >= 60.0 * m);
         // A stopped run checkpoints first, so rerunning it resumes at this step.
         let stop = nst3d_core::stop::requested();
