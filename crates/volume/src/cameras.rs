@@ -66,12 +66,13 @@ impl CameraSet {
     /// The cameras for a grid of `dims` voxels. Omniview and ring cameras
     /// are built around +y and turned so their axis is the file's up axis.
     pub fn cameras(&self, lens: &Lens, dims: [usize; 3]) -> Vec<Camera> {
-        let (yup_dims, turn): ([usize; 3], fn([f32; 3]) -> [f32; 3]) = match lens.up {
-            UpAxis::Y => (dims, |v| v),
-            // Frame y is index z, frame z is index −y: the ring's first
-            // camera then sits on the −y side, as the z-up front camera.
-            UpAxis::Z => ([dims[0], dims[2], dims[1]], |v| [v[0], -v[2], v[1]]),
+        // Frame y is index z, frame z is index −y (`UpAxis::from_y_up`): the
+        // ring's first camera then sits on the −y side, as the z-up front camera.
+        let yup_dims = match lens.up {
+            UpAxis::Y => dims,
+            UpAxis::Z => [dims[0], dims[2], dims[1]],
         };
+        let turn = |v| lens.up.from_y_up(v);
         let cams = match *self {
             Self::Front => return vec![front_camera(dims, lens.up, lens.projection, lens.fov)],
             Self::Omniview(n) => nst3d_render::omniview(n, lens.seed, yup_dims, lens.projection),
@@ -157,7 +158,7 @@ pub fn turntable(count: usize, elevation: f32, dims: [usize; 3], up: UpAxis, pro
     match up {
         UpAxis::Y => cams,
         UpAxis::Z => {
-            let rot = |v: [f32; 3]| [v[0], -v[2], v[1]];
+            let rot = |v| UpAxis::Z.from_y_up(v);
             cams.into_iter()
                 .map(|c| {
                     let rel = rot(std::array::from_fn(|a| c.eye[a] - c.target[a]));
