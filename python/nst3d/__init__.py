@@ -257,6 +257,7 @@ def stylize_groom(
     up: Optional[str] = None,
     seed: Optional[int] = None,
     lr_scale: Optional[float] = None,
+    style_scale: Optional[float] = None,
     views_per_scale: Optional[int] = None,
     eval_views: Optional[int] = None,
     strand_width: Optional[float] = None,
@@ -287,7 +288,7 @@ def stylize_groom(
     c = [int(n) for n in np.asarray(counts).ravel()]
     opts = _options(
         preset=preset, iters=iters, scale_iters=scale_iters, render_size=render_size, proxies=proxies,
-        up=up, seed=seed, lr_scale=lr_scale, views_per_scale=views_per_scale, eval_views=eval_views,
+        up=up, seed=seed, lr_scale=lr_scale, style_scale=style_scale, views_per_scale=views_per_scale, eval_views=eval_views,
         strand_width=strand_width, rematch=rematch, weights=weights, preview=preview,
     )
     mesh_file = None
@@ -337,6 +338,7 @@ def stylize_groom_file(
     up: Optional[str] = None,
     seed: Optional[int] = None,
     lr_scale: Optional[float] = None,
+    style_scale: Optional[float] = None,
     views_per_scale: Optional[int] = None,
     eval_views: Optional[int] = None,
     strand_width: Optional[float] = None,
@@ -360,7 +362,7 @@ def stylize_groom_file(
         ema_sigma=ema_sigma, ema_nu=ema_nu, ema_clock=ema_clock, one_euro_alpha=one_euro_alpha,
         one_euro_beta=one_euro_beta, one_euro_fmin=one_euro_fmin, fps=fps, style_flow=style_flow,
         iters=iters, scale_iters=scale_iters, render_size=render_size, proxies=proxies, up=up,
-        seed=seed, lr_scale=lr_scale, views_per_scale=views_per_scale, eval_views=eval_views,
+        seed=seed, lr_scale=lr_scale, style_scale=style_scale, views_per_scale=views_per_scale, eval_views=eval_views,
         strand_width=strand_width, rematch=rematch, weights=weights, preview=preview,
     )
     return _nst3d.stylize_groom_file(

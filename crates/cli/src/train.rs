@@ -94,7 +94,9 @@ pub fn run(args: TrainArgs) -> Result<()> {
         out: args.out,
         checkpoint_every: args.checkpoint_every,
     };
+    let started = std::time::Instant::now();
     let r = nst3d_train::train(&settings, &mut Console::default())?;
+    let minutes = started.elapsed().as_secs_f64() / 60.0;
     let how = if r.resumed_at > 0 { format!(" (resumed at step {})", r.resumed_at + 1) } else { String::new() };
     let left = if r.schedule_done { "" } else { "; time budget reached, rerun to continue" };
     let steps = match r.sized {
@@ -102,7 +104,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
         false => format!("{} of {} steps", r.steps, r.planned_steps),
     };
     println!(
-        "trained {steps}{how}; loss {:.4e} (first 10 %) -> {:.4e} (last 10 %){left}; wrote {}",
+        "trained {steps}{how} in {minutes:.1} min; loss {:.4e} (first 10 %) -> {:.4e} (last 10 %){left}; wrote {}",
         r.loss_first,
         r.loss_last,
         r.out.display()

@@ -86,6 +86,8 @@ pub struct StrandSettings {
     pub seed: u64,
     /// Multiplier on the preset's learning rates (scaled by the groom's radius).
     pub lr_scale: f32,
+    /// The painting's scale on the hair: multiplies the preset's style sizes.
+    pub style_scale: f32,
     /// Cameras per scale whose matches are cached (0: a new camera every iteration).
     pub views_per_scale: usize,
     /// Evaluation views with `views_per_scale` 0.
@@ -135,6 +137,7 @@ impl StrandSettings {
             up: None,
             seed: 0,
             lr_scale: 1.0,
+            style_scale: 1.0,
             views_per_scale: 8,
             eval_views: 4,
             scale_iters: None,
@@ -156,6 +159,9 @@ impl StrandSettings {
         }
         if !(self.lr_scale.is_finite() && self.lr_scale > 0.0) {
             bail!("--lr-scale must be a positive number, got {}", self.lr_scale);
+        }
+        if !(self.style_scale.is_finite() && self.style_scale > 0.0) {
+            bail!("--style-scale must be a positive number, got {}", self.style_scale);
         }
         if self.scale_iters.is_some_and(|n| n.iter().all(|&k| k == 0)) {
             bail!("--scale-iters must run at least one iteration");
@@ -230,6 +236,7 @@ impl StrandSettings {
         }
         params.seed = self.seed;
         params.lr_scale = self.lr_scale;
+        params.style_scale = self.style_scale;
         params.views_per_scale = self.views_per_scale;
         params.eval_views = self.eval_views;
         if let Some(n) = self.scale_iters {

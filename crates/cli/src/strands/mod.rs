@@ -102,6 +102,9 @@ pub struct StrandsArgs {
     /// Multiplier on the preset's learning rates (scaled by the groom's radius).
     #[arg(long, default_value_t = 1.0)]
     lr_scale: f32,
+    /// The painting's scale on the hair: multiplies the preset's style sizes (2: strokes twice as large).
+    #[arg(long, default_value_t = 1.0)]
+    style_scale: f32,
     /// Cameras per scale whose matches are cached (0: a new camera every iteration).
     #[arg(long, default_value_t = 8)]
     views_per_scale: usize,
@@ -232,6 +235,7 @@ impl StrandsArgs {
             up: self.up,
             seed: self.seed,
             lr_scale: self.lr_scale,
+            style_scale: self.style_scale,
             views_per_scale: self.views_per_scale,
             eval_views: self.eval_views,
             scale_iters,

@@ -23,6 +23,9 @@ pub struct StylizeParams {
     pub seed: u64,
     /// Multiplier on the preset's learning rates.
     pub lr_scale: f32,
+    /// The painting's scale on the hair: multiplies the preset's style
+    /// sizes, so 2 draws the painting's strokes twice as large on the groom.
+    pub style_scale: f32,
     /// AdamW decoupled weight decay (PyTorch's default 0.01): pulls unused
     /// velocities back towards the rest groom.
     pub weight_decay: f32,
@@ -56,6 +59,7 @@ impl StylizeParams {
             proxies: (ratio * guides as f64).round() as usize,
             seed: 0,
             lr_scale: 1.0,
+            style_scale: 1.0,
             weight_decay: 0.01,
             views_per_scale: 8,
             eval_views: 4,
@@ -76,7 +80,7 @@ impl StylizeParams {
 
     /// Style image height of scale `l` at this render size.
     pub fn style_height(&self, l: usize) -> usize {
-        let s = self.render_size as f64 / self.preset.render_size.1.max(1) as f64;
+        let s = self.style_scale as f64 * self.render_size as f64 / self.preset.render_size.1.max(1) as f64;
         ((self.preset.style_sizes[l].1 as f64 * s).round() as usize).max(16)
     }
 
@@ -91,6 +95,9 @@ impl StylizeParams {
         if !(self.lr_scale.is_finite() && self.lr_scale > 0.0) {
             return bad(format!("learning-rate scale {} must be positive", self.lr_scale));
         }
+        if !(self.style_scale.is_finite() && self.style_scale > 0.0) {
+            return bad(format!("style scale {} must be positive", self.style_scale));
+        }
         if !(self.strand_width_px.is_finite() && self.strand_width_px > 0.0) {
             return bad(format!("strand width {} px must be positive", self.strand_width_px));
         }
@@ -101,5 +108,28 @@ impl StylizeParams {
             return bad("need at least one evaluation view".into());
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::preset::Preset;
+
+    /// `style_scale` multiplies every scale's style size (after the render
+    /// size's own factor) and must be positive.
+    #[test]
+    fn style_scale_multiplies_the_style_sizes() {
+        let base = StylizeParams::from_preset(Preset::ShortHair.params(), 100);
+        let sizes = |p: &StylizeParams| [0, 1, 2].map(|l| p.style_height(l));
+        assert_eq!(sizes(&base), [160, 240, 300]);
+        let half_render = StylizeParams { render_size: 300, ..base.clone() };
+        assert_eq!(sizes(&half_render), [80, 120, 150]);
+        let doubled = StylizeParams { render_size: 300, style_scale: 2.0, ..base.clone() };
+        assert_eq!(sizes(&doubled), [160, 240, 300]);
+        for bad in [0.0, -1.0, f32::NAN] {
+            assert!(StylizeParams { style_scale: bad, ..base.clone() }.validate().is_err(), "{bad}");
+        }
+        assert!(base.validate().is_ok());
     }
 }
