@@ -80,40 +80,41 @@ pub fn march_backward(g: &Grid3, gamma: f32, grad_img: &Image) -> Grid3 {
     out
 }
 
-/// The colour march (issue 29): emission–absorption with a per-voxel colour
-/// `c`, `I_ch = Σ_k c_ch,k · d_k · τ_k` for each channel `ch`, with the same
-/// transmittance `τ_k = exp(−γ · Σ_{j<k} d_j)` as [`march`]; so a colour of 1
-/// everywhere gives [`march`]'s image in every channel. `color` holds one grid
-/// per channel, each of `g`'s dims; the image has as many channels.
+/// The colour march (issue 29): emission–absorption, `I_ch = Σ_k e_ch,k · τ_k`
+/// for each channel `ch`, with the same transmittance
+/// `τ_k = exp(−γ · Σ_{j<k} d_j)` as [`march`]. The emission is premultiplied,
+/// `e = c · d` for a colour `c` per voxel, so it resamples linearly like the
+/// density (colour and density interpolated apart would darken every edge
+/// the zero padding touches), and `e = d` (white) is [`march`]'s image in
+/// every channel. `emission` holds one grid per channel, each of `g`'s dims;
+/// the image has as many channels.
 ///
 /// # Panics
-/// If a colour grid's dims differ from `g`'s.
-pub fn march_color(g: &Grid3, color: &[Grid3], gamma: f32) -> Image {
+/// If an emission grid's dims differ from `g`'s.
+pub fn march_emission(g: &Grid3, emission: &[Grid3], gamma: f32) -> Image {
     let [nx, ny, nz] = g.dims;
-    assert!(color.iter().all(|c| c.dims == g.dims), "march_color: colour grids must have the density's dims");
-    let channels = color.len();
-    let mut img = Image::zeros(channels, ny, nx);
+    assert!(emission.iter().all(|c| c.dims == g.dims), "march_emission: emission grids must have the density's dims");
+    let mut img = Image::zeros(emission.len(), ny, nx);
     if img.data.is_empty() {
         return img;
     }
     // One task per image row `y`, writing that row of every channel.
-    let mut rows: Vec<Vec<&mut [f32]>> = (0..ny).map(|_| Vec::with_capacity(channels)).collect();
+    let mut rows: Vec<Vec<&mut [f32]>> = (0..ny).map(|_| Vec::with_capacity(emission.len())).collect();
     for (r, row) in img.data.chunks_mut(nx).enumerate() {
         rows[r % ny].push(row);
     }
     rows.into_par_iter().enumerate().for_each(|(y, mut out)| {
         let mut depth = vec![0f32; nx];
-        let mut weight = vec![0f32; nx];
+        let mut tau = vec![0f32; nx];
         for z in 0..nz {
             let at = (z * ny + y) * nx;
-            let d = &g.data[at..][..nx];
-            for ((w, acc), &dv) in weight.iter_mut().zip(&mut depth).zip(d) {
-                *w = dv * (-gamma * *acc).exp();
+            for ((t, acc), &dv) in tau.iter_mut().zip(&mut depth).zip(&g.data[at..][..nx]) {
+                *t = (-gamma * *acc).exp();
                 *acc += dv;
             }
-            for (o, c) in out.iter_mut().zip(color) {
-                for ((o, &w), &cv) in o.iter_mut().zip(&weight).zip(&c.data[at..][..nx]) {
-                    *o += cv * w;
+            for (o, e) in out.iter_mut().zip(emission) {
+                for ((o, &t), &ev) in o.iter_mut().zip(&tau).zip(&e.data[at..][..nx]) {
+                    *o += ev * t;
                 }
             }
         }
@@ -121,46 +122,42 @@ pub fn march_color(g: &Grid3, color: &[Grid3], gamma: f32) -> Image {
     img
 }
 
-/// Backward of [`march_color`]: `(∂L/∂d, ∂L/∂c)` for `grad_img = ∂L/∂I`
+/// Backward of [`march_emission`]: `(∂L/∂d, ∂L/∂e)` for `grad_img = ∂L/∂I`
 /// (`channels x ny x nx`).
 ///
-/// `∂I_ch/∂c_ch,k = d_k τ_k`; `∂I_ch/∂d_k = c_ch,k τ_k − γ S_ch,k` with
-/// `S_ch,k = Σ_{j>k} c_ch,j d_j τ_j` the colour emitted behind voxel `k`,
-/// read off a running prefix sum as in [`march_backward`]. The channels'
-/// density gradients add, so `∂L/∂d_k = Σ_ch g_ch (c_ch,k τ_k − γ S_ch,k)`.
+/// `∂I_ch/∂e_ch,k = τ_k`; `∂I_ch/∂d_k = −γ S_ch,k` with `S_ch,k = Σ_{j>k}
+/// e_ch,j τ_j` the light emitted behind voxel `k`, read off a running prefix
+/// sum as in [`march_backward`]; the channels' density gradients add.
 ///
 /// # Panics
-/// If the colour grids or `grad_img` do not match `g`.
-pub fn march_color_backward(g: &Grid3, color: &[Grid3], gamma: f32, grad_img: &Image) -> (Grid3, Vec<Grid3>) {
+/// If the emission grids or `grad_img` do not match `g`.
+pub fn march_emission_backward(g: &Grid3, emission: &[Grid3], gamma: f32, grad_img: &Image) -> (Grid3, Vec<Grid3>) {
     let [nx, ny, nz] = g.dims;
-    let channels = color.len();
-    assert!(color.iter().all(|c| c.dims == g.dims), "march_color_backward: colour grids must have the density's dims");
+    let channels = emission.len();
+    assert!(emission.iter().all(|c| c.dims == g.dims), "march_emission_backward: emission grids must have the density's dims");
     assert!(
         grad_img.channels == channels && grad_img.height == ny && grad_img.width == nx,
-        "march_color_backward: gradient image must be {channels} x {ny} x {nx}"
+        "march_emission_backward: gradient image must be {channels} x {ny} x {nx}"
     );
     let mut grad_d = Grid3::zeros(g.dims);
-    let mut grad_c: Vec<Grid3> = (0..channels).map(|_| Grid3::zeros(g.dims)).collect();
+    let mut grad_e: Vec<Grid3> = (0..channels).map(|_| Grid3::zeros(g.dims)).collect();
     if grad_d.is_empty() {
-        return (grad_d, grad_c);
+        return (grad_d, grad_e);
     }
-    // Each task owns every output row with its `y` (density and colour), so
+    // Each task owns every output row with its `y` (density and emission), so
     // the strided writes stay disjoint.
     struct Slab<'a> {
         d: Vec<&'a mut [f32]>,
-        c: Vec<Vec<&'a mut [f32]>>,
+        e: Vec<Vec<&'a mut [f32]>>,
     }
-    let mut slabs: Vec<Slab> = (0..ny).map(|_| Slab { d: Vec::with_capacity(nz), c: Vec::with_capacity(channels) }).collect();
+    let mut slabs: Vec<Slab> =
+        (0..ny).map(|_| Slab { d: Vec::with_capacity(nz), e: (0..channels).map(|_| Vec::with_capacity(nz)).collect() }).collect();
     for (r, row) in grad_d.data.chunks_mut(nx).enumerate() {
         slabs[r % ny].d.push(row);
     }
-    for gc in grad_c.iter_mut() {
-        for s in slabs.iter_mut() {
-            s.c.push(Vec::with_capacity(nz));
-        }
-        let ch = slabs[0].c.len() - 1;
-        for (r, row) in gc.data.chunks_mut(nx).enumerate() {
-            slabs[r % ny].c[ch].push(row);
+    for (ch, ge) in grad_e.iter_mut().enumerate() {
+        for (r, row) in ge.data.chunks_mut(nx).enumerate() {
+            slabs[r % ny].e[ch].push(row);
         }
     }
     slabs.into_par_iter().enumerate().for_each(|(y, mut slab)| {
@@ -176,34 +173,30 @@ pub fn march_color_backward(g: &Grid3, color: &[Grid3], gamma: f32, grad_img: &I
                 t[x] = (-gamma * depth[x]).exp();
                 depth[x] += d[x];
             }
-            for (ch, c) in color.iter().enumerate() {
-                let c = &c.data[at..][..nx];
-                for x in 0..nx {
-                    total[ch * nx + x] += c[x] * d[x] * t[x];
+            for (ch, e) in emission.iter().enumerate() {
+                for (tot, (&ev, &tv)) in total[ch * nx..][..nx].iter_mut().zip(e.data[at..][..nx].iter().zip(t.iter())) {
+                    *tot += ev * tv;
                 }
             }
         }
         let mut prefix = vec![0f32; channels * nx];
         for z in 0..nz {
             let at = (z * ny + y) * nx;
-            let d = &g.data[at..][..nx];
             let t = &tau[z * nx..][..nx];
-            let gd = &mut slab.d[z];
-            gd.fill(0.0);
-            for (ch, c) in color.iter().enumerate() {
-                let c = &c.data[at..][..nx];
+            slab.d[z].fill(0.0);
+            for (ch, e) in emission.iter().enumerate() {
+                let e = &e.data[at..][..nx];
                 let gi = &grad_img.data[(ch * ny + y) * nx..][..nx];
-                let gc = &mut slab.c[ch][z];
                 for x in 0..nx {
                     let p = &mut prefix[ch * nx + x];
-                    *p += c[x] * d[x] * t[x];
-                    gd[x] += gi[x] * (c[x] * t[x] - gamma * (total[ch * nx + x] - *p));
-                    gc[x] = gi[x] * d[x] * t[x];
+                    *p += e[x] * t[x];
+                    slab.d[z][x] -= gi[x] * gamma * (total[ch * nx + x] - *p);
+                    slab.e[ch][z][x] = gi[x] * t[x];
                 }
             }
         }
     });
-    (grad_d, grad_c)
+    (grad_d, grad_e)
 }
 
 #[cfg(test)]
@@ -239,29 +232,30 @@ mod tests {
     }
 
     #[test]
-    fn white_color_is_the_grey_march() {
+    fn white_emission_is_the_grey_march() {
         let dims = [5, 4, 6];
         let g = Grid3::from_vec(dims, pseudo_random(120, 21).iter().map(|v| v.abs()).collect());
-        let white = vec![Grid3::from_vec(dims, vec![1.0; 120]); 3];
+        let white = vec![g.clone(); 3];
         let grey = march(&g, 0.7);
-        let rgb = march_color(&g, &white, 0.7);
+        let rgb = march_emission(&g, &white, 0.7);
         assert_eq!((rgb.channels, rgb.height, rgb.width), (3, 4, 5));
         for ch in 0..3 {
             for (a, b) in rgb.data[ch * 20..][..20].iter().zip(&grey.data) {
                 assert!((a - b).abs() <= 1e-6 * (1.0 + b.abs()), "{a} vs {b}");
             }
         }
-        // And the grey march's gradient is the sum of the channels' density gradients.
+        // With e = d, the grey march's gradient is the density's plus the emission's.
         let w = Image::from_vec(1, 4, 5, pseudo_random(20, 22));
         let w3 = Image::from_vec(3, 4, 5, [w.data.clone(), vec![0.0; 20], vec![0.0; 20]].concat());
-        let (gd, _) = march_color_backward(&g, &white, 0.7, &w3);
-        for (a, b) in gd.data.iter().zip(&march_backward(&g, 0.7, &w).data) {
+        let (gd, ge) = march_emission_backward(&g, &white, 0.7, &w3);
+        let total: Vec<f32> = gd.data.iter().zip(&ge[0].data).map(|(a, b)| a + b).collect();
+        for (a, b) in total.iter().zip(&march_backward(&g, 0.7, &w).data) {
             assert!((a - b).abs() <= 1e-5 * (1.0 + b.abs()), "{a} vs {b}");
         }
     }
 
     #[test]
-    fn march_color_gradient_check() {
+    fn march_emission_gradient_check() {
         let dims = [4, 3, 6];
         let n = 72;
         let d: Vec<f32> = pseudo_random(n, 31).iter().map(|v| v.abs()).collect();
@@ -275,14 +269,14 @@ mod tests {
         let x0 = [d, c].concat();
         let (g, col) = split(&x0);
         let w = Image::from_vec(3, 3, 4, pseudo_random(36, 33));
-        let (gd, gc) = march_color_backward(&g, &col, gamma, &w);
+        let (gd, gc) = march_emission_backward(&g, &col, gamma, &w);
         let analytic = [gd.data, gc.into_iter().flat_map(|c| c.data).collect()].concat();
         let r = check_gradient(
             &x0,
             &analytic,
             |x| {
                 let (g, col) = split(x);
-                dot(&w.data, &march_color(&g, &col, gamma).data)
+                dot(&w.data, &march_emission(&g, &col, gamma).data)
             },
             1e-3,
             4 * n,

@@ -2,7 +2,7 @@
 //! lattice, then march it; the backward runs the same two stages in reverse.
 
 use crate::camera::{Affine, Camera, Frustum, Sampling, View};
-use crate::march::{march, march_backward};
+use crate::march::{march, march_backward, march_emission, march_emission_backward};
 use crate::RenderError;
 use nst3d_core::{Grid3, Image};
 use nst3d_transport::{sample_trilinear_rows, sample_trilinear_rows_backward};
@@ -69,26 +69,23 @@ pub fn render_view(g: &Grid3, view: View, gamma: f32) -> Result<(Image, RenderCa
     if !gamma.is_finite() {
         return Err(RenderError::BadGamma(gamma));
     }
+    let lattice = to_lattice(g, &view);
+    let img = march(&lattice, gamma);
+    Ok((img, RenderCache { view, lattice, gamma }))
+}
+
+/// `g` resampled on the view's lattice (or permuted, for axis-aligned views).
+fn to_lattice(g: &Grid3, view: &View) -> Grid3 {
     let [w, h, _] = view.dims;
     let data = match &view.sampling {
         Sampling::Axis { lattice_to_grid, .. } => permute(&g.data, view.dims, lattice_to_grid),
         Sampling::Resample(f) => sample_trilinear_rows(g, view.dims.iter().product(), w, lattice_positions(f, h)),
     };
-    let lattice = Grid3::from_vec(view.dims, data);
-    let img = march(&lattice, gamma);
-    Ok((img, RenderCache { view, lattice, gamma }))
+    Grid3::from_vec(view.dims, data)
 }
 
-/// Backward of [`render`]: `∂L/∂g` for `grad_img = ∂L/∂I`, march backward on
-/// the lattice, then the resampling's adjoint (a scatter into the grid, or
-/// the inverse permutation for axis-aligned views).
-///
-/// # Panics
-/// If `grad_img` does not have the rendered image's shape.
-pub fn render_backward(g: &Grid3, cache: &RenderCache, grad_img: &Image) -> Grid3 {
-    let view = &cache.view;
-    assert_eq!(g.dims, view.grid_dims, "render_backward: grid differs from the rendered one");
-    let grad_lattice = march_backward(&cache.lattice, cache.gamma, grad_img);
+/// Adjoint of [`to_lattice`]: a lattice gradient scattered back onto the grid.
+fn from_lattice(g: &Grid3, view: &View, grad_lattice: &Grid3) -> Grid3 {
     match &view.sampling {
         Sampling::Axis { grid_to_lattice, .. } => {
             Grid3::from_vec(view.grid_dims, permute(&grad_lattice.data, view.grid_dims, grid_to_lattice))
@@ -108,6 +105,81 @@ pub fn render_backward(g: &Grid3, cache: &RenderCache, grad_img: &Image) -> Grid
             grad
         }
     }
+}
+
+/// Backward of [`render`]: `∂L/∂g` for `grad_img = ∂L/∂I`, march backward on
+/// the lattice, then the resampling's adjoint (a scatter into the grid, or
+/// the inverse permutation for axis-aligned views).
+///
+/// # Panics
+/// If `grad_img` does not have the rendered image's shape.
+pub fn render_backward(g: &Grid3, cache: &RenderCache, grad_img: &Image) -> Grid3 {
+    let view = &cache.view;
+    assert_eq!(g.dims, view.grid_dims, "render_backward: grid differs from the rendered one");
+    let grad_lattice = march_backward(&cache.lattice, cache.gamma, grad_img);
+    from_lattice(g, view, &grad_lattice)
+}
+
+/// What [`render_color_backward`] needs from the forward pass.
+#[derive(Clone, Debug)]
+pub struct ColorRenderCache {
+    /// The camera lattice the image was marched on.
+    pub view: View,
+    /// Densities resampled on the lattice.
+    pub lattice: Grid3,
+    /// Each channel's emission `c · d` resampled on the lattice.
+    pub emission: Vec<Grid3>,
+    /// Absorption the march used.
+    pub gamma: f32,
+}
+
+/// [`render_view`] with a colour per voxel (issue 29): the emission
+/// `c · d` of each channel is formed on the grid, resampled on the camera
+/// lattice like the density, and marched by [`march_emission`] into a
+/// `channels x H x W` image; colour 1 everywhere renders the grey image.
+pub fn render_color_view(
+    g: &Grid3,
+    color: &[Grid3],
+    view: View,
+    gamma: f32,
+) -> Result<(Image, ColorRenderCache), RenderError> {
+    if let Some(c) = color.iter().find(|c| c.dims != g.dims) {
+        return Err(RenderError::ViewMismatch { view: g.dims, grid: c.dims });
+    }
+    let (_, cache) = render_view(g, view, gamma)?;
+    let emission: Vec<Grid3> = color
+        .iter()
+        .map(|c| {
+            let e = Grid3::from_vec(g.dims, c.data.iter().zip(&g.data).map(|(c, d)| c * d).collect());
+            to_lattice(&e, &cache.view)
+        })
+        .collect();
+    let img = march_emission(&cache.lattice, &emission, gamma);
+    Ok((img, ColorRenderCache { view: cache.view, lattice: cache.lattice, emission, gamma }))
+}
+
+/// Backward of [`render_color_view`]: `(∂L/∂g, ∂L/∂color)`, through the
+/// march, the resampling's adjoint and the product `e = c · d`.
+///
+/// # Panics
+/// If `grad_img` or `color` do not match the render.
+pub fn render_color_backward(g: &Grid3, color: &[Grid3], cache: &ColorRenderCache, grad_img: &Image) -> (Grid3, Vec<Grid3>) {
+    assert_eq!(g.dims, cache.view.grid_dims, "render_color_backward: grid differs from the rendered one");
+    assert_eq!(color.len(), cache.emission.len(), "render_color_backward: channel count differs from the render's");
+    let (gd_lat, ge_lat) = march_emission_backward(&cache.lattice, &cache.emission, cache.gamma, grad_img);
+    let mut grad_d = from_lattice(g, &cache.view, &gd_lat);
+    let grad_c = color
+        .iter()
+        .zip(&ge_lat)
+        .map(|(c, ge)| {
+            let ge = from_lattice(g, &cache.view, ge);
+            for ((gd, &gev), &cv) in grad_d.data.iter_mut().zip(&ge.data).zip(&c.data) {
+                *gd += gev * cv;
+            }
+            Grid3::from_vec(g.dims, ge.data.iter().zip(&g.data).map(|(gev, d)| gev * d).collect())
+        })
+        .collect();
+    (grad_d, grad_c)
 }
 
 #[cfg(test)]
@@ -292,5 +364,56 @@ mod tests {
         let away = Camera { target: [3.5, 3.5, 100.0], ..Camera::front(dims).with_projection(Projection::Perspective) };
         assert!(away.view(dims).is_err());
         assert_eq!(Camera::front([0, 3, 3]).view([0, 3, 3]), Err(RenderError::EmptyGrid));
+    }
+
+    fn render_color_gradient_check(cam: Camera) {
+        let dims = [5, 4, 6];
+        let n = 120;
+        let g = random_density(dims, 41);
+        let color: Vec<Grid3> =
+            (0..3).map(|ch| Grid3::from_vec(dims, pseudo_random(n, 42 + ch).iter().map(|v| 0.5 + 0.4 * v).collect())).collect();
+        let gamma = 0.4;
+        let view = cam.view(dims).unwrap();
+        let (img, cache) = render_color_view(&g, &color, view, gamma).unwrap();
+        assert_eq!(img.channels, 3);
+        let w = Image::from_vec(3, img.height, img.width, pseudo_random(img.data.len(), 45));
+        let (gd, gc) = render_color_backward(&g, &color, &cache, &w);
+        let x0 = [g.data.clone(), color.iter().flat_map(|c| c.data.clone()).collect()].concat();
+        let analytic = [gd.data, gc.into_iter().flat_map(|c| c.data).collect()].concat();
+        let r = check_gradient(
+            &x0,
+            &analytic,
+            |x| {
+                let g = Grid3::from_vec(dims, x[..n].to_vec());
+                let col: Vec<Grid3> = (0..3).map(|ch| Grid3::from_vec(dims, x[n + ch * n..][..n].to_vec())).collect();
+                dot(&w.data, &render_color_view(&g, &col, view, gamma).unwrap().0.data)
+            },
+            3e-2,
+            4 * n,
+            1e-2,
+        );
+        assert!(r.max_rel_err < 5e-3, "{cam:?}: {r:?}");
+    }
+
+    #[test]
+    fn render_color_gradient_axis_and_rotated() {
+        render_color_gradient_check(Camera::front([5, 4, 6]));
+        render_color_gradient_check(Camera::orbit([5, 4, 6], 30.0, 20.0));
+        render_color_gradient_check(Camera::orbit([5, 4, 6], -50.0, 35.0).with_projection(Projection::Perspective));
+    }
+
+    /// Colour 1 everywhere renders the grey image in every channel.
+    #[test]
+    fn white_render_is_grey_render() {
+        let dims = [6, 5, 7];
+        let g = random_density(dims, 46);
+        let white = vec![Grid3::from_vec(dims, vec![1.0; 210]); 3];
+        let cam = Camera::orbit(dims, 25.0, 10.0);
+        let (grey, _) = render(&g, &cam, 0.5).unwrap();
+        let (rgb, _) = render_color_view(&g, &white, cam.view(dims).unwrap(), 0.5).unwrap();
+        let plane = grey.data.len();
+        for ch in 0..3 {
+            assert_close(&rgb.data[ch * plane..][..plane], &grey.data, 1e-5, "channel");
+        }
     }
 }
