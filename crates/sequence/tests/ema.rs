@@ -56,6 +56,7 @@ fn ema_cuts_flicker() {
             learning_rate: 0.3,
             limits: Limits { vmax: 2.0, smin: 0.0, smax: 2.0 },
             view: view.clone(),
+            color: false,
         };
         let mut store = MemoryStore::default();
         let params = SequenceParams { frame, alpha, settle_first_sweep: false };
@@ -116,6 +117,7 @@ fn disk_store_resumes_exactly() {
         learning_rate: 0.3,
         limits: Limits { vmax: 2.0, smin: 0.0, smax: 2.0 },
         view: view.clone(),
+        color: false,
     };
     let params = SequenceParams { frame, alpha: 0.7, settle_first_sweep: true };
     // Two views per frame, the second a turntable step that moves with the frame (a camera path).
@@ -212,6 +214,7 @@ fn a_break_splits_the_ema_chain() {
         learning_rate: 0.3,
         limits: Limits { vmax: 2.0, smin: 0.0, smax: 2.0 },
         view: view.clone(),
+        color: false,
     };
     let params = SequenceParams { frame, alpha: 0.7, settle_first_sweep: false };
     let run = |sim: &dyn Simulation| {

@@ -15,5 +15,5 @@ pub mod frame;
 pub mod view;
 
 pub use field::{Field, Limits, Mode, Tape};
-pub use frame::{stylize_frame, stylize_frame_views, FrameParams, FrameResult, Progress};
-pub use view::{view_image, StyleSpec, ViewError, ViewLoss, ViewSpec};
+pub use frame::{stylize_frame, stylize_frame_views, FrameParams, FrameResult, Progress, COLOR_RANGE};
+pub use view::{color_view_image, view_image, StyleSpec, ViewError, ViewLoss, ViewSpec};

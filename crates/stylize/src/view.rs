@@ -21,6 +21,9 @@ pub enum ViewError {
     /// The style layers and weights do not fit together.
     #[error(transparent)]
     Loss(#[from] nst3d_loss::LossError),
+    /// A colour view was asked for without a camera (the benchmark's raw march).
+    #[error("colour views need a camera")]
+    ColorNeedsCamera,
     /// The caller asked the job to stop ([`nst3d_core::stop`]).
     #[error(transparent)]
     Interrupted(#[from] nst3d_core::stop::Interrupted),
@@ -121,6 +124,58 @@ impl<'a> ViewLoss<'a> {
         };
         Ok((loss, grad_d))
     }
+}
+
+/// Colour (issue 29): `d` carries a colour per voxel, one grid per RGB
+/// channel in `color`, rendered by emission–absorption
+/// ([`render::render_color_view`]) and fed to VGG-19 as it is — no grey
+/// expansion. The painting must then be the RGB one (`ViewLoss::new` with
+/// the colour image). Histogram equalisation (eq. 7) is defined on grey
+/// pictures only, so colour views skip it.
+impl ViewLoss<'_> {
+    /// Colour style loss of one view, without gradient.
+    pub fn loss_color(&self, d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result<f32, ViewError> {
+        let (rgb, _) = rgb(d, color, view)?;
+        let fwd = self.vgg.forward(&render::upsample2x(&rgb), &self.layers, false);
+        Ok(nst3d_loss::style_loss(&fwd.features(), &self.target)?.0)
+    }
+
+    /// Colour style loss of one view and its gradients w.r.t. `d` and each
+    /// colour channel.
+    pub fn loss_and_grad_color(
+        &self,
+        d: &Grid3,
+        color: &[Grid3],
+        view: &ViewSpec,
+    ) -> Result<(f32, Grid3, Vec<Grid3>), ViewError> {
+        let (rgb, cache) = rgb(d, color, view)?;
+        let fwd = self.vgg.forward(&render::upsample2x(&rgb), &self.layers, true);
+        let feats = fwd.features();
+        let (loss, tap_grads) = nst3d_loss::style_loss(&feats, &self.target)?;
+        let grads: Vec<FeatureView> =
+            feats.iter().zip(&tap_grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
+        let mut grad = render::upsample2x_backward(&self.vgg.backward(&fwd, &grads));
+        if view.exposure != 1.0 {
+            grad.data.iter_mut().for_each(|v| *v *= view.exposure);
+        }
+        let (grad_d, grad_c) = render::render_color_backward(d, color, &cache, &grad);
+        Ok((loss, grad_d, grad_c))
+    }
+}
+
+/// The colour picture of `d` with `color` seen from `view` (render and
+/// exposure; no equalisation), before upsampling.
+pub fn color_view_image(d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result<Image, ViewError> {
+    Ok(rgb(d, color, view)?.0)
+}
+
+fn rgb(d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result<(Image, render::ColorRenderCache), ViewError> {
+    let cam = view.camera.ok_or(ViewError::ColorNeedsCamera)?;
+    let (mut img, cache) = render::render_color_view(d, color, cam.view(d.dims)?, view.gamma)?;
+    if view.exposure != 1.0 {
+        img.data.iter_mut().for_each(|v| *v *= view.exposure);
+    }
+    Ok((img, cache))
 }
 
 /// The grey image of `d` seen from `view` (render, exposure, equalisation),

@@ -103,7 +103,7 @@ fn octaves_lower_the_loss_and_keep_the_limits() {
     let view = ViewSpec { camera: Some(Camera::front(d.dims)), gamma: 0.2, exposure: 0.2, equalize: false };
     for (mode, lr) in [(Mode::Velocity, 0.5), (Mode::Density, 0.1)] {
         let limits = Limits { vmax: 1.5, smin: 0.2, smax: 1.8 };
-        let params = FrameParams { mode, octaves: 2, iterations: 8, learning_rate: lr, limits, view: view.clone() };
+        let params = FrameParams { mode, octaves: 2, iterations: 8, learning_rate: lr, limits, view: view.clone(), color: false };
         let mut steps = 0;
         let r = stylize_frame(&d, &loss, &params, &mut |_| steps += 1).unwrap();
         assert_eq!(steps, 16);
@@ -209,4 +209,96 @@ fn density_mode_scales_the_smoke_by_a_smooth_field() {
     assert!(rough < 0.9, "voxel-scale scale noise: roughness {rough:.3}");
     assert!(s.iter().all(|v| (0.0..=2.0).contains(v)), "scale left [smin, smax]");
     assert!(s.iter().any(|v| (v - 1.0).abs() > 0.3), "the scale did not move");
+}
+
+/// A colourful painting: red and blue stripes (no grey picture has them).
+fn color_style(n: usize) -> Image {
+    let mut img = Image::zeros(3, n, n);
+    for y in 0..n {
+        for x in 0..n {
+            let red = (x + 2 * y) % 8 < 4;
+            let rgb = if red { [0.9, 0.15, 0.1] } else { [0.1, 0.2, 0.85] };
+            for c in 0..3 {
+                img.data[(c * n + y) * n + x] = rgb[c];
+            }
+        }
+    }
+    img
+}
+
+/// Issue 29: with `color` the frame gets an RGB colour per voxel; the RGB
+/// loss falls well below what the grey stylisation (white colour) reaches,
+/// the colour stays in its range and is no longer white, and without
+/// `color` there is none.
+#[test]
+fn color_lowers_the_rgb_loss_beyond_grey() {
+    let vgg = Vgg19::random(VggFlavor::Torchvision, 2);
+    let loss = ViewLoss::new(&vgg, &color_style(32), &StyleSpec::default()).unwrap();
+    let d = synthetic_smoke(24, 9);
+    let view = ViewSpec { camera: Some(Camera::front(d.dims)), gamma: 0.2, exposure: 0.2, equalize: false };
+    let limits = Limits { vmax: 1.5, smin: 0.2, smax: 1.8 };
+    let grey = FrameParams { mode: Mode::Density, octaves: 2, iterations: 8, learning_rate: 0.1, limits, view: view.clone(), color: false };
+    let g = stylize_frame(&d, &loss, &grey, &mut |_| {}).unwrap();
+    assert!(g.color.is_none());
+    let white = vec![Grid3::from_vec(d.dims, vec![1.0; d.len()]); 3];
+    let grey_rgb_loss = loss.loss_color(&g.density, &white, &view).unwrap();
+
+    let c = stylize_frame(&d, &loss, &FrameParams { color: true, ..grey }, &mut |_| {}).unwrap();
+    let color = c.color.as_ref().expect("a colour");
+    assert_eq!(color.len(), 3);
+    let (lo, hi) = nst3d_stylize::COLOR_RANGE;
+    assert!(color.iter().all(|ch| ch.dims == d.dims && ch.data.iter().all(|v| (lo..=hi).contains(v))));
+    let moved = color.iter().flat_map(|ch| &ch.data).map(|v| (v - 1.0).abs()).fold(0f32, f32::max);
+    assert!(moved > 0.1, "colour stayed white (max change {moved})");
+    assert!(
+        c.loss_after < 0.8 * grey_rgb_loss,
+        "colour RGB loss {} vs the grey result's {}",
+        c.loss_after,
+        grey_rgb_loss
+    );
+}
+
+/// d(RGB loss)/d(density, colour) through render, upsampling, VGG and the
+/// Gram loss against finite differences (same tolerance rule as the grey
+/// chain above: most probed entries agree within 5 %).
+#[test]
+fn color_view_gradient_matches_finite_differences() {
+    nst3d_core::precision::fp32(|| {
+        let vgg = Vgg19::random(VggFlavor::Torchvision, 5);
+        let loss = ViewLoss::new(&vgg, &color_style(16), &StyleSpec::default()).unwrap();
+        let dims = [8, 8, 6];
+        let n = 384;
+        let d = Grid3::from_vec(dims, pseudo_random(n, 51).iter().map(|v| 0.5 + 0.4 * v).collect());
+        let color: Vec<Grid3> =
+            (0..3).map(|ch| Grid3::from_vec(dims, pseudo_random(n, 52 + ch).iter().map(|v| 1.0 + 0.5 * v).collect())).collect();
+        let view = ViewSpec { camera: Some(Camera::orbit(dims, 20.0, 10.0)), gamma: 0.3, exposure: 0.3, equalize: false };
+        let (_, gd, gc) = loss.loss_and_grad_color(&d, &color, &view).unwrap();
+        let x0: Vec<f32> = [d.data.clone(), color.iter().flat_map(|c| c.data.clone()).collect()].concat();
+        let analytic: Vec<f32> = [gd.data, gc.into_iter().flat_map(|c| c.data).collect()].concat();
+        let f = |x: &[f32]| {
+            let d = Grid3::from_vec(dims, x[..n].to_vec());
+            let c: Vec<Grid3> = (0..3).map(|ch| Grid3::from_vec(dims, x[n + ch * n..][..n].to_vec())).collect();
+            loss.loss_color(&d, &c, &view).unwrap() as f64
+        };
+        let big = analytic.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let (mut agree, mut probed) = (0, 0);
+        for i in (0..x0.len()).step_by(7) {
+            if analytic[i].abs() < 0.05 * big {
+                continue;
+            }
+            let h = 1e-2f32;
+            let mut xp = x0.clone();
+            xp[i] += h;
+            let mut xm = x0.clone();
+            xm[i] -= h;
+            let fd = (f(&xp) - f(&xm)) / (2.0 * h as f64);
+            probed += 1;
+            assert!(fd.signum() == (analytic[i] as f64).signum(), "sign at {i}: fd {fd} vs {}", analytic[i]);
+            if ((fd - analytic[i] as f64) / fd).abs() < 0.05 {
+                agree += 1;
+            }
+        }
+        assert!(probed >= 20, "only {probed} large entries probed");
+        assert!(agree as f64 >= 0.7 * probed as f64, "{agree} of {probed} agree within 5%");
+    })
 }

@@ -248,6 +248,7 @@ impl VolumeSettings {
                 smax: 1.0 + self.reach() * (self.smax - 1.0),
             },
             view: view.clone(),
+            color: false,
         }
     }
 
