@@ -144,8 +144,11 @@ const PAIRINGS: &[Pairing] = &[
         rust: "apply_volume",
         not_options: &["density", "style", "progress", "report", "projection"],
         // An array in memory: no files, sequences or models (stylize_vdb,
-        // Model.stylize); the camera file is read by the CLI's file job only.
+        // Model.stylize); the camera file is read by the CLI's file job only;
+        // the colour is written as a grid of the file (one array comes back).
         cli_only: &[
+            "color",
+            "color_grid",
             "input",
             "out",
             "frames",

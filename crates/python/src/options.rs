@@ -128,6 +128,8 @@ pub fn apply_volume(s: &mut VolumeSettings, mut o: Options<'_>) -> PyResult<()> 
             .map_err(|e| PyValueError::new_err(format!("option 'strength': {e}")))?;
     }
     set!(o.bool("style_color") => s.style_color);
+    set!(o.bool("color") => s.color);
+    set!(o.string("color_grid") => Some s.color_grid);
     if let Some(v) = o.typed("layers", "a list of layer names", |v| v.extract::<Vec<String>>())? {
         s.layers = v
             .iter()

@@ -67,6 +67,9 @@ pub struct StylizedGrid {
     pub density: Grid3,
     /// Empty voxels added on every side before stylizing.
     pub margin: usize,
+    /// With `color`: the RGB colour over the same box as `density`, one grid
+    /// per channel (a multiplier of the grey emission, 1 = white).
+    pub color: Option<Vec<Grid3>>,
     /// How many times finer than the input it was stylized.
     pub upsample: usize,
     /// The (refined) input box's size in voxels, without the margin.
@@ -118,7 +121,12 @@ pub fn stylize_frame_file(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Re
     let (bx, dense) = grid.to_dense()?;
     let r = stylize_grid(s, dense, &grid.transform, bx.origin, &grid.name, reporter)?;
     let origin = r.origin.map(|o| o - r.margin as i32);
-    for dropped in write_stylized(&s.out, &file, &grid.name, &r.transform, origin, &r.density)? {
+    let color_name = s.color_grid.clone().unwrap_or_else(|| crate::output::color_grid_name(&file, s.up).to_string());
+    let color = r.color.as_ref().map(|c| (color_name.as_str(), &c[..]));
+    if color.is_some() && color_name == grid.name {
+        bail!("--color-grid '{color_name}' is the stylized grid's own name");
+    }
+    for dropped in write_stylized(&s.out, &file, &grid.name, &r.transform, origin, &r.density, color)? {
         reporter.note(&format!("{dropped} is not copied to the output"));
     }
     Ok(FrameReport {
@@ -212,7 +220,11 @@ pub fn stylize_grid(
         // Before | after | the painting, all scaled to one readable height.
         let h = PREVIEW_HEIGHT;
         let before = resize_to_height(&display(&loss, &padded, &view)?, h);
-        let after = resize_to_height(&display(&loss, &result.density, &view)?, h);
+        let after = match &result.color {
+            None => display(&loss, &result.density, &view)?,
+            Some(c) => nst3d_render::upsample2x(&nst3d_stylize::color_view_image(&result.density, c, &view)?),
+        };
+        let after = resize_to_height(&after, h);
         let painting = resize_to_height(&style, h);
         write_png(preview, &side_by_side(&[&before, &after, &painting]))?;
     }
@@ -225,6 +237,7 @@ pub fn stylize_grid(
         loss_before: result.loss_before,
         loss_after: result.loss_after,
         density: result.density,
+        color: result.color,
         margin,
         upsample: k,
         dims,

@@ -554,7 +554,7 @@ fn write_frames(
             }
             let file = read_vdb(&sim.inner.paths[t])?;
             file.grid(&s.grid).context("the grid vanished")?;
-            let dropped = write_stylized(&outs[i], &file, &s.grid, transform, origin, &d)?;
+            let dropped = write_stylized(&outs[i], &file, &s.grid, transform, origin, &d, None)?;
             Ok((d, dropped))
         })();
         match result {

@@ -52,6 +52,14 @@ pub struct VolumeSettings {
     pub strength: f32,
     /// Match the painting's colour Grams too, not only its luminance's.
     pub style_color: bool,
+    /// Stylize an RGB colour per voxel with the density (issue 29): the
+    /// smoke is rendered in colour (emission–absorption), the painting's
+    /// colour Grams are matched, and the output gains a vec3 colour grid
+    /// over the smoke's voxels. Single frames, optimisation only for now.
+    pub color: bool,
+    /// Name of the written colour grid; `None`: by the input's grid names,
+    /// else the up axis ([`crate::output::color_grid_name`]).
+    pub color_grid: Option<String>,
     /// VGG-19 layers whose Gram matrices are matched.
     pub layers: Vec<VggLayer>,
     /// Absorption γ per unit density and voxel; `None`: the densest ray gets optical depth 3.
@@ -148,6 +156,8 @@ impl VolumeSettings {
             style_scale: 0.5,
             strength: 1.0,
             style_color: false,
+            color: false,
+            color_grid: None,
             layers: vec![VggLayer::Relu1_1, VggLayer::Relu2_1, VggLayer::Relu3_1, VggLayer::Relu4_1],
             absorption: None,
             equalize: false,
@@ -206,6 +216,15 @@ impl VolumeSettings {
         if !(self.smin.is_finite() && self.smax.is_finite() && self.smin < self.smax && self.smin >= 0.0) {
             bail!("need 0 <= --smin < --smax, got {} and {}", self.smin, self.smax);
         }
+        if self.color && self.sequence.is_some() {
+            bail!("--color stylizes single frames for now; run each frame on its own (sequences with colour are issue 29's next step)");
+        }
+        if self.color && self.model.is_some() {
+            bail!("--color works with the optimisation, not with a trained --model (yet)");
+        }
+        if self.color && self.equalize {
+            bail!("--color cannot be combined with --equalize (eq. 7 equalizes grey pictures)");
+        }
         let ema = self.sequence.as_ref().map_or(SequenceSettings::default().ema, |s| s.ema);
         if !(0.0..1.0).contains(&ema) {
             bail!("--ema must be in [0, 1), got {ema}");
@@ -248,7 +267,7 @@ impl VolumeSettings {
                 smax: 1.0 + self.reach() * (self.smax - 1.0),
             },
             view: view.clone(),
-            color: false,
+            color: self.color,
         }
     }
 

@@ -99,6 +99,15 @@ pub struct VolumeArgs {
     /// luminance: the renderer draws grey smoke, which cannot reach colour Grams).
     #[arg(long)]
     pub style_color: bool,
+    /// Stylize an RGB colour per voxel with the smoke (rendered in colour,
+    /// matched to the painting's colours) and write it as a vec3 grid beside
+    /// the density. Single frames, optimisation only for now.
+    #[arg(long, conflicts_with = "model")]
+    pub color: bool,
+    /// Name of the written colour grid (default: the input's colour grid, else
+    /// `Cd` for Houdini-style files or y up, `color` for Blender's or z up).
+    #[arg(long, requires = "color")]
+    pub color_grid: Option<String>,
     /// VGG-19 layers whose Gram matrices are matched.
     #[arg(long, value_delimiter = ',', default_value = "relu1_1,relu2_1,relu3_1,relu4_1")]
     pub layers: Vec<VggLayer>,
@@ -186,6 +195,8 @@ impl VolumeArgs {
             style_scale: self.style_scale,
             strength: self.strength,
             style_color: self.style_color,
+            color: self.color,
+            color_grid: self.color_grid,
             layers: self.layers,
             absorption: self.absorption,
             equalize: self.equalize,
