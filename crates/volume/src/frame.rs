@@ -230,7 +230,10 @@ pub fn stylize_grid(
     }
     let held_out = match held_out.is_empty() {
         true => None,
-        false => Some(HeldOut::measure(&loss, &padded, &result.density, &held_out)?),
+        false => Some(match &result.color {
+            None => HeldOut::measure(&loss, &padded, &result.density, &held_out)?,
+            Some(c) => HeldOut::measure_color(&loss, &padded, &result.density, c, &held_out)?,
+        }),
     };
     Ok(StylizedGrid {
         cameras: views.len(),
