@@ -37,8 +37,20 @@ fn color_adds_a_vec3_grid_python_openvdb_reads() {
     let out = dir.path().join("c.vdb");
     let preview = dir.path().join("c.png");
     let o = nst3d(&[
-        "volume", "--input", s(&input), "--style", s(&style), "--mode", "density", "--iters", "6", "--color",
-        "--preview", s(&preview), "--out", s(&out),
+        "volume",
+        "--input",
+        s(&input),
+        "--style",
+        s(&style),
+        "--mode",
+        "density",
+        "--iters",
+        "6",
+        "--color",
+        "--preview",
+        s(&preview),
+        "--out",
+        s(&out),
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let summary = openvdb_colour_summary(&out, "color");
@@ -63,8 +75,22 @@ fn color_adds_a_vec3_grid_python_openvdb_reads() {
 
     // The name follows --color-grid, and --color-grid alone is refused.
     let o = nst3d(&[
-        "volume", "--input", s(&input), "--style", s(&style), "--mode", "density", "--iters", "1", "--octaves", "1",
-        "--color", "--color-grid", "Cd", "--out", s(&out),
+        "volume",
+        "--input",
+        s(&input),
+        "--style",
+        s(&style),
+        "--mode",
+        "density",
+        "--iters",
+        "1",
+        "--octaves",
+        "1",
+        "--color",
+        "--color-grid",
+        "Cd",
+        "--out",
+        s(&out),
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(openvdb_colour_summary(&out, "Cd").contains("Cd:vec3s:"));
@@ -76,7 +102,18 @@ fn color_refuses_what_it_cannot_do_yet() {
     let pattern = shared("volumes/plume48").join("fluid_data_####.vdb");
     let style = shared("styles/woman_with_hat.jpg");
     let out = dir.path().join("o_####.vdb");
-    let o = nst3d(&["volume", "--input", s(&pattern), "--frames", "1-2", "--style", s(&style), "--color", "--out", s(&out)]);
+    let o = nst3d(&[
+        "volume",
+        "--input",
+        s(&pattern),
+        "--frames",
+        "1-2",
+        "--style",
+        s(&style),
+        "--color",
+        "--out",
+        s(&out),
+    ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("--color stylizes single frames") && !err.contains("panicked"), "{err}");

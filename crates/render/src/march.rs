@@ -134,7 +134,10 @@ pub fn march_emission(g: &Grid3, emission: &[Grid3], gamma: f32) -> Image {
 pub fn march_emission_backward(g: &Grid3, emission: &[Grid3], gamma: f32, grad_img: &Image) -> (Grid3, Vec<Grid3>) {
     let [nx, ny, nz] = g.dims;
     let channels = emission.len();
-    assert!(emission.iter().all(|c| c.dims == g.dims), "march_emission_backward: emission grids must have the density's dims");
+    assert!(
+        emission.iter().all(|c| c.dims == g.dims),
+        "march_emission_backward: emission grids must have the density's dims"
+    );
     assert!(
         grad_img.channels == channels && grad_img.height == ny && grad_img.width == nx,
         "march_emission_backward: gradient image must be {channels} x {ny} x {nx}"
@@ -150,8 +153,9 @@ pub fn march_emission_backward(g: &Grid3, emission: &[Grid3], gamma: f32, grad_i
         d: Vec<&'a mut [f32]>,
         e: Vec<Vec<&'a mut [f32]>>,
     }
-    let mut slabs: Vec<Slab> =
-        (0..ny).map(|_| Slab { d: Vec::with_capacity(nz), e: (0..channels).map(|_| Vec::with_capacity(nz)).collect() }).collect();
+    let mut slabs: Vec<Slab> = (0..ny)
+        .map(|_| Slab { d: Vec::with_capacity(nz), e: (0..channels).map(|_| Vec::with_capacity(nz)).collect() })
+        .collect();
     for (r, row) in grad_d.data.chunks_mut(nx).enumerate() {
         slabs[r % ny].d.push(row);
     }
@@ -174,7 +178,8 @@ pub fn march_emission_backward(g: &Grid3, emission: &[Grid3], gamma: f32, grad_i
                 depth[x] += d[x];
             }
             for (ch, e) in emission.iter().enumerate() {
-                for (tot, (&ev, &tv)) in total[ch * nx..][..nx].iter_mut().zip(e.data[at..][..nx].iter().zip(t.iter())) {
+                for (tot, (&ev, &tv)) in total[ch * nx..][..nx].iter_mut().zip(e.data[at..][..nx].iter().zip(t.iter()))
+                {
                     *tot += ev * tv;
                 }
             }

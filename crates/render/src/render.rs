@@ -163,7 +163,12 @@ pub fn render_color_view(
 ///
 /// # Panics
 /// If `grad_img` or `color` do not match the render.
-pub fn render_color_backward(g: &Grid3, color: &[Grid3], cache: &ColorRenderCache, grad_img: &Image) -> (Grid3, Vec<Grid3>) {
+pub fn render_color_backward(
+    g: &Grid3,
+    color: &[Grid3],
+    cache: &ColorRenderCache,
+    grad_img: &Image,
+) -> (Grid3, Vec<Grid3>) {
     assert_eq!(g.dims, cache.view.grid_dims, "render_color_backward: grid differs from the rendered one");
     assert_eq!(color.len(), cache.emission.len(), "render_color_backward: channel count differs from the render's");
     let (gd_lat, ge_lat) = march_emission_backward(&cache.lattice, &cache.emission, cache.gamma, grad_img);
@@ -370,8 +375,9 @@ mod tests {
         let dims = [5, 4, 6];
         let n = 120;
         let g = random_density(dims, 41);
-        let color: Vec<Grid3> =
-            (0..3).map(|ch| Grid3::from_vec(dims, pseudo_random(n, 42 + ch).iter().map(|v| 0.5 + 0.4 * v).collect())).collect();
+        let color: Vec<Grid3> = (0..3)
+            .map(|ch| Grid3::from_vec(dims, pseudo_random(n, 42 + ch).iter().map(|v| 0.5 + 0.4 * v).collect()))
+            .collect();
         let gamma = 0.4;
         let view = cam.view(dims).unwrap();
         let (img, cache) = render_color_view(&g, &color, view, gamma).unwrap();

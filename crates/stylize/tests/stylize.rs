@@ -103,7 +103,15 @@ fn octaves_lower_the_loss_and_keep_the_limits() {
     let view = ViewSpec { camera: Some(Camera::front(d.dims)), gamma: 0.2, exposure: 0.2, equalize: false };
     for (mode, lr) in [(Mode::Velocity, 0.5), (Mode::Density, 0.1)] {
         let limits = Limits { vmax: 1.5, smin: 0.2, smax: 1.8 };
-        let params = FrameParams { mode, octaves: 2, iterations: 8, learning_rate: lr, limits, view: view.clone(), color: false };
+        let params = FrameParams {
+            mode,
+            octaves: 2,
+            iterations: 8,
+            learning_rate: lr,
+            limits,
+            view: view.clone(),
+            color: false,
+        };
         let mut steps = 0;
         let r = stylize_frame(&d, &loss, &params, &mut |_| steps += 1).unwrap();
         assert_eq!(steps, 16);
@@ -237,7 +245,15 @@ fn color_lowers_the_rgb_loss_beyond_grey() {
     let d = synthetic_smoke(24, 9);
     let view = ViewSpec { camera: Some(Camera::front(d.dims)), gamma: 0.2, exposure: 0.2, equalize: false };
     let limits = Limits { vmax: 1.5, smin: 0.2, smax: 1.8 };
-    let grey = FrameParams { mode: Mode::Density, octaves: 2, iterations: 8, learning_rate: 0.1, limits, view: view.clone(), color: false };
+    let grey = FrameParams {
+        mode: Mode::Density,
+        octaves: 2,
+        iterations: 8,
+        learning_rate: 0.1,
+        limits,
+        view: view.clone(),
+        color: false,
+    };
     let g = stylize_frame(&d, &loss, &grey, &mut |_| {}).unwrap();
     assert!(g.color.is_none());
     let white = vec![Grid3::from_vec(d.dims, vec![1.0; d.len()]); 3];
@@ -269,9 +285,11 @@ fn color_view_gradient_matches_finite_differences() {
         let dims = [8, 8, 6];
         let n = 384;
         let d = Grid3::from_vec(dims, pseudo_random(n, 51).iter().map(|v| 0.5 + 0.4 * v).collect());
-        let color: Vec<Grid3> =
-            (0..3).map(|ch| Grid3::from_vec(dims, pseudo_random(n, 52 + ch).iter().map(|v| 1.0 + 0.5 * v).collect())).collect();
-        let view = ViewSpec { camera: Some(Camera::orbit(dims, 20.0, 10.0)), gamma: 0.3, exposure: 0.3, equalize: false };
+        let color: Vec<Grid3> = (0..3)
+            .map(|ch| Grid3::from_vec(dims, pseudo_random(n, 52 + ch).iter().map(|v| 1.0 + 0.5 * v).collect()))
+            .collect();
+        let view =
+            ViewSpec { camera: Some(Camera::orbit(dims, 20.0, 10.0)), gamma: 0.3, exposure: 0.3, equalize: false };
         let (_, gd, gc) = loss.loss_and_grad_color(&d, &color, &view).unwrap();
         let x0: Vec<f32> = [d.data.clone(), color.iter().flat_map(|c| c.data.clone()).collect()].concat();
         let analytic: Vec<f32> = [gd.data, gc.into_iter().flat_map(|c| c.data).collect()].concat();

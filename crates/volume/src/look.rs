@@ -77,9 +77,16 @@ impl HeldOut {
 
     /// [`HeldOut::measure`] in colour: `before` seen white (the grey
     /// picture), `after` with its colour, both by the RGB Gram loss.
-    pub fn measure_color(loss: &ViewLoss, before: &Grid3, after: &Grid3, color: &[Grid3], views: &[ViewSpec]) -> Result<Self> {
+    pub fn measure_color(
+        loss: &ViewLoss,
+        before: &Grid3,
+        after: &Grid3,
+        color: &[Grid3],
+        views: &[ViewSpec],
+    ) -> Result<Self> {
         let white = vec![Grid3::from_vec(before.dims, vec![1.0; before.len()]); 3];
-        let each = |d: &Grid3, c: &[Grid3]| views.iter().map(|v| Ok(loss.loss_color(d, c, v)?)).collect::<Result<Vec<f32>>>();
+        let each =
+            |d: &Grid3, c: &[Grid3]| views.iter().map(|v| Ok(loss.loss_color(d, c, v)?)).collect::<Result<Vec<f32>>>();
         Ok(Self { before: each(before, &white)?, after: each(after, color)? })
     }
 

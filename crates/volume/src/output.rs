@@ -58,7 +58,12 @@ pub fn color_grid_name(file: &VdbFile, up: nst3d_core::UpAxis) -> &'static str {
 pub fn color_grid(name: &str, transform: &Transform, origin: [i32; 3], density: &Grid3, color: &[Grid3]) -> VdbGrid {
     let masked: Vec<Grid3> = color
         .iter()
-        .map(|c| Grid3::from_vec(c.dims, c.data.iter().zip(&density.data).map(|(c, d)| if *d > 0.0 { *c } else { 0.0 }).collect()))
+        .map(|c| {
+            Grid3::from_vec(
+                c.dims,
+                c.data.iter().zip(&density.data).map(|(c, d)| if *d > 0.0 { *c } else { 0.0 }).collect(),
+            )
+        })
         .collect();
     VdbGrid::from_dense_vec3(name, "unknown", transform.clone(), origin, [&masked[0], &masked[1], &masked[2]], 0.0)
 }
@@ -71,7 +76,12 @@ pub fn write_stylized_grid(path: &Path, file: &VdbFile, stylized: VdbGrid) -> Re
 
 /// [`write_stylized_grid`] plus an optional extra grid (the colour), which
 /// replaces an input grid of its name or is appended after the others.
-pub fn write_stylized_grids(path: &Path, file: &VdbFile, stylized: VdbGrid, extra: Option<VdbGrid>) -> Result<Vec<String>> {
+pub fn write_stylized_grids(
+    path: &Path,
+    file: &VdbFile,
+    stylized: VdbGrid,
+    extra: Option<VdbGrid>,
+) -> Result<Vec<String>> {
     let mut extra = extra;
     let mut dropped = Vec::new();
     let mut grids = Vec::with_capacity(file.grids.len());
