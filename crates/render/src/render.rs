@@ -63,15 +63,21 @@ pub fn render(g: &Grid3, cam: &Camera, gamma: f32) -> Result<(Image, RenderCache
 
 /// [`render`] for a precomputed [`View`] (of a grid with `g`'s dims).
 pub fn render_view(g: &Grid3, view: View, gamma: f32) -> Result<(Image, RenderCache), RenderError> {
+    check_view(g, &view, gamma)?;
+    let lattice = to_lattice(g, &view);
+    let img = march(&lattice, gamma);
+    Ok((img, RenderCache { view, lattice, gamma }))
+}
+
+/// The view was made for `g`'s dims and the absorption is usable.
+fn check_view(g: &Grid3, view: &View, gamma: f32) -> Result<(), RenderError> {
     if view.grid_dims != g.dims {
         return Err(RenderError::ViewMismatch { view: view.grid_dims, grid: g.dims });
     }
     if !gamma.is_finite() {
         return Err(RenderError::BadGamma(gamma));
     }
-    let lattice = to_lattice(g, &view);
-    let img = march(&lattice, gamma);
-    Ok((img, RenderCache { view, lattice, gamma }))
+    Ok(())
 }
 
 /// `g` resampled on the view's lattice (or permuted, for axis-aligned views).
@@ -146,16 +152,18 @@ pub fn render_color_view(
     if let Some(c) = color.iter().find(|c| c.dims != g.dims) {
         return Err(RenderError::ViewMismatch { view: g.dims, grid: c.dims });
     }
-    let (_, cache) = render_view(g, view, gamma)?;
+    // The density's lattice only: its grey march would be thrown away.
+    check_view(g, &view, gamma)?;
+    let lattice = to_lattice(g, &view);
     let emission: Vec<Grid3> = color
         .iter()
         .map(|c| {
             let e = Grid3::from_vec(g.dims, c.data.iter().zip(&g.data).map(|(c, d)| c * d).collect());
-            to_lattice(&e, &cache.view)
+            to_lattice(&e, &view)
         })
         .collect();
-    let img = march_emission(&cache.lattice, &emission, gamma);
-    Ok((img, ColorRenderCache { view: cache.view, lattice: cache.lattice, emission, gamma }))
+    let img = march_emission(&lattice, &emission, gamma);
+    Ok((img, ColorRenderCache { view, lattice, emission, gamma }))
 }
 
 /// Backward of [`render_color_view`]: `(∂L/∂g, ∂L/∂color)`, through the

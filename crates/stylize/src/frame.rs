@@ -219,6 +219,8 @@ pub fn stylize_frame_views(
         color.map(|c| c.into_iter().map(|ch| Grid3::from_vec(d.dims, full(ch).params().to_vec())).collect());
     let density = field.transport(d);
     let (mut loss_before, mut loss_after) = (0.0, 0.0);
+    // The input is scored as the grey picture it is: colour 1 everywhere.
+    let white = color.as_ref().map(|_| vec![Grid3::from_vec(d.dims, vec![1.0; d.len()]); 3]);
     for view in views {
         match &color {
             None => {
@@ -226,8 +228,7 @@ pub fn stylize_frame_views(
                 loss_after += loss.loss(&density, view)?;
             }
             Some(c) => {
-                let white = vec![Grid3::from_vec(d.dims, vec![1.0; d.len()]); 3];
-                loss_before += loss.loss_color(d, &white, view)?;
+                loss_before += loss.loss_color(d, white.as_deref().unwrap_or_default(), view)?;
                 loss_after += loss.loss_color(&density, c, view)?;
             }
         }
