@@ -6,6 +6,7 @@
 
 mod bench;
 mod console;
+mod judge;
 mod signals;
 mod strands;
 mod train;
@@ -48,6 +49,8 @@ enum Command {
     Strands(strands::StrandsArgs),
     /// Train the feed-forward network (volumetric paper Sec. 4) for one painting.
     Train(train::TrainArgs),
+    /// Score stylized files against a baseline from held-out cameras (grey and colour style loss).
+    Judge(judge::JudgeArgs),
 }
 
 /// A clap parser for a library settings enum: its names (`named_enum!`'s
@@ -106,6 +109,7 @@ fn main() {
         Command::Preview(args) => volume::preview::run(args),
         Command::Strands(args) => strands::run(args),
         Command::Train(args) => train::run(args),
+        Command::Judge(args) => judge::run(args),
     };
     // A job stopped by a signal ends with 128 + the signal whatever it
     // returned, so a farm manager tells a cancelled task from a failed one.

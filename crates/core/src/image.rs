@@ -35,7 +35,24 @@ impl Image {
         let p = self.plane();
         &self.data[c * p..(c + 1) * p]
     }
+
+    /// The [`LUMA`] luminance of an RGB image, repeated in three channels
+    /// (the picture a grey renderer can reach, fed to a network that wants RGB).
+    ///
+    /// # Panics
+    /// If the image does not have three channels.
+    pub fn luminance3(&self) -> Image {
+        assert_eq!(self.channels, 3, "luminance of an RGB image");
+        let p = self.plane();
+        let grey: Vec<f32> = (0..p).map(|i| (0..3).map(|c| LUMA[c] * self.data[c * p + i]).sum()).collect();
+        Image::from_vec(3, self.height, self.width, [grey.as_slice(); 3].concat())
+    }
 }
+
+/// Rec. 601 luma weights of R, G and B (PIL's `convert("L")`): the one
+/// definition of "grey" for paintings, judges and the colour layer, whose
+/// luminance under these weights is held at 1 (issue 29).
+pub const LUMA: [f32; 3] = [0.299, 0.587, 0.114];
 
 /// How the values of a `C x P` feature matrix lie in memory.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

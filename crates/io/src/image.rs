@@ -53,15 +53,7 @@ pub fn load_style(path: &Path, scale: f32) -> Result<Image, Error> {
 /// repeated in three channels: the transmittance renderer draws grey smoke,
 /// so a grey painting's Gram statistics are the ones it can actually reach.
 pub fn luminance_rgb(img: &Image) -> Image {
-    assert_eq!(img.channels, 3, "luminance of an RGB image");
-    let p = img.plane();
-    let grey: Vec<f32> =
-        (0..p).map(|i| 0.299 * img.data[i] + 0.587 * img.data[p + i] + 0.114 * img.data[2 * p + i]).collect();
-    let mut data = Vec::with_capacity(3 * p);
-    for _ in 0..3 {
-        data.extend_from_slice(&grey);
-    }
-    Image::from_vec(3, img.height, img.width, data)
+    img.luminance3()
 }
 
 /// Converts a 1- or 3-channel image with values in `[0, 1]` to 8-bit RGB

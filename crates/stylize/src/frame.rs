@@ -11,6 +11,7 @@ use nst3d_optim::Adam;
 use nst3d_render::Camera;
 use nst3d_transport as transport;
 
+use crate::color;
 use crate::field::{Field, Limits, Mode};
 use crate::view::{ViewError, ViewLoss, ViewSpec};
 
@@ -35,10 +36,6 @@ pub struct FrameParams {
     pub color: bool,
 }
 
-/// Range of a colour channel's value (a multiplier of the density's grey
-/// emission): 1 everywhere renders the grey picture, the start.
-pub const COLOR_RANGE: (f32, f32) = (0.0, 2.0);
-
 /// Reported after every iteration.
 #[derive(Clone, Copy, Debug)]
 pub struct Progress {
@@ -62,7 +59,7 @@ pub struct FrameResult {
     /// The optimised field at full resolution.
     pub field: Field,
     /// With [`FrameParams::color`]: the colour, one grid per RGB channel at
-    /// full resolution (values in [`COLOR_RANGE`]).
+    /// full resolution, of luminance 1 in every voxel ([`crate::color`]).
     pub color: Option<Vec<Grid3>>,
     /// Style loss of the input seen from the view (full resolution).
     pub loss_before: f32,
@@ -148,9 +145,10 @@ pub fn stylize_frame_views(
     let octaves = levels.len();
     let mut field: Option<(Field, [usize; 3])> = None;
 
-    // The colour channels are scale fields: they start at 1 (white, the grey
-    // picture), are carried between octaves, smoothed and clamped alike.
-    let color_limits = Limits { smin: COLOR_RANGE.0, smax: COLOR_RANGE.1, ..params.limits };
+    // The colour's raw channels (crate::color) are scale fields: they start
+    // at 1 (white, the grey picture) and are carried between octaves and
+    // clamped like the density's scale.
+    let color_limits = Limits { smin: color::RAW_RANGE.0, smax: color::RAW_RANGE.1, ..params.limits };
     let mut color: Option<Vec<Field>> = None;
 
     for (k, level) in levels.iter().rev().enumerate() {
@@ -172,7 +170,7 @@ pub fn stylize_frame_views(
         // onto the finer one, and the paper restarts the optimiser per level.
         let mut adam = Adam::new(f.len(), params.learning_rate);
         let mut color_adam: Vec<Adam> =
-            color.iter().flatten().map(|c| Adam::new(c.len(), params.learning_rate)).collect();
+            color.iter().flatten().map(|c| Adam::new(c.len(), color::LEARNING_RATE)).collect();
         for it in 0..params.iterations {
             let (dstar, tape) = f.forward(level);
             let mut l = 0.0;
@@ -186,9 +184,8 @@ pub fn stylize_frame_views(
                         add(&mut grad_dstar, &gv);
                     }
                 }
-                Some(channels) => {
-                    let grids: Vec<Grid3> =
-                        channels.iter().map(|c| Grid3::from_vec(level.dims, c.params().to_vec())).collect();
+                Some(raw) => {
+                    let (grids, chroma_tape) = color::chroma(&color::raw_of(raw), level.dims);
                     let mut grad_color: Vec<Grid3> = (0..3).map(|_| Grid3::zeros(level.dims)).collect();
                     for view in &level_views {
                         let (lv, gv, gc) = loss.loss_and_grad_color(&dstar, &grids, view)?;
@@ -196,9 +193,9 @@ pub fn stylize_frame_views(
                         add(&mut grad_dstar, &gv);
                         grad_color.iter_mut().zip(&gc).for_each(|(a, g)| add(a, g));
                     }
-                    for ((c, a), g) in channels.iter_mut().zip(&mut color_adam).zip(grad_color) {
-                        let step = c.descent(g.data, level.dims);
-                        a.step(c.params_mut(), &step);
+                    let grad_raw = color::chroma_backward(&chroma_tape, &grad_color);
+                    for ((c, a), g) in raw.iter_mut().zip(&mut color_adam).zip(grad_raw) {
+                        a.step(c.params_mut(), &g);
                         c.constrain(&color_limits, 0.0);
                     }
                 }
@@ -215,8 +212,10 @@ pub fn stylize_frame_views(
     let (field, dims) = field.expect("at least one octave");
     let full = |f: Field| if dims == d.dims { f } else { f.resize(dims, d.dims) };
     let field = full(field);
-    let color: Option<Vec<Grid3>> =
-        color.map(|c| c.into_iter().map(|ch| Grid3::from_vec(d.dims, full(ch).params().to_vec())).collect());
+    let color: Option<Vec<Grid3>> = color.map(|raw| {
+        let raw: Vec<Field> = raw.into_iter().map(full).collect();
+        color::chroma(&color::raw_of(&raw), d.dims).0
+    });
     let density = field.transport(d);
     let (mut loss_before, mut loss_after) = (0.0, 0.0);
     // The input is scored as the grey picture it is: colour 1 everywhere.

@@ -3,6 +3,7 @@
 //! renders of the transported density match a painting's Gram statistics.
 //!
 //! - [`field`]: the optimised quantity and its transport `T` (one type for both modes).
+//! - [`color`]: the smoke's colour as a luminance-1, smoothed chroma layer (issue 29).
 //! - [`view`]: one camera's loss `L(R_θ(d*))` and its gradient w.r.t. `d*`.
 //! - [`frame`]: the multi-octave Adam loop over a single density grid.
 //! - [`bench`]: the `volume-iter` benchmark work of `shared/bench/README.md`.
@@ -10,10 +11,11 @@
 #![warn(missing_docs)]
 
 pub mod bench;
+pub mod color;
 pub mod field;
 pub mod frame;
 pub mod view;
 
 pub use field::{Field, Limits, Mode, Tape};
-pub use frame::{stylize_frame, stylize_frame_views, FrameParams, FrameResult, Progress, COLOR_RANGE};
+pub use frame::{stylize_frame, stylize_frame_views, FrameParams, FrameResult, Progress};
 pub use view::{color_view_image, view_image, StyleSpec, ViewError, ViewLoss, ViewSpec};

@@ -3,6 +3,8 @@
 //! - [`stylize`]: one OpenVDB frame ([`stylize_frame_file`], paper Sec. 3)
 //!   or a whole simulation with the EMA of Algorithm 1
 //!   ([`stylize_sequence_files`], Sec. 3.2), chunked for a farm;
+//! - [`judge`]: how much closer to a painting a file is than a baseline,
+//!   from held-out cameras, grey and in colour;
 //! - [`preview`]: pictures of smoke drawn by the same transmittance renderer.
 //!
 //! A front end fills a [`VolumeSettings`] (or [`PreviewSettings`]) once,
@@ -19,6 +21,7 @@ pub mod cameras;
 pub mod dense;
 pub mod feedforward;
 pub mod frame;
+pub mod judge;
 pub mod look;
 pub mod output;
 pub mod preview;
@@ -31,6 +34,7 @@ pub mod upsample;
 pub use cameras::{front_camera, turntable, CameraSet, Cameras, Lens};
 pub use feedforward::{stylize_with_model, LoadedModel, ModelReport};
 pub use frame::{stylize_frame_file, stylize_grid, FrameReport, StylizedGrid};
+pub use judge::{judge, JudgeSettings, Ratios, Verdict};
 pub use look::{HeldOut, PREVIEW_HEIGHT};
 pub use nst3d_core::{Reporter, Silent};
 pub use preview::{preview, PreviewReport, PreviewSettings};

@@ -142,7 +142,7 @@ pub fn poisson_view_angles(
 /// Style targets of one scale: `style` (RGB in `[0, 1]`) as grey, resized
 /// to `height` rows, as NNST hyper-columns of its VGG taps.
 pub fn style_target(vgg: &Vgg19, style: &Image, height: usize) -> Result<NnstTarget, PipelineError> {
-    let img = nst3d_io::image::resize_to_height(&luminance3(style), height);
+    let img = nst3d_io::image::resize_to_height(&style.luminance3(), height);
     let feats = vgg.forward(&img, &NNST_LAYERS, false);
     Ok(NnstTarget::from_style_features(feats.taps(), &NnstParams::default())?)
 }
@@ -173,15 +173,6 @@ pub fn match_view_on(
     let m = style.match_content(feats.taps())?;
     let (loss, _) = nnst_loss_matched(feats.taps(), &m)?;
     Ok((m, loss))
-}
-
-/// Rec. 601 luminance in three channels (the painting as grey strands can
-/// reach it).
-fn luminance3(img: &Image) -> Image {
-    let p = img.plane();
-    let grey: Vec<f32> =
-        (0..p).map(|i| 0.299 * img.data[i] + 0.587 * img.data[p + i] + 0.114 * img.data[2 * p + i]).collect();
-    Image::from_vec(3, img.height, img.width, [grey.as_slice(); 3].concat())
 }
 
 #[cfg(test)]

@@ -1,0 +1,64 @@
+//! `nst3d judge`: arguments → [`nst3d_volume::JudgeSettings`] → one library
+//! call → one line per judged file.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+use nst3d_volume::{JudgeSettings, Ratios, UpAxis};
+
+use crate::console::Console;
+
+/// Arguments of `nst3d judge`.
+#[derive(Args)]
+pub struct JudgeArgs {
+    /// The painting.
+    #[arg(long)]
+    style: PathBuf,
+    /// The file every result is compared with (the input, or the grey result).
+    #[arg(long)]
+    baseline: PathBuf,
+    /// The stylized files to judge.
+    #[arg(required = true)]
+    results: Vec<PathBuf>,
+    /// Held-out cameras: ring:N[:ELEV], omniview:N or front [default: ring:8:30].
+    #[arg(long)]
+    cameras: Option<String>,
+    /// Name of the density grid [default: density].
+    #[arg(long)]
+    grid: Option<String>,
+    /// The files' up axis: the ring goes around it [default: z].
+    #[arg(long, value_parser = crate::named::<UpAxis>(UpAxis::NAMES.iter().copied()))]
+    up: Option<UpAxis>,
+    /// Also judge in colour: each file's `Cd` or `color` grid (white where
+    /// it has none) against the colour painting.
+    #[arg(long)]
+    color: bool,
+    /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).
+    #[arg(long)]
+    weights: Option<PathBuf>,
+}
+
+fn line(r: &Ratios) -> String {
+    let views: Vec<String> = r.0.iter().map(|v| format!("{v:.3}")).collect();
+    format!("worst {:.3} median {:.3} mean {:.3} views {}", r.worst(), r.median(), r.mean(), views.join(" "))
+}
+
+/// Runs `nst3d judge`.
+pub fn run(args: JudgeArgs) -> Result<()> {
+    let mut s = JudgeSettings::new(args.style, args.baseline, args.results);
+    s.cameras = args.cameras.unwrap_or(s.cameras);
+    s.grid = args.grid.unwrap_or(s.grid);
+    s.up = args.up.unwrap_or(s.up);
+    s.color = args.color;
+    s.weights = args.weights;
+    let verdicts = nst3d_volume::judge(&s, &mut Console::default())?;
+    println!("loss / baseline's loss per held-out view ({}), below 1 = closer to the painting", s.cameras);
+    for v in verdicts {
+        println!("{} grey {}", v.file.display(), line(&v.grey));
+        if let Some(c) = &v.color {
+            println!("{} colour {}", v.file.display(), line(c));
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,207 @@
+//! The held-out judge: how much closer to a painting a stylized file is than
+//! a baseline file, seen from cameras no optimisation used, by the real
+//! VGG-19 Gram style loss. It reads files only, so it does not matter which
+//! method made them (per-frame optimisation, a sequence, a network).
+//!
+//! Every file is placed in one shared box (their union, so the cameras and
+//! the absorption are the same for all) and scored twice per view:
+//! - **grey**: the transmittance render against the painting's luminance,
+//!   the loss the grey pipeline optimises;
+//! - **colour** (with [`JudgeSettings::color`]): the emission–absorption
+//!   render with the file's colour grid (`Cd` or `color`; white where a file
+//!   has none) against the colour painting (issue 29).
+//!
+//! A verdict is the per-view ratio loss(result) / loss(baseline): below 1
+//! is closer to the painting; its worst (largest) view is the side from
+//! which the result moved least.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, bail, Context, Result};
+use nst3d_core::{Grid3, Reporter, UpAxis};
+use nst3d_features::Vgg19;
+use nst3d_io::vdb::{read_vdb, DenseBox, GridValues, Transform};
+use nst3d_stylize::{StyleSpec, ViewLoss};
+
+use crate::cameras::{CameraSet, Lens};
+use crate::dense::{in_box, pad, union_box};
+use crate::look::{absorption_for, views_of};
+
+/// Names a colour grid is read under, in order.
+pub const COLOR_GRID_NAMES: [&str; 2] = ["Cd", "color"];
+
+/// Empty voxels around the shared box, so no camera clips the smoke.
+const MARGIN: usize = 4;
+
+/// What to judge and how.
+#[derive(Clone, Debug)]
+pub struct JudgeSettings {
+    /// The painting.
+    pub style: PathBuf,
+    /// Every result is compared with this file (the input, or another result).
+    pub baseline: PathBuf,
+    /// The files judged.
+    pub results: Vec<PathBuf>,
+    /// Held-out cameras (`ring:N[:ELEV]`, `omniview:N`, `front`).
+    pub cameras: String,
+    /// The density grid's name.
+    pub grid: String,
+    /// The files' up axis (the ring goes around it).
+    pub up: UpAxis,
+    /// Also score in colour.
+    pub color: bool,
+    /// VGG-19 weights (default: the bundled ones).
+    pub weights: Option<PathBuf>,
+}
+
+impl JudgeSettings {
+    /// The judge of docs/FEEDFORWARD.md: 8 azimuths at 30° elevation.
+    pub fn new(style: impl Into<PathBuf>, baseline: impl Into<PathBuf>, results: Vec<PathBuf>) -> Self {
+        Self {
+            style: style.into(),
+            baseline: baseline.into(),
+            results,
+            cameras: "ring:8:30".into(),
+            grid: "density".into(),
+            up: UpAxis::Z,
+            color: false,
+            weights: None,
+        }
+    }
+}
+
+/// Per view, loss(result) / loss(baseline).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Ratios(pub Vec<f32>);
+
+impl Ratios {
+    /// The largest ratio: the view that moved least towards the painting.
+    pub fn worst(&self) -> f32 {
+        self.0.iter().copied().fold(f32::NEG_INFINITY, f32::max)
+    }
+
+    /// The mean ratio.
+    pub fn mean(&self) -> f32 {
+        self.0.iter().sum::<f32>() / self.0.len().max(1) as f32
+    }
+
+    /// The median ratio (the upper one of an even count).
+    pub fn median(&self) -> f32 {
+        let mut v = self.0.clone();
+        v.sort_by(f32::total_cmp);
+        v[v.len() / 2]
+    }
+}
+
+/// One result's verdict.
+#[derive(Clone, Debug)]
+pub struct Verdict {
+    /// The file judged.
+    pub file: PathBuf,
+    /// Grey loss ratios.
+    pub grey: Ratios,
+    /// Colour loss ratios, with [`JudgeSettings::color`].
+    pub color: Option<Ratios>,
+}
+
+/// One file's density and (white if absent) colour, before boxing.
+struct Loaded {
+    density: (DenseBox, Grid3),
+    color: Option<(DenseBox, [Grid3; 3])>,
+    transform: Transform,
+}
+
+fn load(path: &Path, grid: &str) -> Result<Loaded> {
+    let file = read_vdb(path).map_err(|e| anyhow!("{e}"))?;
+    let g = file.grid(grid).with_context(|| {
+        let names: Vec<&str> = file.grids.iter().map(|g| g.name.as_str()).collect();
+        format!("{}: no grid named '{grid}' (grids: {})", path.display(), names.join(", "))
+    })?;
+    if !matches!(g.values, GridValues::Float(_)) {
+        bail!("{}: grid '{grid}' holds {} values, not densities", path.display(), g.values.type_name());
+    }
+    let color = COLOR_GRID_NAMES
+        .iter()
+        .filter_map(|n| file.grid(n))
+        .find(|c| matches!(c.values, GridValues::Vec3(_)))
+        .map(|c| c.to_dense_vec3())
+        .transpose()?;
+    Ok(Loaded { density: g.to_dense()?, color, transform: g.transform.clone() })
+}
+
+/// Judges every result against the baseline; `reporter` sees one step per file.
+pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdict>> {
+    if s.results.is_empty() {
+        bail!("nothing to judge: give at least one result file after the baseline");
+    }
+    let files: Vec<Loaded> =
+        std::iter::once(&s.baseline).chain(&s.results).map(|p| load(p, &s.grid)).collect::<Result<_>>()?;
+    for (f, path) in files.iter().zip(std::iter::once(&s.baseline).chain(&s.results)) {
+        if f.transform.voxel_size != files[0].transform.voxel_size {
+            bail!(
+                "{} has voxels of {:?}, the baseline {:?}: judge files of one resolution",
+                path.display(),
+                f.transform.voxel_size,
+                files[0].transform.voxel_size
+            );
+        }
+    }
+    let bx = files.iter().map(|f| f.density.0).reduce(|a, b| union_box(&a, &b)).expect("a baseline");
+    let boxed = |f: &Loaded| -> (Grid3, Option<Vec<Grid3>>) {
+        let d = pad(&in_box(Some(f.density.clone()), &bx), MARGIN);
+        let c = f.color.as_ref().map(|(cb, ch)| {
+            let mut ch: Vec<Grid3> = ch.iter().map(|g| pad(&in_box(Some((*cb, g.clone())), &bx), MARGIN)).collect();
+            // Outside the colour grid's voxels: white, the grey picture.
+            for i in 0..d.len() {
+                if ch.iter().all(|g| g.data[i] == 0.0) {
+                    ch.iter_mut().for_each(|g| g.data[i] = 1.0);
+                }
+            }
+            ch
+        });
+        (d, c)
+    };
+
+    let vgg = Vgg19::load(s.weights.as_deref())?;
+    let painting = nst3d_io::image::load_style(&s.style, 1.0)?;
+    let grey_loss = ViewLoss::new(&vgg, &painting.luminance3(), &StyleSpec::default())?;
+    let rgb_loss = match s.color {
+        true => Some(ViewLoss::new(&vgg, &painting, &StyleSpec::default())?),
+        false => None,
+    };
+    let (base, _) = boxed(&files[0]);
+    // The volume job's lens (projection, field of view), around this up axis.
+    let lens = Lens { up: s.up, ..Lens::of(&crate::VolumeSettings::new("", "", "")) };
+    let cams = CameraSet::parse(&s.cameras)?.cameras(&lens, base.dims);
+    let gamma = absorption_for(None, cams.iter().map(|c| (&base, c)))?;
+    let views = views_of(&cams, gamma, false);
+
+    reporter.begin(files.len() as u64);
+    let mut scores = Vec::new();
+    for f in &files {
+        let (d, c) = boxed(f);
+        let grey: Vec<f32> = views.iter().map(|v| grey_loss.loss(&d, v)).collect::<Result<_, _>>()?;
+        let rgb = match &rgb_loss {
+            None => None,
+            Some(l) => {
+                let c = c.unwrap_or_else(|| vec![Grid3::from_vec(d.dims, vec![1.0; d.len()]); 3]);
+                Some(views.iter().map(|v| l.loss_color(&d, &c, v)).collect::<Result<Vec<f32>, _>>()?)
+            }
+        };
+        scores.push((grey, rgb));
+        reporter.step("judged");
+    }
+    reporter.end();
+    let ratio =
+        |a: &[f32], b: &[f32]| Ratios(a.iter().zip(b).map(|(a, b)| if *b > 0.0 { a / b } else { 1.0 }).collect());
+    let (base_grey, base_rgb) = &scores[0];
+    Ok(s.results
+        .iter()
+        .zip(&scores[1..])
+        .map(|(file, (grey, rgb))| Verdict {
+            file: file.clone(),
+            grey: ratio(grey, base_grey),
+            color: rgb.as_ref().zip(base_rgb.as_ref()).map(|(a, b)| ratio(a, b)),
+        })
+        .collect())
+}
