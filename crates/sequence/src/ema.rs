@@ -11,7 +11,7 @@
 
 use nst3d_core::Grid3;
 use nst3d_optim::Adam;
-use nst3d_stylize::{Field, FrameParams, ViewError, ViewLoss, ViewSpec};
+use nst3d_stylize::{color, Field, FrameParams, ViewError, ViewLoss, ViewSpec};
 use nst3d_transport as transport;
 
 /// Why a sequence could not be stylised.
@@ -70,8 +70,54 @@ pub struct FrameState {
     pub m: Vec<f32>,
     /// Adam second moments.
     pub v: Vec<f32>,
-    /// Adam step count.
+    /// Adam step count (the colour's too: both step together).
     pub step: u64,
+    /// With [`FrameParams::color`]: the colour's raw channels and moments.
+    pub color: Option<ColorState>,
+}
+
+/// A frame's colour (issue 29): the three raw channels of
+/// [`nst3d_stylize::color`], carried and blended by the EMA exactly like
+/// the field, and their Adam moments (channel after channel).
+#[derive(Clone, Debug)]
+pub struct ColorState {
+    /// Raw channels R, G, B, each a scale field of one value per voxel.
+    pub raw: Vec<Field>,
+    /// Adam first moments, `3 × voxels`.
+    pub m: Vec<f32>,
+    /// Adam second moments, `3 × voxels`.
+    pub v: Vec<f32>,
+}
+
+impl ColorState {
+    /// White (raw 1), fresh moments.
+    fn white(voxels: usize) -> Self {
+        Self {
+            raw: (0..3).map(|_| Field::identity(nst3d_stylize::Mode::Density, voxels)).collect(),
+            m: vec![0.0; 3 * voxels],
+            v: vec![0.0; 3 * voxels],
+        }
+    }
+
+    /// Carried to a finer octave, fresh moments.
+    fn resize(&self, from: [usize; 3], to: [usize; 3]) -> Self {
+        let voxels = to.iter().product::<usize>();
+        Self {
+            raw: self.raw.iter().map(|f| f.resize(from, to)).collect(),
+            m: vec![0.0; 3 * voxels],
+            v: vec![0.0; 3 * voxels],
+        }
+    }
+
+    /// The colour, one grid per channel of `dims`.
+    pub fn color(&self, dims: [usize; 3]) -> Vec<Grid3> {
+        color::chroma(&color::raw_of(&self.raw), dims).0
+    }
+
+    fn constrain(&mut self) {
+        let (lo, hi) = color::RAW_RANGE;
+        self.raw.iter_mut().for_each(|f| transport::clamp_scale(f.params_mut(), lo, hi));
+    }
 }
 
 /// A point of Algorithm 1 at which every frame's state is consistent: the
@@ -237,20 +283,26 @@ pub fn stylize_sequence_with(
                     Some(&coarser) => load_sized(store, t, coarser)?.map(|s| (s, coarser)),
                     None => None,
                 };
-                let field = match saved {
-                    None => Field::initial(fp.mode, here.iter().product()),
-                    Some((s, coarser)) => s.field.resize(coarser, here),
+                let voxels = here.iter().product();
+                let (field, color) = match saved {
+                    None => (Field::initial(fp.mode, voxels), fp.color.then(|| ColorState::white(voxels))),
+                    Some((s, coarser)) => (
+                        s.field.resize(coarser, here),
+                        s.color
+                            .map(|c| c.resize(coarser, here))
+                            .or_else(|| fp.color.then(|| ColorState::white(voxels))),
+                    ),
                 };
                 let len = field.len();
-                store.save(t, FrameState { field, m: vec![0.0; len], v: vec![0.0; len], step: 0 })?;
+                store.save(t, FrameState { field, m: vec![0.0; len], v: vec![0.0; len], step: 0, color })?;
             }
             store.commit(SweepMark { octave: k, octaves, sweeps_done: 0 })?;
         }
         for it in first_sweep.unwrap_or(0)..fp.iterations {
             let forward = it % 2 == 0;
             let order: Vec<usize> = if forward { (0..n).collect() } else { (0..n).rev().collect() };
-            // The previous frame's updated field, already carried to this frame's time.
-            let mut carried: Option<Field> = None;
+            // The previous frame's updated field (and colour), already carried to this frame's time.
+            let mut carried: Option<(Field, Option<Vec<Field>>)> = None;
             for &t in &order {
                 let d = density_at(sim, t, level)?;
                 let u = velocity_at(sim, t, here)?;
@@ -262,17 +314,50 @@ pub fn stylize_sequence_with(
                 // sweep, making the whole run chaotic (a 1e-5 change of α moved
                 // frames by 40% of their stylization) and a farm chunk's cold
                 // start diverge from the single run however long its warm-up.
-                if let (Some(c), true) = (&carried, st.step > 0 || !params.settle_first_sweep) {
+                if let (Some((c, cc)), true) = (&carried, st.step > 0 || !params.settle_first_sweep) {
                     st.field.blend(c, params.alpha);
                     st.field.constrain(&fp.limits, vmax_here);
+                    if let (Some(own), Some(cc)) = (&mut st.color, cc) {
+                        own.raw.iter_mut().zip(cc).for_each(|(a, b)| a.blend(b, params.alpha));
+                        own.constrain();
+                    }
                 }
                 let (dstar, tape) = st.field.forward(&d);
                 let mut grad_dstar = vec![0.0f32; d.len()];
                 let mut total = 0.0;
-                for view in &level_views(t) {
-                    let (l, g) = loss.loss_and_grad(&dstar, view)?;
-                    total += l;
-                    grad_dstar.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
+                match &mut st.color {
+                    None => {
+                        for view in &level_views(t) {
+                            let (l, g) = loss.loss_and_grad(&dstar, view)?;
+                            total += l;
+                            grad_dstar.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
+                        }
+                    }
+                    Some(cs) => {
+                        let (grids, chroma_tape) = color::chroma(&color::raw_of(&cs.raw), d.dims);
+                        let mut grad_color: Vec<Grid3> = (0..3).map(|_| Grid3::zeros(d.dims)).collect();
+                        for view in &level_views(t) {
+                            let (l, g, gc) = loss.loss_and_grad_color(&dstar, &grids, view)?;
+                            total += l;
+                            grad_dstar.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
+                            for (acc, g) in grad_color.iter_mut().zip(&gc) {
+                                acc.data.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
+                            }
+                        }
+                        let grad_raw = color::chroma_backward(&chroma_tape, &grad_color).concat();
+                        let mut raw: Vec<f32> = cs.raw.iter().flat_map(|f| f.params().to_vec()).collect();
+                        let mut adam = Adam::new(raw.len(), color::LEARNING_RATE);
+                        adam.set_state(&cs.m, &cs.v, st.step)
+                            .map_err(|e| SequenceError::Frame { frame: t, message: e.to_string() })?;
+                        adam.step(&mut raw, &grad_raw);
+                        let (m, v, _) = adam.state();
+                        cs.m.copy_from_slice(m);
+                        cs.v.copy_from_slice(v);
+                        for (f, chunk) in cs.raw.iter_mut().zip(raw.chunks_exact(d.len())) {
+                            f.params_mut().copy_from_slice(chunk);
+                        }
+                        cs.constrain();
+                    }
                 }
                 // The transport's backward is linear in ∂L/∂d*: one pass for all views.
                 let grad = st.field.descent(st.field.backward(&d, &tape, &grad_dstar), d.dims);
@@ -293,9 +378,13 @@ pub fn stylize_sequence_with(
                     let next = if forward { t + 1 } else { t.wrapping_sub(1) };
                     if next < n && sim.linked(if forward { next } else { t }) {
                         let disp = if forward { u } else { velocity_at(sim, next, here)?.map(|w| negate(&w)) };
+                        let raw = st.color.as_ref().map(|c| &c.raw);
                         Some(match disp {
-                            Some(w) => st.field.carried(here, &w),
-                            None => st.field.clone(),
+                            Some(w) => (
+                                st.field.carried(here, &w),
+                                raw.map(|r| r.iter().map(|f| f.carried(here, &w)).collect()),
+                            ),
+                            None => (st.field.clone(), raw.cloned()),
                         })
                     } else {
                         None
@@ -319,7 +408,11 @@ fn load_sized(store: &mut dyn StateStore, t: usize, dims: [usize; 3]) -> Result<
     let Some(st) = store.load(t)? else { return Ok(None) };
     let per_voxel = if matches!(st.field, Field::Velocity(_)) { 3 } else { 1 };
     let len = per_voxel * dims.iter().product::<usize>();
-    if st.field.len() != len || st.m.len() != len || st.v.len() != len {
+    let color_fits = st.color.as_ref().is_none_or(|c| {
+        let n = dims.iter().product::<usize>();
+        c.raw.len() == 3 && c.raw.iter().all(|f| f.len() == n) && c.m.len() == 3 * n && c.v.len() == 3 * n
+    });
+    if st.field.len() != len || st.m.len() != len || st.v.len() != len || !color_fits {
         return Err(SequenceError::Checkpoint(format!(
             "frame {t}: saved state does not match the grid {dims:?} (delete the work folder to start afresh)"
         )));
@@ -333,10 +426,20 @@ fn negate(u: &[[f32; 3]]) -> Vec<[f32; 3]> {
 
 /// `d*_t = T(d_t, v̂_t)` for a frame whose field is in `store`.
 pub fn stylized_density(sim: &dyn Simulation, store: &mut dyn StateStore, t: usize) -> Result<Grid3, SequenceError> {
+    Ok(stylized_frame(sim, store, t)?.0)
+}
+
+/// [`stylized_density`] and, for a run with colour, the frame's colour.
+pub fn stylized_frame(
+    sim: &dyn Simulation,
+    store: &mut dyn StateStore,
+    t: usize,
+) -> Result<(Grid3, Option<Vec<Grid3>>), SequenceError> {
     let d = sim.density(t)?;
     let st = load_sized(store, t, d.dims)?
         .ok_or_else(|| SequenceError::Frame { frame: t, message: "was never stylized".into() })?;
     let out = st.field.transport(&d);
+    let color = st.color.as_ref().map(|c| c.color(d.dims));
     store.save(t, st)?;
-    Ok(out)
+    Ok((out, color))
 }

@@ -16,6 +16,31 @@ pub fn flicker<E>(
     velocities: &[Option<Vec<[f32; 3]>>],
     render: impl Fn(&Grid3) -> Result<Image, E>,
 ) -> Result<f32, E> {
+    flicker_of(frames, velocities, |g, back| transport::advect_linear(g, back), render)
+}
+
+/// [`flicker`] of frames that carry colour (issue 29): each frame is its
+/// density and RGB colour grids, all carried alike, and `render` draws the
+/// colour picture.
+pub fn flicker_color<E>(
+    frames: &[(Grid3, Vec<Grid3>)],
+    velocities: &[Option<Vec<[f32; 3]>>],
+    render: impl Fn(&(Grid3, Vec<Grid3>)) -> Result<Image, E>,
+) -> Result<f32, E> {
+    let warp = |(d, c): &(Grid3, Vec<Grid3>), back: &[[f32; 3]]| {
+        (transport::advect_linear(d, back), c.iter().map(|g| transport::advect_linear(g, back)).collect())
+    };
+    flicker_of(frames, velocities, warp, render)
+}
+
+/// The metric over any frame type: `warp(frame, −u)` carries a frame one
+/// step along `u` (a semi-Lagrangian read at `x − u`).
+fn flicker_of<F: Clone, E>(
+    frames: &[F],
+    velocities: &[Option<Vec<[f32; 3]>>],
+    warp: impl Fn(&F, &[[f32; 3]]) -> F,
+    render: impl Fn(&F) -> Result<Image, E>,
+) -> Result<f32, E> {
     if frames.len() < 2 {
         return Ok(0.0);
     }
@@ -25,7 +50,7 @@ pub fn flicker<E>(
         let warped = match &velocities[t - 1] {
             Some(u) => {
                 let back: Vec<[f32; 3]> = u.iter().map(|w| [-w[0], -w[1], -w[2]]).collect();
-                transport::advect_linear(prev, &back)
+                warp(prev, &back)
             }
             None => prev.clone(),
         };

@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 
 use nst3d_stylize::Field;
 
-use crate::ema::{FrameState, SequenceError, StateStore, SweepMark};
+use crate::ema::{ColorState, FrameState, SequenceError, StateStore, SweepMark};
 
 /// First bytes of a state file (format version 1).
 const MAGIC: &[u8; 8] = b"NST3DFS1";
@@ -178,7 +178,9 @@ pub fn parse_checkpoint(text: &str) -> Option<(u64, SweepMark)> {
 }
 
 /// Serialises a state: magic, mode (0 velocity, 1 scale), step, parameter
-/// count, then field, first and second moments as little-endian f32.
+/// count, then field, first and second moments as little-endian f32; with
+/// colour, then the voxel count `n` and the raw channels, first and second
+/// moments (`3n` values each).
 pub fn encode(st: &FrameState) -> Vec<u8> {
     let params = st.field.params();
     let mut out = Vec::with_capacity(32 + 12 * params.len());
@@ -188,6 +190,12 @@ pub fn encode(st: &FrameState) -> Vec<u8> {
     out.extend_from_slice(&(params.len() as u64).to_le_bytes());
     for v in params.iter().chain(&st.m).chain(&st.v) {
         out.extend_from_slice(&v.to_le_bytes());
+    }
+    if let Some(c) = &st.color {
+        out.extend_from_slice(&(c.raw.first().map_or(0, |f| f.len()) as u64).to_le_bytes());
+        for v in c.raw.iter().flat_map(|f| f.params()).chain(&c.m).chain(&c.v) {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
     }
     out
 }
@@ -201,20 +209,41 @@ pub fn decode(bytes: &[u8]) -> Option<FrameState> {
         return None;
     }
     let (scale, step, len) = (word(1)?, word(2)?, usize::try_from(word(3)?).ok()?);
-    let body = bytes.get(32..)?;
+    let field_bytes = len.checked_mul(12)?;
+    let body = bytes.get(32..32usize.checked_add(field_bytes)?)?;
     // The count is checked against the bytes actually there before anything is allocated.
-    if Some(body.len()) != len.checked_mul(12) || scale > 1 || (scale == 0 && len % 3 != 0) {
+    if scale > 1 || (scale == 0 && len % 3 != 0) {
         return None;
     }
-    let floats: Vec<f32> = body.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-    let (p, rest) = floats.split_at(len);
+    let floats =
+        |b: &[u8]| -> Vec<f32> { b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect() };
+    let all = floats(body);
+    let (p, rest) = all.split_at(len);
     let (m, v) = rest.split_at(len);
     let field = if scale == 1 {
         Field::Scale(p.to_vec())
     } else {
         Field::Velocity(p.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
     };
-    Some(FrameState { field, m: m.to_vec(), v: v.to_vec(), step })
+    let tail = &bytes[32 + field_bytes..];
+    let color = match tail.len() {
+        0 => None,
+        _ => {
+            let n = usize::try_from(u64::from_le_bytes(tail.get(..8)?.try_into().ok()?)).ok()?;
+            if Some(tail.len() - 8) != n.checked_mul(36) {
+                return None;
+            }
+            let all = floats(&tail[8..]);
+            let (raw, rest) = all.split_at(3 * n);
+            let (m, v) = rest.split_at(3 * n);
+            Some(ColorState {
+                raw: raw.chunks_exact(n.max(1)).take(3).map(|c| Field::Scale(c.to_vec())).collect(),
+                m: m.to_vec(),
+                v: v.to_vec(),
+            })
+        }
+    };
+    Some(FrameState { field, m: m.to_vec(), v: v.to_vec(), step, color })
 }
 
 impl StateStore for DiskStore {
@@ -268,7 +297,37 @@ mod tests {
     use super::*;
 
     fn state(x: f32) -> FrameState {
-        FrameState { field: Field::Velocity(vec![[x, 2.0 * x, -x]; 4]), m: vec![x; 12], v: vec![0.5; 12], step: 7 }
+        FrameState {
+            field: Field::Velocity(vec![[x, 2.0 * x, -x]; 4]),
+            m: vec![x; 12],
+            v: vec![0.5; 12],
+            step: 7,
+            color: None,
+        }
+    }
+
+    /// A state with colour comes back with it; cut short, it is refused.
+    #[test]
+    fn colour_round_trips_and_a_cut_file_is_refused() {
+        let color = ColorState {
+            raw: (0..3).map(|c| Field::Scale(vec![0.5 + c as f32, 1.5])).collect(),
+            m: (0..6).map(|i| i as f32).collect(),
+            v: vec![0.25; 6],
+        };
+        let st = FrameState {
+            field: Field::Scale(vec![1.0, 2.0]),
+            m: vec![0.0; 2],
+            v: vec![0.0; 2],
+            step: 3,
+            color: Some(color),
+        };
+        let bytes = encode(&st);
+        let back = decode(&bytes).unwrap();
+        let c = back.color.unwrap();
+        assert_eq!(c.raw.iter().map(|f| f.params().to_vec()).collect::<Vec<_>>(), [[0.5, 1.5], [1.5, 1.5], [2.5, 1.5]]);
+        assert_eq!((c.m, c.v), ((0..6).map(|i| i as f32).collect(), vec![0.25; 6]));
+        assert!(decode(&bytes[..bytes.len() - 4]).is_none());
+        assert!(decode(&bytes[..bytes.len() - 8 - 72]).unwrap().color.is_none(), "without the block: no colour");
     }
 
     fn first(st: &FrameState) -> f32 {
@@ -326,7 +385,8 @@ mod tests {
     fn a_state_whose_count_overflows_is_refused_not_a_panic() {
         // Count 2^62 + 1: `12 * count` wraps to 12, which the 12 bytes of
         // body used to match, and the split at the count then panicked.
-        let mut bytes = encode(&FrameState { field: Field::Scale(vec![1.0]), m: vec![0.0], v: vec![0.0], step: 0 });
+        let mut bytes =
+            encode(&FrameState { field: Field::Scale(vec![1.0]), m: vec![0.0], v: vec![0.0], step: 0, color: None });
         bytes[24..32].copy_from_slice(&((1u64 << 62) + 1).to_le_bytes());
         assert!(decode(&bytes).is_none());
         // The well-formed one still reads; a mode other than 0 or 1 does not.

@@ -23,7 +23,7 @@ use nst3d_io::vdb::{read_vdb, GridValues, Transform};
 use nst3d_render::Camera;
 use nst3d_sequence::ema::{stylize_sequence_with, SequenceParams, Simulation, StateStore};
 use nst3d_sequence::{default_work_dir, expand_pattern, job_fingerprint, settings_key, DiskStore, FrameSpec};
-use nst3d_stylize::{view_image, Mode, ViewLoss, ViewSpec};
+use nst3d_stylize::{color_view_image, view_image, Mode, ViewLoss, ViewSpec};
 
 use crate::cameras::Cameras;
 use crate::look::{absorption_for, mean_loss, smallest_absorption, views_of};
@@ -526,7 +526,7 @@ fn write_frames(
     let (transform, origin) = placement;
     let mut failures = Vec::new();
     let mut tally = Tally::default();
-    let mut prev: Option<(usize, Grid3)> = None;
+    let mut prev: Option<(usize, Grid3, Option<Vec<Grid3>>)> = None;
     let mut dropped_noted = false;
     let mut store = store;
     for (n, &i) in todo.iter().enumerate() {
@@ -544,40 +544,59 @@ fn write_frames(
             }
             continue;
         };
-        let result = (|| -> Result<(Grid3, Vec<String>)> {
-            let d = sim.density(t)?;
+        let result = (|| -> Result<(Grid3, Option<Vec<Grid3>>, Vec<String>)> {
             let store = store.as_deref_mut().context("frames with smoke were not optimised")?;
-            let st = store.load(t)?.context("the frame has no optimised field")?;
-            let d = st.field.transport(&d);
+            let (d, color) = nst3d_sequence::ema::stylized_frame(sim, store, t)?;
             if d.data.iter().any(|v| !v.is_finite()) {
                 bail!("stylization produced non-finite densities (try a smaller --lr)");
             }
             let file = read_vdb(&sim.inner.paths[t])?;
             file.grid(&s.grid).context("the grid vanished")?;
-            let dropped = write_stylized(&outs[i], &file, &s.grid, transform, origin, &d, None)?;
-            Ok((d, dropped))
+            let color_name =
+                s.color_grid.clone().unwrap_or_else(|| crate::output::color_grid_name(&file, s.up).to_string());
+            let named = color.as_ref().map(|c| (color_name.as_str(), &c[..]));
+            let dropped = write_stylized(&outs[i], &file, &s.grid, transform, origin, &d, named)?;
+            Ok((d, color, dropped))
         })();
         match result {
-            Ok((d, dropped)) => {
+            Ok((d, color, dropped)) => {
                 // Said once: every frame of a simulation has the same grids.
                 if !dropped.is_empty() && !dropped_noted {
                     reporter.note(&format!("{} not copied to the outputs", dropped.join(", ")));
                     dropped_noted = true;
                 }
                 tally.stylized += 1;
-                tally.losses += mean_loss(loss, &d, &views[t])?;
+                let view = &views[t][0];
+                tally.losses += match &color {
+                    None => mean_loss(loss, &d, &views[t])?,
+                    Some(c) => {
+                        let mut sum = 0.0;
+                        for v in &views[t] {
+                            sum += loss.loss_color(&d, c, v)?;
+                        }
+                        sum / views[t].len().max(1) as f32
+                    }
+                };
                 // Flicker of consecutive written frames, computed pairwise so
-                // memory holds two frames.
-                if let Some((tp, dp)) = &prev {
+                // memory holds two frames; with colour, of the colour picture.
+                if let Some((tp, dp, cp)) = &prev {
                     if *tp + 1 == t && sim.linked(t) {
                         let vel = sim.velocity(*tp)?;
-                        let render = |g: &Grid3| loss.image(g, &views[t][0]);
-                        tally.flicker_sum +=
-                            nst3d_sequence::flicker::flicker(&[dp.clone(), d.clone()], &[vel, None], render)? as f64;
+                        tally.flicker_sum += match (cp, &color) {
+                            (Some(cp), Some(c)) => {
+                                let render = |f: &(Grid3, Vec<Grid3>)| color_view_image(&f.0, &f.1, view);
+                                let pair = [(dp.clone(), cp.clone()), (d.clone(), c.clone())];
+                                nst3d_sequence::flicker::flicker_color(&pair, &[vel, None], render)? as f64
+                            }
+                            _ => {
+                                let render = |g: &Grid3| loss.image(g, view);
+                                nst3d_sequence::flicker::flicker(&[dp.clone(), d.clone()], &[vel, None], render)? as f64
+                            }
+                        };
                         tally.pairs += 1;
                     }
                 }
-                prev = Some((t, d));
+                prev = Some((t, d, color));
             }
             Err(e) => {
                 reporter.warn(&format!("frame {} failed: {e:#}", run_frames[i]));

@@ -216,9 +216,6 @@ impl VolumeSettings {
         if !(self.smin.is_finite() && self.smax.is_finite() && self.smin < self.smax && self.smin >= 0.0) {
             bail!("need 0 <= --smin < --smax, got {} and {}", self.smin, self.smax);
         }
-        if self.color && self.sequence.is_some() {
-            bail!("--color stylizes single frames for now; run each frame on its own (sequences with colour are issue 29's next step)");
-        }
         if self.color && self.model.is_some() {
             bail!("--color works with the optimisation, not with a trained --model (yet)");
         }

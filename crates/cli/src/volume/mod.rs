@@ -101,7 +101,7 @@ pub struct VolumeArgs {
     pub style_color: bool,
     /// Stylize an RGB colour per voxel with the smoke (rendered in colour,
     /// matched to the painting's colours) and write it as a vec3 grid beside
-    /// the density. Single frames, optimisation only for now.
+    /// the density, in every frame of a sequence. Optimisation only for now.
     #[arg(long, conflicts_with = "model")]
     pub color: bool,
     /// Name of the written colour grid (default: the input's colour grid, else
