@@ -31,6 +31,9 @@ pub struct BenchArgs {
     /// infer, train-step: the network's width C (2C at the low resolution), as the peer's --channels.
     #[arg(long, default_value_t = 16)]
     channels: usize,
+    /// volume-iter: with colour (issue 29), the iteration `nst3d volume --color` runs.
+    #[arg(long)]
+    color: bool,
     #[command(flatten)]
     strands: StrandInputs,
 }
@@ -70,12 +73,13 @@ fn volume_iter(args: &BenchArgs) -> Result<()> {
         Mode::Density => "density",
     };
     eprintln!(
-        "volume-iter: N={} mode={mode} threads={threads} iters={} precision={}",
+        "volume-iter: N={} mode={mode}{} threads={threads} iters={} precision={}",
         args.n,
+        if args.color { " color" } else { "" },
         args.iters.max(1),
         nst3d_core::precision::path().describe()
     );
-    let report = bench::volume_iter(args.n, args.mode, args.iters.max(1));
+    let report = bench::volume_iter_with(args.n, args.mode, args.iters.max(1), args.color);
     let times: Vec<String> = report.iteration_ms.iter().map(|t| format!("{t:.1}")).collect();
     println!("iteration_ms {}", times.join(" "));
     println!("peak_rss_mb {:.0}", peak_rss_mb());

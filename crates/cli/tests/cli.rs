@@ -237,12 +237,19 @@ fn small_grids_are_stylized_finer_in_the_same_place() {
 
 #[test]
 fn bench_prints_the_median_last() {
-    let o = nst3d(&["--threads", "2", "bench", "volume-iter", "--n", "32", "--iters", "2", "--mode", "density"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let stdout = String::from_utf8(o.stdout).unwrap();
-    let last = stdout.lines().last().unwrap();
-    assert!(last.starts_with("ms_per_iter "), "{stdout}");
-    assert!(last[12..].trim().parse::<f64>().unwrap() > 0.0);
+    for color in [false, true] {
+        let mut args = vec!["--threads", "2", "bench", "volume-iter", "--n", "32", "--iters", "2", "--mode", "density"];
+        if color {
+            args.push("--color");
+        }
+        let o = nst3d(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert_eq!(String::from_utf8_lossy(&o.stderr).contains("density color"), color);
+        let stdout = String::from_utf8(o.stdout).unwrap();
+        let last = stdout.lines().last().unwrap();
+        assert!(last.starts_with("ms_per_iter "), "{stdout}");
+        assert!(last[12..].trim().parse::<f64>().unwrap() > 0.0);
+    }
 }
 
 /// A short stretch of the Blender plume as a sequence: every frame is

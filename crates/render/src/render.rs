@@ -155,13 +155,7 @@ pub fn render_color_view(
     // The density's lattice only: its grey march would be thrown away.
     check_view(g, &view, gamma)?;
     let lattice = to_lattice(g, &view);
-    let emission: Vec<Grid3> = color
-        .iter()
-        .map(|c| {
-            let e = Grid3::from_vec(g.dims, c.data.iter().zip(&g.data).map(|(c, d)| c * d).collect());
-            to_lattice(&e, &view)
-        })
-        .collect();
+    let emission: Vec<Grid3> = color.iter().map(|c| to_lattice(&premultiply(g, c), &view)).collect();
     let img = march_emission(&lattice, &emission, gamma);
     Ok((img, ColorRenderCache { view, lattice, emission, gamma }))
 }
@@ -181,17 +175,52 @@ pub fn render_color_backward(
     assert_eq!(color.len(), cache.emission.len(), "render_color_backward: channel count differs from the render's");
     let (gd_lat, ge_lat) = march_emission_backward(&cache.lattice, &cache.emission, cache.gamma, grad_img);
     let mut grad_d = from_lattice(g, &cache.view, &gd_lat);
-    let grad_c = color
+    let ge: Vec<Grid3> = ge_lat.iter().map(|ge| from_lattice(g, &cache.view, ge)).collect();
+    let grad_c = emission_backward(g, color, &ge, &mut grad_d);
+    (grad_d, grad_c)
+}
+
+/// Backward of the premultiplied emission `e = c · d`: adds `Σ_ch ∂L/∂e_ch ·
+/// c_ch` to `grad_d` and returns `∂L/∂c_ch = ∂L/∂e_ch · d`.
+fn emission_backward(g: &Grid3, color: &[Grid3], grad_e: &[Grid3], grad_d: &mut Grid3) -> Vec<Grid3> {
+    color
         .iter()
-        .zip(&ge_lat)
+        .zip(grad_e)
         .map(|(c, ge)| {
-            let ge = from_lattice(g, &cache.view, ge);
             for ((gd, &gev), &cv) in grad_d.data.iter_mut().zip(&ge.data).zip(&c.data) {
                 *gd += gev * cv;
             }
             Grid3::from_vec(g.dims, ge.data.iter().zip(&g.data).map(|(gev, d)| gev * d).collect())
         })
-        .collect();
+        .collect()
+}
+
+fn premultiply(g: &Grid3, c: &Grid3) -> Grid3 {
+    Grid3::from_vec(g.dims, c.data.iter().zip(&g.data).map(|(c, d)| c * d).collect())
+}
+
+/// The colour render without a camera: [`march_emission`] of `e = c · d`
+/// straight along the grid's z (slice 0 nearest), as [`march`] is for grey
+/// — the `volume-iter --color` benchmark's view. Returns the emission for
+/// [`march_color_backward`].
+///
+/// # Panics
+/// If a colour grid's dims differ from `g`'s.
+pub fn march_color(g: &Grid3, color: &[Grid3], gamma: f32) -> (Image, Vec<Grid3>) {
+    let emission: Vec<Grid3> = color.iter().map(|c| premultiply(g, c)).collect();
+    (march_emission(g, &emission, gamma), emission)
+}
+
+/// Backward of [`march_color`]: `(∂L/∂g, ∂L/∂color)`.
+pub fn march_color_backward(
+    g: &Grid3,
+    color: &[Grid3],
+    emission: &[Grid3],
+    gamma: f32,
+    grad_img: &Image,
+) -> (Grid3, Vec<Grid3>) {
+    let (mut grad_d, ge) = march_emission_backward(g, emission, gamma, grad_img);
+    let grad_c = emission_backward(g, color, &ge, &mut grad_d);
     (grad_d, grad_c)
 }
 
@@ -414,6 +443,42 @@ mod tests {
         render_color_gradient_check(Camera::front([5, 4, 6]));
         render_color_gradient_check(Camera::orbit([5, 4, 6], 30.0, 20.0));
         render_color_gradient_check(Camera::orbit([5, 4, 6], -50.0, 35.0).with_projection(Projection::Perspective));
+    }
+
+    /// The camera-less colour march (the benchmark's view): its backward
+    /// against finite differences, and white is the grey march.
+    #[test]
+    fn march_color_gradient_and_white_is_grey() {
+        let dims = [5, 4, 6];
+        let n = 120;
+        let g = random_density(dims, 61);
+        let color: Vec<Grid3> = (0..3)
+            .map(|ch| Grid3::from_vec(dims, pseudo_random(n, 62 + ch).iter().map(|v| 0.5 + 0.4 * v).collect()))
+            .collect();
+        let (img, emission) = march_color(&g, &color, 0.4);
+        let w = Image::from_vec(3, img.height, img.width, pseudo_random(img.data.len(), 65));
+        let (gd, gc) = march_color_backward(&g, &color, &emission, 0.4, &w);
+        let x0 = [g.data.clone(), color.iter().flat_map(|c| c.data.clone()).collect()].concat();
+        let analytic = [gd.data, gc.into_iter().flat_map(|c| c.data).collect()].concat();
+        let r = check_gradient(
+            &x0,
+            &analytic,
+            |x| {
+                let g = Grid3::from_vec(dims, x[..n].to_vec());
+                let col: Vec<Grid3> = (0..3).map(|ch| Grid3::from_vec(dims, x[n + ch * n..][..n].to_vec())).collect();
+                dot(&w.data, &march_color(&g, &col, 0.4).0.data)
+            },
+            3e-2,
+            4 * n,
+            1e-2,
+        );
+        assert!(r.max_rel_err < 5e-3, "{r:?}");
+        let white = vec![Grid3::from_vec(dims, vec![1.0; n]); 3];
+        let (rgb, _) = march_color(&g, &white, 0.4);
+        let grey = march(&g, 0.4);
+        for ch in 0..3 {
+            assert_close(&rgb.data[ch * grey.data.len()..][..grey.data.len()], &grey.data, 1e-5, "channel");
+        }
     }
 
     /// Colour 1 everywhere renders the grey image in every channel.

@@ -51,6 +51,15 @@ pub fn synthetic_smoke(n: usize, seed: u64) -> Grid3 {
 /// Gram MSE loss on relu1_1..relu4_1, backward to the field, one Adam step
 /// (lr 0.01 in the peer's normalised units) and the density-mode clamp.
 pub fn volume_iter(n: usize, mode: Mode, iters: usize) -> BenchReport {
+    volume_iter_with(n, mode, iters, false)
+}
+
+/// [`volume_iter`] with colour (issue 29) when `color`: the same work, but
+/// the view renders emission–absorption in RGB from the chroma layer
+/// ([`crate::color`]), VGG-19 sees the colour picture, and the backward
+/// also steps the three raw colour channels — what `--color` adds to an
+/// iteration, to set against the grey one.
+pub fn volume_iter_with(n: usize, mode: Mode, iters: usize, color: bool) -> BenchReport {
     let d = synthetic_smoke(n, 0);
     // The peer uses a randomly initialised torchvision VGG: the work does not
     // depend on the weight values.
@@ -67,12 +76,25 @@ pub fn volume_iter(n: usize, mode: Mode, iters: usize) -> BenchReport {
         Mode::Density => 0.01,
     };
     let mut adam = Adam::new(field.len(), lr);
+    let mut raw: Vec<Field> = (0..3).map(|_| Field::identity(Mode::Density, d.len())).collect();
+    let mut color_adam: Vec<Adam> = (0..3).map(|_| Adam::new(d.len(), crate::color::LEARNING_RATE)).collect();
     let mut times = Vec::with_capacity(iters);
     let mut last_loss = 0.0;
     for it in 0..=iters {
         let t0 = Instant::now();
         let (dstar, tape) = field.forward(&d);
-        let (l, grad_dstar) = loss.loss_and_grad(&dstar, &view).expect("the benchmark view renders");
+        let (l, grad_dstar) = if color {
+            let (c, tape) = crate::color::chroma(&crate::color::raw_of(&raw), d.dims);
+            let (l, g, gc) = loss.loss_and_grad_color(&dstar, &c, &view).expect("the benchmark view renders");
+            let grad_raw = crate::color::chroma_backward(&tape, &gc);
+            for ((f, a), g) in raw.iter_mut().zip(&mut color_adam).zip(grad_raw) {
+                a.step(f.params_mut(), &g);
+                transport::clamp_scale(f.params_mut(), crate::color::RAW_RANGE.0, crate::color::RAW_RANGE.1);
+            }
+            (l, g)
+        } else {
+            loss.loss_and_grad(&dstar, &view).expect("the benchmark view renders")
+        };
         let grad = field.descent(field.backward(&d, &tape, &grad_dstar.data), d.dims);
         adam.step(field.params_mut(), &grad);
         if let Field::Scale(s) = &mut field {

@@ -21,9 +21,6 @@ pub enum ViewError {
     /// The style layers and weights do not fit together.
     #[error(transparent)]
     Loss(#[from] nst3d_loss::LossError),
-    /// A colour view was asked for without a camera (the benchmark's raw march).
-    #[error("colour views need a camera")]
-    ColorNeedsCamera,
     /// The caller asked the job to stop ([`nst3d_core::stop`]).
     #[error(transparent)]
     Interrupted(#[from] nst3d_core::stop::Interrupted),
@@ -158,7 +155,10 @@ impl ViewLoss<'_> {
         if view.exposure != 1.0 {
             grad.data.iter_mut().for_each(|v| *v *= view.exposure);
         }
-        let (grad_d, grad_c) = render::render_color_backward(d, color, &cache, &grad);
+        let (grad_d, grad_c) = match &cache {
+            RgbCache::Camera(cache) => render::render_color_backward(d, color, cache, &grad),
+            RgbCache::March(emission) => render::march_color_backward(d, color, emission, view.gamma, &grad),
+        };
         Ok((loss, grad_d, grad_c))
     }
 }
@@ -169,9 +169,27 @@ pub fn color_view_image(d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result<I
     Ok(rgb(d, color, view)?.0)
 }
 
-fn rgb(d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result<(Image, render::ColorRenderCache), ViewError> {
-    let cam = view.camera.ok_or(ViewError::ColorNeedsCamera)?;
-    let (mut img, cache) = render::render_color_view(d, color, cam.view(d.dims)?, view.gamma)?;
+/// What the colour render keeps for its backward: the camera's, or the
+/// emission of the camera-less march.
+enum RgbCache {
+    Camera(render::ColorRenderCache),
+    March(Vec<Grid3>),
+}
+
+fn rgb(d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result<(Image, RgbCache), ViewError> {
+    let (mut img, cache) = match &view.camera {
+        Some(cam) => {
+            let (img, cache) = render::render_color_view(d, color, cam.view(d.dims)?, view.gamma)?;
+            (img, RgbCache::Camera(cache))
+        }
+        None => {
+            if let Some(c) = color.iter().find(|c| c.dims != d.dims) {
+                return Err(render::RenderError::ViewMismatch { view: d.dims, grid: c.dims }.into());
+            }
+            let (img, emission) = render::march_color(d, color, view.gamma);
+            (img, RgbCache::March(emission))
+        }
+    };
     if view.exposure != 1.0 {
         img.data.iter_mut().for_each(|v| *v *= view.exposure);
     }
