@@ -5,9 +5,9 @@
 
 (tools/test_blender.sh sets PYTHONPATH to the nst3d package and this
 folder). Bakes a small Mantaflow smoke (32 voxels, 30 frames) with ../shared/tools/blender_bake_smoke.py,
-runs the add-on's "Stylize smoke" operator on the domain, checks the new
-Volume object reads a stylized density grid, renders the original and the
-stylized frame with Cycles into OUTDIR/blender_smoke_before_after.png, and
+runs the add-on's "Stylize smoke" operator on the domain with colour, checks the new
+Volume object reads a stylized density grid and the colour grid its material
+uses, renders the original and the stylized frame with Cycles into OUTDIR/blender_smoke_before_after.png, and
 stylizes a hair Curves object in place."""
 
 import os
@@ -51,6 +51,7 @@ s.style = STYLE
 s.frame_start = s.frame_end = FRAME
 s.iters = 15
 s.mode = "velocity"
+s.color = True  # issue 29: the colour grid, wired into the volume's material
 s.output_dir = os.path.join(OUT, "styled")
 with bpy.context.temp_override(object=domain, active_object=domain, selected_objects=[domain]):
     check(bpy.ops.nst3d.stylize_smoke.poll(), "the operator is offered on the smoke domain")
@@ -62,6 +63,10 @@ vol = styled.data
 vol.grids.load()
 check("density" in [g.name for g in vol.grids], f"it has a density grid ({[g.name for g in vol.grids]})")
 check(vol.grids.is_loaded, "Blender's OpenVDB reads the stylized file")
+check("color" in [g.name for g in vol.grids], f"it has the stylized colour grid ({[g.name for g in vol.grids]})")
+check(len(vol.materials) == 1, "the add-on gave the stylized volume a material")
+pv_styled = next(n for n in vol.materials[0].node_tree.nodes if n.type == "PRINCIPLED_VOLUME")
+check(pv_styled.inputs["Color Attribute"].default_value == "color", "whose Principled Volume reads the colour grid")
 
 import pyopenvdb  # noqa: E402  (Debian's, the same library Blender links)
 
@@ -94,8 +99,9 @@ nodes.remove(nodes["Principled BSDF"])
 pv = nodes.new("ShaderNodeVolumePrincipled")
 pv.inputs["Density"].default_value = 8.0
 mat.node_tree.links.new(pv.outputs["Volume"], nodes["Material Output"].inputs["Volume"])
-for o in (before, styled):
-    o.data.materials.append(mat)
+before.data.materials.append(mat)
+# The add-on's own colour material, as dense as the grey one for the picture.
+pv_styled.inputs["Density"].default_value = pv.inputs["Density"].default_value
 domain.hide_render = True
 for o in bpy.data.objects:
     if o.type == "MESH" and o is not domain:
@@ -137,6 +143,17 @@ bg = shots[0][0, 0, :3]
 smoke = np.abs(shots[0][..., :3] - bg).mean()
 diff = np.abs(shots[0][..., :3] - shots[1][..., :3]).mean()
 check(diff > 0.1 * smoke, f"before and after renders differ ({diff / smoke:.0%} of the smoke's own contrast)")
+
+
+def chroma(px):
+    """Mean channel spread (max − min) over the pixels that show smoke."""
+    lit = np.abs(px[..., :3] - bg).max(axis=2) > 0.05
+    spread = px[..., :3].max(axis=2) - px[..., :3].min(axis=2)
+    return float(spread[lit].mean()) if lit.any() else 0.0
+
+
+c0, c1 = chroma(shots[0]), chroma(shots[1])
+check(c1 > 0.02 and c1 > 2 * c0, f"Cycles shows the stylized smoke in colour (channel spread {c1:.3f}, the original's {c0:.3f})")
 gap = np.ones((shots[0].shape[0], 6, 4), np.float32)
 pair = np.concatenate([shots[0], gap, shots[1]], axis=1)
 sheet = bpy.data.images.new("sheet", pair.shape[1], pair.shape[0])

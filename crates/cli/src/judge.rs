@@ -37,6 +37,10 @@ pub struct JudgeArgs {
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).
     #[arg(long)]
     weights: Option<PathBuf>,
+    /// VGG-19 layers whose Gram matrices are compared, equally weighted
+    /// [default: relu1_1,relu2_1,relu3_1,relu4_1].
+    #[arg(long, value_delimiter = ',')]
+    layers: Vec<nst3d_features::VggLayer>,
 }
 
 fn line(r: &Ratios) -> String {
@@ -52,6 +56,9 @@ pub fn run(args: JudgeArgs) -> Result<()> {
     s.up = args.up.unwrap_or(s.up);
     s.color = args.color;
     s.weights = args.weights;
+    if !args.layers.is_empty() {
+        s.spec = nst3d_stylize::StyleSpec { layer_weights: vec![1.0; args.layers.len()], layers: args.layers };
+    }
     let verdicts = nst3d_volume::judge(&s, &mut Console::default())?;
     println!("loss / baseline's loss per held-out view ({}), below 1 = closer to the painting", s.cameras);
     for v in verdicts {

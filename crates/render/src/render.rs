@@ -183,20 +183,31 @@ pub fn render_color_backward(
 /// Backward of the premultiplied emission `e = c · d`: adds `Σ_ch ∂L/∂e_ch ·
 /// c_ch` to `grad_d` and returns `∂L/∂c_ch = ∂L/∂e_ch · d`.
 fn emission_backward(g: &Grid3, color: &[Grid3], grad_e: &[Grid3], grad_d: &mut Grid3) -> Vec<Grid3> {
-    color
-        .iter()
-        .zip(grad_e)
-        .map(|(c, ge)| {
-            for ((gd, &gev), &cv) in grad_d.data.iter_mut().zip(&ge.data).zip(&c.data) {
-                *gd += gev * cv;
+    grad_d.data.par_chunks_mut(CHUNK).enumerate().for_each(|(k, gd)| {
+        let at = k * CHUNK;
+        for (c, ge) in color.iter().zip(grad_e) {
+            for (i, v) in gd.iter_mut().enumerate() {
+                *v += ge.data[at + i] * c.data[at + i];
             }
-            Grid3::from_vec(g.dims, ge.data.iter().zip(&g.data).map(|(gev, d)| gev * d).collect())
-        })
-        .collect()
+        }
+    });
+    grad_e.iter().map(|ge| product(g, ge)).collect()
+}
+
+/// Voxels per unit of parallel work in the per-voxel products.
+const CHUNK: usize = 1 << 14;
+
+/// `a ⊙ b` voxel by voxel (the emission `c · d`, or `∂L/∂e · d`).
+fn product(a: &Grid3, b: &Grid3) -> Grid3 {
+    let mut out = vec![0.0; a.data.len()];
+    out.par_chunks_mut(CHUNK)
+        .zip(a.data.par_chunks(CHUNK).zip(b.data.par_chunks(CHUNK)))
+        .for_each(|(o, (x, y))| o.iter_mut().zip(x.iter().zip(y)).for_each(|(o, (x, y))| *o = x * y));
+    Grid3::from_vec(a.dims, out)
 }
 
 fn premultiply(g: &Grid3, c: &Grid3) -> Grid3 {
-    Grid3::from_vec(g.dims, c.data.iter().zip(&g.data).map(|(c, d)| c * d).collect())
+    product(g, c)
 }
 
 /// The colour render without a camera: [`march_emission`] of `e = c · d`

@@ -16,7 +16,7 @@ pub fn flicker<E>(
     velocities: &[Option<Vec<[f32; 3]>>],
     render: impl Fn(&Grid3) -> Result<Image, E>,
 ) -> Result<f32, E> {
-    flicker_of(frames, velocities, |g, back| transport::advect_linear(g, back), render)
+    flicker_of(frames, velocities, transport::advect_linear, render)
 }
 
 /// [`flicker`] of frames that carry colour (issue 29): each frame is its

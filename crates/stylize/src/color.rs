@@ -28,6 +28,7 @@
 use nst3d_core::image::LUMA;
 use nst3d_core::Grid3;
 use nst3d_transport as transport;
+use rayon::prelude::*;
 
 /// Range of a raw channel. Its ratio bounds the saturation: a pure
 /// primary of luminance 1 is out of reach, which suits paintings (their
@@ -41,10 +42,14 @@ pub const SMOOTH_PASSES: usize = 2;
 
 /// Adam's step on the raw channels, whatever the density's mode and rate
 /// (velocity mode steps voxels at 0.5, a rate that would saturate colour in
-/// two steps). 0.2 is the density mode's rate, measured against 0.5: the
-/// held-out colour loss was the same (0.779 vs 0.776 of the grey result's
-/// on smoke_000003 with Woman with a Hat) and the picture calmer.
-pub const LEARNING_RATE: f32 = 0.2;
+/// a few steps). Measured on smoke_000003 and plume48 with Woman with a Hat
+/// (docs/VOLUME_LOOK.md, "Colour"): from 0.2 to 0.05 the held-out colour
+/// loss of a single frame stays the same (0.779 → 0.783 of the grey
+/// result's) and the picture calms, while a sequence's colour flicker falls
+/// from 0.66× to 0.39× of per-frame optimisation's — Adam's first steps are
+/// about `rate` per voxel whatever the gradient, and the EMA only averages
+/// what those steps scatter.
+pub const LEARNING_RATE: f32 = 0.05;
 
 /// What [`chroma`] keeps for [`chroma_backward`].
 pub struct ChromaTape {
@@ -54,9 +59,14 @@ pub struct ChromaTape {
 }
 
 fn smooth(v: &[f32], dims: [usize; 3]) -> Vec<f32> {
-    let mut out = v.to_vec();
-    for _ in 0..SMOOTH_PASSES {
-        out = transport::tent_smooth_flat(&out, 1, dims);
+    if SMOOTH_PASSES == 0 {
+        return v.to_vec();
+    }
+    let mut out = transport::tent_smooth_flat(v, 1, dims);
+    let mut spare = vec![0.0; v.len()];
+    for _ in 1..SMOOTH_PASSES {
+        transport::tent_smooth_into(&out, 1, dims, &mut spare);
+        std::mem::swap(&mut out, &mut spare);
     }
     out
 }
@@ -67,18 +77,28 @@ fn smooth(v: &[f32], dims: [usize; 3]) -> Vec<f32> {
 /// If there are not three channels of the voxel count of `dims`.
 pub fn chroma(raw: &[&[f32]], dims: [usize; 3]) -> (Vec<Grid3>, ChromaTape) {
     assert_eq!(raw.len(), 3, "three colour channels");
-    let smoothed: Vec<Vec<f32>> = raw.iter().map(|r| smooth(r, dims)).collect();
+    let smoothed: Vec<Vec<f32>> = raw.par_iter().map(|r| smooth(r, dims)).collect();
     let n = smoothed[0].len();
     let mut color: Vec<Vec<f32>> = vec![vec![0.0; n]; 3];
-    for i in 0..n {
-        let lum: f32 = (0..3).map(|ch| LUMA[ch] * smoothed[ch][i]).sum();
-        for ch in 0..3 {
-            color[ch][i] = smoothed[ch][i] / lum;
-        }
-    }
+    let [c0, c1, c2] = &mut color[..] else { unreachable!("three channels") };
+    let (s0, s1, s2) = (&smoothed[0], &smoothed[1], &smoothed[2]);
+    (c0.par_chunks_mut(CHUNK), c1.par_chunks_mut(CHUNK), c2.par_chunks_mut(CHUNK))
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(k, (r, g, b))| {
+            let at = k * CHUNK;
+            for i in 0..r.len() {
+                let s = [s0[at + i], s1[at + i], s2[at + i]];
+                let lum = LUMA[0] * s[0] + LUMA[1] * s[1] + LUMA[2] * s[2];
+                (r[i], g[i], b[i]) = (s[0] / lum, s[1] / lum, s[2] / lum);
+            }
+        });
     let color = color.into_iter().map(|c| Grid3::from_vec(dims, c)).collect();
     (color, ChromaTape { smoothed, dims })
 }
+
+/// Voxels per unit of parallel work in the per-voxel loops.
+const CHUNK: usize = 1 << 14;
 
 /// The raw channels held as scale fields (how the optimiser keeps them),
 /// borrowed for [`chroma`].
@@ -92,14 +112,25 @@ pub fn chroma_backward(tape: &ChromaTape, grad_color: &[Grid3]) -> Vec<Vec<f32>>
     let s = &tape.smoothed;
     let n = s[0].len();
     let mut grad_s: Vec<Vec<f32>> = vec![vec![0.0; n]; 3];
-    for i in 0..n {
-        let lum: f32 = (0..3).map(|ch| LUMA[ch] * s[ch][i]).sum();
-        let g_dot_c: f32 = (0..3).map(|ch| grad_color[ch].data[i] * s[ch][i] / lum).sum();
-        for ch in 0..3 {
-            grad_s[ch][i] = (grad_color[ch].data[i] - LUMA[ch] * g_dot_c) / lum;
-        }
-    }
-    grad_s.iter().map(|g| smooth(g, tape.dims)).collect()
+    let [g0, g1, g2] = &mut grad_s[..] else { unreachable!("three channels") };
+    let gc = [&grad_color[0].data, &grad_color[1].data, &grad_color[2].data];
+    (g0.par_chunks_mut(CHUNK), g1.par_chunks_mut(CHUNK), g2.par_chunks_mut(CHUNK))
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(k, (r, g, b))| {
+            let at = k * CHUNK;
+            for i in 0..r.len() {
+                let j = at + i;
+                let sv = [s[0][j], s[1][j], s[2][j]];
+                let lum = LUMA[0] * sv[0] + LUMA[1] * sv[1] + LUMA[2] * sv[2];
+                let gv = [gc[0][j], gc[1][j], gc[2][j]];
+                let g_dot_c = (gv[0] * sv[0] + gv[1] * sv[1] + gv[2] * sv[2]) / lum;
+                r[i] = (gv[0] - LUMA[0] * g_dot_c) / lum;
+                g[i] = (gv[1] - LUMA[1] * g_dot_c) / lum;
+                b[i] = (gv[2] - LUMA[2] * g_dot_c) / lum;
+            }
+        });
+    grad_s.par_iter().map(|g| smooth(g, tape.dims)).collect()
 }
 
 #[cfg(test)]

@@ -52,6 +52,10 @@ pub struct JudgeSettings {
     pub color: bool,
     /// VGG-19 weights (default: the bundled ones).
     pub weights: Option<PathBuf>,
+    /// The Gram layers and their weights (default: the paper's relu1_1..relu4_1,
+    /// equal). One layer alone shows where a change acts: colour moves the
+    /// shallow layers most.
+    pub spec: StyleSpec,
 }
 
 impl JudgeSettings {
@@ -66,6 +70,7 @@ impl JudgeSettings {
             up: UpAxis::Z,
             color: false,
             weights: None,
+            spec: StyleSpec::default(),
         }
     }
 }
@@ -164,9 +169,9 @@ pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdi
 
     let vgg = Vgg19::load(s.weights.as_deref())?;
     let painting = nst3d_io::image::load_style(&s.style, 1.0)?;
-    let grey_loss = ViewLoss::new(&vgg, &painting.luminance3(), &StyleSpec::default())?;
+    let grey_loss = ViewLoss::new(&vgg, &painting.luminance3(), &s.spec)?;
     let rgb_loss = match s.color {
-        true => Some(ViewLoss::new(&vgg, &painting, &StyleSpec::default())?),
+        true => Some(ViewLoss::new(&vgg, &painting, &s.spec)?),
         false => None,
     };
     let (base, _) = boxed(&files[0]);

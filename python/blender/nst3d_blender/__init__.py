@@ -25,7 +25,7 @@ import sys
 import threading
 
 import bpy
-from bpy.props import EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 bl_info = {
     "name": "nst3d: stylize smoke and hair with a painting",
@@ -83,6 +83,8 @@ class Nst3dSettings(bpy.types.PropertyGroup):
     cameras: StringProperty(name="Cameras", default="front",
                             description="front, omniview:N (all around) or ring:N[:ELEV]")
     iters: IntProperty(name="Iterations", default=20, min=1, description="Iterations per octave")
+    color: BoolProperty(name="Colour", default=False,
+                        description="Stylize the smoke's colour too: a 'color' grid the loaded volume's material reads")
     output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="",
                                description="New cache folder (default: the cache's data folder + _nst3d)")
     preset: EnumProperty(name="Preset", items=_PRESETS, default="short-hair")
@@ -224,6 +226,10 @@ class NST3D_OT_stylize_smoke(_Nst3dOperator, bpy.types.Operator):
         out = os.path.join(out_dir, "fluid_data_####.vdb")
         self._obj_name, self._frames, self._out = obj.name, frames, out
         opts = dict(mode=s.mode, strength=s.strength, cameras=s.cameras, iters=s.iters)
+        self._color = bool(s.color)
+        if self._color:
+            # Blender's Principled Volume reads the grid by this name.
+            opts.update(color=True, color_grid=COLOR_GRID)
 
         def work(progress):
             if len(frames) == 1:
@@ -237,8 +243,29 @@ class NST3D_OT_stylize_smoke(_Nst3dOperator, bpy.types.Operator):
     def finish(self, context, result):
         domain = bpy.data.objects[self._obj_name]
         vobj = load_volume(domain, self._out, self._frames, domain.name + "_nst3d")
+        if self._color:
+            vobj.data.materials.append(color_material(domain.name + "_nst3d"))
         self.report({"INFO"}, f"stylized {len(self._frames)} frame(s) into {os.path.dirname(self._out)}; loaded {vobj.name}")
         return {"FINISHED"}
+
+
+COLOR_GRID = "color"
+
+
+def color_material(name):
+    """A Principled Volume reading the stylized colour grid (`COLOR_GRID`)
+    as its colour, so a Cycles or EEVEE render shows the painting's palette."""
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nodes = mat.node_tree.nodes
+    for n in [n for n in nodes if n.type != "OUTPUT_MATERIAL"]:
+        nodes.remove(n)
+    pv = nodes.new("ShaderNodeVolumePrincipled")
+    pv.inputs["Color Attribute"].default_value = COLOR_GRID
+    pv.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    out = next(n for n in nodes if n.type == "OUTPUT_MATERIAL")
+    mat.node_tree.links.new(pv.outputs["Volume"], out.inputs["Volume"])
+    return mat
 
 
 def _frame(pattern, f):
@@ -400,6 +427,7 @@ def _draw_common(layout, s, smoke):
         row.prop(s, "frame_end")
         layout.prop(s, "cameras")
         layout.prop(s, "iters")
+        layout.prop(s, "color")
         layout.prop(s, "output_dir")
     else:
         layout.prop(s, "preset")
