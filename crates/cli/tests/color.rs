@@ -76,7 +76,8 @@ fn color_adds_a_vec3_grid_python_openvdb_reads() {
     assert!(coloured > 1000, "the preview is grey");
 
     // The judge: a file against itself scores 1 from every view, grey and
-    // colour; a grid the files lack is one line.
+    // colour; an input 2x coarser than the result is refined to the result's
+    // voxels and judged beside it; a grid the files lack is one line.
     let o =
         nst3d(&["judge", "--style", s(&style), "--baseline", s(&out), "--color", "--cameras", "ring:3:30", s(&out)]);
     let text = String::from_utf8_lossy(&o.stdout);
@@ -85,6 +86,28 @@ fn color_adds_a_vec3_grid_python_openvdb_reads() {
         let line = text.lines().find(|l| l.contains(&format!(" {kind} worst"))).unwrap_or_else(|| panic!("{text}"));
         assert!(line.ends_with("views 1.000 1.000 1.000"), "{line}");
     }
+    let fine = dir.path().join("fine.vdb");
+    let o = nst3d(&[
+        "volume",
+        "--input",
+        s(&input),
+        "--style",
+        s(&style),
+        "--mode",
+        "density",
+        "--iters",
+        "1",
+        "--octaves",
+        "1",
+        "--upsample",
+        "2",
+        "--out",
+        s(&fine),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = nst3d(&["judge", "--style", s(&style), "--baseline", s(&input), "--cameras", "ring:3:30", s(&fine)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains(" grey worst "));
     let o = nst3d(&["judge", "--style", s(&style), "--baseline", s(&input), "--grid", "smoke", s(&out)]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");

@@ -26,6 +26,7 @@ use nst3d_stylize::{StyleSpec, ViewLoss};
 use crate::cameras::{CameraSet, Lens};
 use crate::dense::{in_box, pad, union_box};
 use crate::look::{absorption_for, views_of};
+use crate::upsample::{refine_density, refine_origin, refine_transform};
 
 /// Names a colour grid is read under, in order.
 pub const COLOR_GRID_NAMES: [&str; 2] = ["Cd", "color"];
@@ -134,6 +135,27 @@ fn load(path: &Path, grid: &str) -> Result<Loaded> {
     Ok(Loaded { density: g.to_dense()?, color, transform: g.transform.clone() })
 }
 
+/// `f` made `k` times finer (trilinear, as `nst3d volume --upsample` refines).
+fn refine(f: Loaded, k: usize) -> Result<Loaded> {
+    if k == 1 {
+        return Ok(f);
+    }
+    let up = |bx: DenseBox, g: &Grid3| -> Result<(DenseBox, Grid3)> {
+        let g = refine_density(g, k);
+        Ok((DenseBox { origin: refine_origin(bx.origin, k)?, dims: g.dims }, g))
+    };
+    let density = up(f.density.0, &f.density.1)?;
+    let color = match f.color {
+        None => None,
+        Some((bx, ch)) => {
+            let [r, g, b] = ch;
+            let (bx2, r) = up(bx, &r)?;
+            Some((bx2, [r, up(bx, &g)?.1, up(bx, &b)?.1]))
+        }
+    };
+    Ok(Loaded { density, color, transform: refine_transform(&f.transform, k) })
+}
+
 /// Judges every result against the baseline; `reporter` sees one step per file.
 pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdict>> {
     if s.results.is_empty() {
@@ -141,16 +163,27 @@ pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdi
     }
     let files: Vec<Loaded> =
         std::iter::once(&s.baseline).chain(&s.results).map(|p| load(p, &s.grid)).collect::<Result<_>>()?;
-    for (f, path) in files.iter().zip(std::iter::once(&s.baseline).chain(&s.results)) {
-        if f.transform.voxel_size != files[0].transform.voxel_size {
-            bail!(
-                "{} has voxels of {:?}, the baseline {:?}: judge files of one resolution",
-                path.display(),
-                f.transform.voxel_size,
-                files[0].transform.voxel_size
-            );
-        }
-    }
+    // Files at a coarser resolution than the finest (an input beside a
+    // result `nst3d volume` wrote 2x finer) are refined to it, as the job
+    // refines; other mismatches cannot be compared voxel for voxel.
+    let finest = files.iter().map(|f| f.transform.voxel_size[0]).fold(f64::INFINITY, f64::min);
+    let files: Vec<Loaded> = files
+        .into_iter()
+        .zip(std::iter::once(&s.baseline).chain(&s.results))
+        .map(|(f, path)| {
+            let k = f.transform.voxel_size[0] / finest;
+            let ki = k.round() as usize;
+            let same_shape = f.transform.voxel_size.iter().all(|v| ((v / finest) - k).abs() < 1e-6 * k);
+            if (k - ki as f64).abs() > 1e-6 * k || !same_shape || ki == 0 {
+                bail!(
+                    "{} has voxels of {:?}, another file {finest}: judge files whose resolutions differ by a whole factor",
+                    path.display(),
+                    f.transform.voxel_size
+                );
+            }
+            refine(f, ki)
+        })
+        .collect::<Result<_>>()?;
     let bx = files.iter().map(|f| f.density.0).reduce(|a, b| union_box(&a, &b)).expect("a baseline");
     let boxed = |f: &Loaded| -> (Grid3, Option<Vec<Grid3>>) {
         let d = pad(&in_box(Some(f.density.clone()), &bx), MARGIN);
