@@ -2,8 +2,25 @@
 //! renderer, and several grids (the frames of a simulation, a result and its
 //! original) share one box so cameras and fields line up between them.
 
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
 use nst3d_core::Grid3;
-use nst3d_io::vdb::DenseBox;
+use nst3d_io::vdb::{DenseBox, GridValues, VdbFile, VdbGrid};
+
+/// The float grid `grid` of `file` (read from `path`, for messages): an
+/// error naming the grids there are when it is missing, or its value type
+/// when it holds no densities.
+pub fn density_grid<'a>(file: &'a VdbFile, path: &Path, grid: &str) -> Result<&'a VdbGrid> {
+    let g = file.grid(grid).with_context(|| {
+        let names: Vec<&str> = file.grids.iter().map(|g| g.name.as_str()).collect();
+        format!("{}: no grid named '{grid}' (grids: {})", path.display(), names.join(", "))
+    })?;
+    if !matches!(g.values, GridValues::Float(_)) {
+        bail!("{}: grid '{grid}' holds {} values, not densities", path.display(), g.values.type_name());
+    }
+    Ok(g)
+}
 
 /// Copies `src`, whose voxel (0,0,0) is index `src_origin`, into `dst`,
 /// whose voxel (0,0,0) is index `dst_origin`. Voxels outside `dst` are

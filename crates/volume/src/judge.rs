@@ -17,7 +17,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, bail, Result};
 use nst3d_core::{Grid3, Reporter, UpAxis};
 use nst3d_features::Vgg19;
 use nst3d_io::vdb::{read_vdb, DenseBox, GridValues, Transform};
@@ -119,13 +119,7 @@ struct Loaded {
 
 fn load(path: &Path, grid: &str) -> Result<Loaded> {
     let file = read_vdb(path).map_err(|e| anyhow!("{e}"))?;
-    let g = file.grid(grid).with_context(|| {
-        let names: Vec<&str> = file.grids.iter().map(|g| g.name.as_str()).collect();
-        format!("{}: no grid named '{grid}' (grids: {})", path.display(), names.join(", "))
-    })?;
-    if !matches!(g.values, GridValues::Float(_)) {
-        bail!("{}: grid '{grid}' holds {} values, not densities", path.display(), g.values.type_name());
-    }
+    let g = crate::dense::density_grid(&file, path, grid)?;
     let color = COLOR_GRID_NAMES
         .iter()
         .filter_map(|n| file.grid(n))

@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, bail, Context, Result};
 use nst3d_core::{Grid3, Image};
 use nst3d_io::image::{resize_to_height, side_by_side, write_png};
-use nst3d_io::vdb::{read_vdb, DenseBox, GridValues};
+use nst3d_io::vdb::{read_vdb, DenseBox};
 use nst3d_render::{Camera, Projection};
 use nst3d_sequence::{expand_pattern, FrameSpec};
 
@@ -250,13 +250,7 @@ fn load(path: &Path, grid: &str, allow_empty: bool) -> Result<Option<(DenseBox, 
     // Flattened to its message: the error already quotes its I/O cause, which
     // `{:#}` would otherwise print a second time.
     let file = read_vdb(path).map_err(|e| anyhow!("{e}"))?;
-    let g = file.grid(grid).with_context(|| {
-        let names: Vec<&str> = file.grids.iter().map(|g| g.name.as_str()).collect();
-        format!("{}: no grid named '{grid}' (grids: {})", path.display(), names.join(", "))
-    })?;
-    if !matches!(g.values, GridValues::Float(_)) {
-        bail!("{}: grid '{grid}' holds {} values, not densities", path.display(), g.values.type_name());
-    }
+    let g = crate::dense::density_grid(&file, path, grid)?;
     if allow_empty && g.active_bbox().is_none() {
         return Ok(None);
     }
