@@ -109,7 +109,7 @@ pub fn generate(g: &GenerateSettings) -> Result<GenerateReport> {
     let mut written = Vec::new();
     match &g.frames {
         None => {
-            write_groom(&g.out, format, &rest, None)?;
+            write_groom(&g.out, format, &rest, None, None)?;
             written.push(g.out.clone());
         }
         Some(spec) => {
@@ -117,7 +117,7 @@ pub fn generate(g: &GenerateSettings) -> Result<GenerateReport> {
             frame_path(&g.out, spec.frames()[0], "--out")?;
             for &f in spec.frames() {
                 let out = frame_path(&g.out, f, "--out")?;
-                write_groom(&out, format, &w.at_time(&rest, f as f32 / g.fps)?, None)?;
+                write_groom(&out, format, &w.at_time(&rest, f as f32 / g.fps)?, None, None)?;
                 written.push(out);
             }
         }

@@ -4,7 +4,8 @@
 //! judge) of each picture `nst3d preview` draws, to the painting's
 //! luminance at the picture's height. It reads files only, so it scores any
 //! groom the same way, from views no optimisation used (a turntable around
-//! the up axis at an elevation of your choosing).
+//! the up axis at an elevation of your choosing). With colour, pictures in
+//! the grooms' own colours are judged against the painting in colour.
 
 use std::path::Path;
 
@@ -26,9 +27,17 @@ impl GramJudge {
     /// The painting at `style`, as grey, resized to `height` rows (the
     /// pictures' height: its strokes keep their size relative to the frame).
     pub fn new(style: &Path, height: usize, weights: Option<&Path>) -> Result<Self> {
+        Self::with_color(style, height, weights, false)
+    }
+
+    /// [`GramJudge::new`], with `color` the painting in its colours (issue
+    /// 29's colour judge: pictures drawn in the grooms' colours against the
+    /// painting's RGB Gram matrices).
+    pub fn with_color(style: &Path, height: usize, weights: Option<&Path>, color: bool) -> Result<Self> {
         let painting = nst3d_io::image::load_style(style, 1.0)?;
         let vgg = Vgg19::load(weights)?;
-        let grey = resize_to_height(&luminance_rgb(&painting), height);
+        let src = if color { painting } else { luminance_rgb(&painting) };
+        let grey = resize_to_height(&src, height);
         let fwd = vgg.forward(&grey, &LAYERS, false);
         let target = StyleTarget::from_features(&fwd.features(), &[1.0; 4])?;
         Ok(Self { vgg, target })

@@ -16,8 +16,15 @@ use crate::settings::OutFormat;
 /// per-point widths and colours, and in `.usda` the input layer's other
 /// primvars ([`attribute_notes`] says what a format cannot hold). Fails,
 /// writing nothing, when the topologies differ. Without `input` (generated
-/// grooms) only points are written.
-pub fn write_groom(path: &Path, format: OutFormat, strands: &FlatStrands, input: Option<&GroomFile>) -> Result<()> {
+/// grooms) only points are written. `colors` (one list per strand, one
+/// colour per point: a stylization with colour) replace the input's.
+pub fn write_groom(
+    path: &Path,
+    format: OutFormat,
+    strands: &FlatStrands,
+    input: Option<&GroomFile>,
+    colors: Option<&[Vec<[f32; 3]>]>,
+) -> Result<()> {
     let mut g = strands.to_groom();
     let no_primvars = UsdPrimvars::default();
     let mut primvars = &no_primvars;
@@ -26,6 +33,14 @@ pub fn write_groom(path: &Path, format: OutFormat, strands: &FlatStrands, input:
             .map_err(|e| anyhow::anyhow!("{}: {}", path.display(), nst3d_io::ErrorKind::from(e)))
             .context("cannot give the output the input's attributes")?;
         primvars = &input.usd_primvars;
+    }
+    if let Some(colors) = colors {
+        if colors.len() != g.strands.len() || colors.iter().zip(&g.strands).any(|(c, s)| c.len() != s.points.len()) {
+            anyhow::bail!("{}: the stylized colours do not match the groom's points", path.display());
+        }
+        for (s, c) in g.strands.iter_mut().zip(colors) {
+            s.colors = Some(c.clone());
+        }
     }
     match format {
         OutFormat::Usda => write_usda_curves_with(path, &g, primvars)?,

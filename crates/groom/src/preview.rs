@@ -15,13 +15,23 @@ use crate::settings::frame_path;
 
 pub use nst3d_io::image::PREVIEW_HEIGHT;
 
-/// Before | after | painting from the front camera.
-pub fn write_preview(path: &Path, scene: &StrandScene, after: &FlatStrands, painting: &Image) -> Result<()> {
+/// Before | after | painting from the front camera; with `colors` (a
+/// stylization with colour: every point of `after`, guides then proxies)
+/// the before is drawn in the colours it started from, the after in
+/// `colors` and the painting in colour, else all three grey.
+pub fn write_preview(
+    path: &Path,
+    scene: &StrandScene,
+    after: &FlatStrands,
+    colors: Option<&[[f32; 3]]>,
+    painting: &Image,
+) -> Result<()> {
     let h = PREVIEW_HEIGHT;
     let cam = scene.front_camera(h)?;
-    let before = scene.render(&scene.undeformed, &cam)?;
-    let after = scene.render(after, &cam)?;
-    let paint = resize_to_height(&luminance_rgb(painting), h);
+    let start = colors.map(|_| scene.color_layer.forward(&scene.initial_colors));
+    let before = scene.render_colored(&scene.undeformed, start.as_deref(), &cam)?;
+    let after = scene.render_colored(after, colors, &cam)?;
+    let paint = resize_to_height(&if colors.is_some() { painting.clone() } else { luminance_rgb(painting) }, h);
     write_png(path, &side_by_side(&[&before, &after, &paint]))?;
     Ok(())
 }
@@ -49,6 +59,10 @@ pub struct GroomPreviewSettings {
     pub up: Option<UpAxis>,
     /// A painting to judge every picture against ([`GramJudge`]).
     pub style: Option<PathBuf>,
+    /// Draw each groom in its own per-point colours (white where it has
+    /// none) and judge in colour; the grey judge then scores the pictures'
+    /// luminance ([`GroomPreviewReport::input_grey_loss`]).
+    pub color: bool,
 }
 
 /// What [`preview_groom`] drew, and with a painting its judgement.
@@ -60,6 +74,11 @@ pub struct GroomPreviewReport {
     pub input_loss: Vec<f32>,
     /// Per picture, that of `compare`.
     pub compare_loss: Vec<f32>,
+    /// With colour and a painting: per picture, the grey Gram loss of the
+    /// luminance of `input`'s picture to the painting's luminance.
+    pub input_grey_loss: Vec<f32>,
+    /// That of `compare`.
+    pub compare_grey_loss: Vec<f32>,
 }
 
 impl GroomPreviewReport {
@@ -67,6 +86,11 @@ impl GroomPreviewReport {
     /// groom is nearer the painting from that side.
     pub fn ratios(&self) -> Vec<f32> {
         self.compare_loss.iter().zip(&self.input_loss).map(|(c, i)| c / i).collect()
+    }
+
+    /// With colour: [`GroomPreviewReport::ratios`] of the grey losses.
+    pub fn grey_ratios(&self) -> Vec<f32> {
+        self.compare_grey_loss.iter().zip(&self.input_grey_loss).map(|(c, i)| c / i).collect()
     }
 }
 
@@ -91,9 +115,13 @@ pub fn preview_groom(s: &GroomPreviewSettings) -> Result<GroomPreviewReport> {
     let input = nst3d_io::groom::read_groom_file(&s.input)?;
     let (up, _) = axis::resolve(s.up, &input);
     let groom = FlatStrands::from_groom(&axis::groom_to_y_up(&input.groom, up))?;
+    let input_colors = s.color.then(|| point_colors(&input.groom));
+    let mut compare_colors = None;
     let compare = match &s.compare {
         Some(p) => {
-            let c = FlatStrands::from_groom(&axis::groom_to_y_up(&nst3d_io::groom::read_groom(p)?, up))?;
+            let g = nst3d_io::groom::read_groom(p)?;
+            compare_colors = s.color.then(|| point_colors(&g));
+            let c = FlatStrands::from_groom(&axis::groom_to_y_up(&g, up))?;
             if c.strand_count() != groom.strand_count() {
                 anyhow::bail!(
                     "{}: {} strands, {} has {}: not the same groom",
@@ -114,13 +142,18 @@ pub fn preview_groom(s: &GroomPreviewSettings) -> Result<GroomPreviewReport> {
         groom.strand_count(),
     );
     let view = GroomView::new(&groom, head.as_deref(), &params)?;
-    let judge = s.style.as_deref().map(|p| GramJudge::new(p, s.height, None)).transpose()?;
+    let judge = s.style.as_deref().map(|p| GramJudge::with_color(p, s.height, None, s.color)).transpose()?;
+    let grey_judge = match &s.style {
+        Some(p) if s.color => Some(GramJudge::new(p, s.height, None)?),
+        _ => None,
+    };
     let mut report = GroomPreviewReport { pictures: outs.len(), ..Default::default() };
     for (i, out) in outs.iter().enumerate() {
         let azimuth = 360.0 * i as f32 / n as f32;
-        let mut pictures = vec![view.render(&groom, s.elevation, azimuth, s.height)?];
+        let mut pictures =
+            vec![view.render_colored(&groom, input_colors.as_deref(), s.elevation, azimuth, s.height)?];
         if let Some(c) = &compare {
-            pictures.push(view.render(c, s.elevation, azimuth, s.height)?);
+            pictures.push(view.render_colored(c, compare_colors.as_deref(), s.elevation, azimuth, s.height)?);
         }
         if let Some(j) = &judge {
             report.input_loss.push(j.loss(&pictures[0])?);
@@ -128,7 +161,24 @@ pub fn preview_groom(s: &GroomPreviewSettings) -> Result<GroomPreviewReport> {
                 report.compare_loss.push(j.loss(p)?);
             }
         }
+        if let Some(j) = &grey_judge {
+            report.input_grey_loss.push(j.loss(&luminance_rgb(&pictures[0]))?);
+            if let Some(p) = pictures.get(1) {
+                report.compare_grey_loss.push(j.loss(&luminance_rgb(p))?);
+            }
+        }
         write_png(out, &side_by_side(&pictures.iter().collect::<Vec<_>>()))?;
     }
     Ok(report)
+}
+
+/// Every point's colour in file order (white for a strand without colours).
+fn point_colors(g: &nst3d_core::Groom) -> Vec<[f32; 3]> {
+    g.strands
+        .iter()
+        .flat_map(|s| match &s.colors {
+            Some(c) if c.len() == s.points.len() => c.clone(),
+            _ => vec![[1.0; 3]; s.points.len()],
+        })
+        .collect()
 }

@@ -203,9 +203,9 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
         let written = r.scene.to_input_topology(&FlatStrands::from_groom(groom)?, &r.guides)?;
         worst = worst.worst(Checks::new(groom, &r.scene, &r.guides, &written, mesh)?);
         let written = axis::strands_from_y_up(written, up);
-        write_groom(&out, format, &written, Some(&with_axis(input, up)))?;
+        write_groom(&out, format, &written, Some(&with_axis(input, up)), None)?;
         if let Some(p) = &s.preview {
-            write_preview(&frame_path(p, f, "--preview")?, &r.scene, &r.strands, &painting)?;
+            write_preview(&frame_path(p, f, "--preview")?, &r.scene, &r.strands, None, &painting)?;
         }
         reporter.result(&format!(
             "frame {f}: NNST loss {:.4e} -> {:.4e} (output {:.4e}){}; wrote {}",

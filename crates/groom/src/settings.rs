@@ -102,6 +102,10 @@ pub struct StrandSettings {
     pub rematch: Option<bool>,
     /// VGG-19 weights file; `None`: `$NST3D_VGG19`, else the user cache.
     pub weights: Option<PathBuf>,
+    /// Stylize the strands' colour too (issue 29): per-point colours from
+    /// the input's (white without), matched to the painting in colour, and
+    /// written as the output's colours (`primvars:displayColor`, `red/green/blue`).
+    pub color: bool,
 }
 
 impl StrandSettings {
@@ -144,6 +148,7 @@ impl StrandSettings {
             strand_width: None,
             rematch: None,
             weights: None,
+            color: false,
         }
     }
 
@@ -170,6 +175,9 @@ impl StrandSettings {
             if !(w.is_finite() && w > 0.0) {
                 bail!("--strand-width must be a positive number of pixels, got {w}");
             }
+        }
+        if self.color && self.frames.is_some() {
+            bail!("--color stylizes one groom; it is not carried through --frames yet");
         }
         if let Some(v) = self.style_flow {
             if !v.iter().all(|c| c.is_finite()) {
@@ -251,6 +259,7 @@ impl StrandSettings {
         // in the wind flickered 0.56x of per-frame stylization with them
         // against 0.46x without (docs/STRANDS.md).
         params.rematch = self.rematch.unwrap_or(self.frames.is_none());
+        params.color = self.color;
         params
     }
 

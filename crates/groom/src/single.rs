@@ -91,7 +91,7 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
     let head = s.mesh.as_deref().map(read_mesh).transpose()?;
     let s = StrandSettings { up: Some(up), ..s.clone() };
     let r = stylize_groom(&s, groom, head.as_ref(), reporter)?;
-    write_groom(&s.out, format, &r.strands, Some(&with_axis(input, up)))?;
+    write_groom(&s.out, format, &r.strands, Some(&with_axis(input, up)), r.colors.as_deref())?;
     Ok(r.report)
 }
 
@@ -101,6 +101,9 @@ pub struct StylizedGroom {
     /// The stylized guides in the input's topology (same strands, same
     /// point counts, in the same order).
     pub strands: FlatStrands,
+    /// With `--color`: the stylized colour of every point of `strands`,
+    /// one list per strand.
+    pub colors: Option<Vec<Vec<[f32; 3]>>>,
     /// What the job did (`groom` and `out` are the settings' paths).
     pub report: GroomReport,
 }
@@ -154,9 +157,14 @@ pub fn stylize_groom(
     })?;
     reporter.end();
 
-    let written = scene.to_input_topology(&FlatStrands::from_groom(groom)?, &result.guides)?;
+    let input = FlatStrands::from_groom(groom)?;
+    let written = scene.to_input_topology(&input, &result.guides)?;
+    let colors = match &result.colors {
+        Some(c) => Some(scene.colors_to_input_topology(&input, &c[..scene.raw_guides.points.len()])?),
+        None => None,
+    };
     if let Some(preview) = &s.preview {
-        write_preview(preview, &scene, &result.strands, &painting)?;
+        write_preview(preview, &scene, &result.strands, result.colors.as_deref(), &painting)?;
     }
     let checks = Checks::new(groom, &scene, &result.guides, &written, head)?;
     let written = axis::strands_from_y_up(written, up);
@@ -175,5 +183,5 @@ pub fn stylize_groom(
         checks,
         out: s.out.clone(),
     };
-    Ok(StylizedGroom { strands: written, report })
+    Ok(StylizedGroom { strands: written, colors, report })
 }

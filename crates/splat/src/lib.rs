@@ -39,7 +39,7 @@ pub use camera::{SplatCamera, DEFAULT_NEAR};
 
 use gaussian::{project_segment, project_segment_backward, ShapeParams};
 use nst3d_core::Image;
-use raster::{bin, rasterize, rasterize_backward, Bins, RasterState, Splat2D};
+use raster::{bin, rasterize, rasterize_backward, Bins, RasterState, Splat2D, FEAT_GRAD};
 use rayon::prelude::*;
 
 /// Why a strand render could not be set up.
@@ -273,6 +273,8 @@ pub struct SplatCache {
     splats: Vec<Splat2D>,
     /// Index of each splat's root-side point (the other end is the next point).
     seg_point: Vec<u32>,
+    /// Each splat's position along its strand, `u` of the shade ramp.
+    seg_u: Vec<f32>,
     bins: Bins,
     state: RasterState,
     camera: SplatCamera,
@@ -308,8 +310,11 @@ fn strand_visible(strands: &Strands, i: usize, eye: [f32; 3], eps: f32) -> bool 
     (n[0] * v[0] + n[1] * v[1] + n[2] * v[2]) / (nn * vv) >= eps
 }
 
+/// Rec. 709 luma weights of [`SplatOutput::GreyAlpha`].
+const LUMA_709: [f32; 3] = [0.2126, 0.7152, 0.0722];
+
 fn luminance(c: [f32; 3]) -> f32 {
-    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+    LUMA_709[0] * c[0] + LUMA_709[1] * c[1] + LUMA_709[2] * c[2]
 }
 
 fn lerp(a: f32, b: f32, u: f32) -> f32 {
@@ -378,11 +383,13 @@ pub fn render(strands: &Strands, cam: &SplatCamera, style: &StrandStyle) -> Resu
         .collect();
     let mut splats = Vec::new();
     let mut seg_point = Vec::new();
+    let mut seg_u = Vec::new();
     let mut depth = Vec::new();
-    for (opt, &(p, _)) in projected.iter().zip(&segments) {
+    for (opt, &(p, u)) in projected.iter().zip(&segments) {
         if let Some((s, d)) = opt {
             splats.push(*s);
             seg_point.push(p);
+            seg_u.push(u);
             depth.push(*d);
         }
     }
@@ -399,6 +406,7 @@ pub fn render(strands: &Strands, cam: &SplatCamera, style: &StrandStyle) -> Resu
     let cache = SplatCache {
         splats,
         seg_point,
+        seg_u,
         bins,
         state,
         camera: *cam,
@@ -408,6 +416,16 @@ pub fn render(strands: &Strands, cam: &SplatCamera, style: &StrandStyle) -> Resu
         visible_strands,
     };
     Ok((image, cache))
+}
+
+/// Gradients [`render_backward_all`] returns, per strand sample point.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SplatGradients {
+    /// W.r.t. the point's position.
+    pub points: Vec<[f32; 3]>,
+    /// W.r.t. the point's base colour ([`Strands::colors`]; white when
+    /// absent, and the gradient is the one at white).
+    pub colors: Vec<[f32; 3]>,
 }
 
 /// Gradient of a loss w.r.t. every strand sample point, given its gradient
@@ -421,6 +439,21 @@ pub fn render_backward(
     cache: &SplatCache,
     grad_image: &Image,
 ) -> Result<Vec<[f32; 3]>, SplatError> {
+    Ok(render_backward_all(strands, cam, style, cache, grad_image)?.points)
+}
+
+/// [`render_backward`] with the gradient w.r.t. every point's base colour
+/// too (issue 29: the colour a groom's points are stylized to). A segment's
+/// splat has feature `shade(u) · (c_a + c_b) / 2` (RGB, or its luminance
+/// beside a constant alpha channel), so each end point gets half of the
+/// splat's colour gradient times the shade.
+pub fn render_backward_all(
+    strands: &Strands,
+    cam: &SplatCamera,
+    style: &StrandStyle,
+    cache: &SplatCache,
+    grad_image: &Image,
+) -> Result<SplatGradients, SplatError> {
     strands.validate()?;
     if cache.camera != *cam
         || cache.style != *style
@@ -464,11 +497,20 @@ pub fn render_backward(
         })
         .collect::<Result<_, SplatError>>()?;
     let mut acc = vec![[0.0f64; 3]; strands.points.len()];
-    for (&p, (ga, gb)) in cache.seg_point.iter().zip(&seg_grads) {
+    let mut acc_color = vec![[0.0f64; 3]; strands.points.len()];
+    for (((&p, (ga, gb)), g), &u) in cache.seg_point.iter().zip(&seg_grads).zip(&splat_grads).zip(&cache.seg_u) {
+        let half_shade = 0.5 * lerp(style.root_shade, style.tip_shade, u) as f64;
+        let d_rgb: [f64; 3] = match style.output {
+            SplatOutput::Rgb => std::array::from_fn(|k| g[FEAT_GRAD + k]),
+            SplatOutput::GreyAlpha => LUMA_709.map(|w| w as f64 * g[FEAT_GRAD]),
+        };
         for k in 0..3 {
             acc[p as usize][k] += ga[k];
             acc[p as usize + 1][k] += gb[k];
+            acc_color[p as usize][k] += half_shade * d_rgb[k];
+            acc_color[p as usize + 1][k] += half_shade * d_rgb[k];
         }
     }
-    Ok(acc.into_iter().map(|g| g.map(|v| v as f32)).collect())
+    let f32s = |v: Vec<[f64; 3]>| v.into_iter().map(|g| g.map(|x| x as f32)).collect();
+    Ok(SplatGradients { points: f32s(acc), colors: f32s(acc_color) })
 }

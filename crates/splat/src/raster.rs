@@ -259,9 +259,13 @@ pub(crate) fn rasterize<const C: usize>(
     (image, state)
 }
 
-/// Gradient of the loss w.r.t. one splat's projected parameters:
-/// `[d mean_x, d mean_y, d conic_a, d conic_b, d conic_c]`.
-pub(crate) type SplatGrad = [f32; 5];
+/// Gradient of the loss w.r.t. one splat's projected parameters and its
+/// feature: `[d mean_x, d mean_y, d conic_a, d conic_b, d conic_c, d feat_0,
+/// d feat_1, d feat_2]` (features past the image's channels get zero).
+pub(crate) type SplatGrad = [f32; 8];
+
+/// Where a splat's feature gradient starts in a [`SplatGrad`].
+pub(crate) const FEAT_GRAD: usize = 5;
 
 fn tile_backward<const C: usize>(
     splats: &[Splat2D],
@@ -277,12 +281,12 @@ fn tile_backward<const C: usize>(
     // Colour of everything behind the current splat, divided by the
     // transmittance in front of it (3DGS's `accum_rec`); starts as the background.
     let mut behind = vec![background; trans.len()];
-    let mut grads = vec![[0.0f32; 5]; list.len()];
+    let mut grads = vec![[0.0f32; 8]; list.len()];
     let last = n_contrib.iter().copied().max().unwrap_or(0) as usize;
     for li in (0..last).rev() {
         let s = &splats[list[li] as usize];
         let [ca, cb, cc] = s.conic;
-        let mut g = [0.0f32; 5];
+        let mut g = [0.0f32; 8];
         let (r0, r1) = (y0.max(s.rect[2] as usize), y1.min(s.rect[3] as usize));
         for y in r0..=r1 {
             let (c0, c1) = s.row_span(y, x0, x1);
@@ -296,7 +300,10 @@ fn tile_backward<const C: usize>(
                 let t = trans[p] / (1.0 - a.alpha);
                 trans[p] = t;
                 let mut d_alpha = 0.0f32;
+                // The splat adds `α T feat` to the pixel (eq. 7), clamped or not.
+                let w = a.alpha * t;
                 for ch in 0..C {
+                    g[FEAT_GRAD + ch] += w * grad_color[p][ch];
                     d_alpha += (s.feat[ch] - behind[p][ch]) * grad_color[p][ch];
                     behind[p][ch] = a.alpha * s.feat[ch] + (1.0 - a.alpha) * behind[p][ch];
                 }
@@ -329,7 +336,7 @@ pub(crate) fn rasterize_backward<const C: usize>(
     background: [f32; C],
     state: &RasterState,
     grad_image: &[f32],
-) -> Vec<[f64; 5]> {
+) -> Vec<[f64; 8]> {
     let ntiles = bins.tiles_x * bins.tiles_y;
     let plane = width * height;
     let per_entry: Vec<Vec<SplatGrad>> = (0..ntiles)
@@ -354,12 +361,12 @@ pub(crate) fn rasterize_backward<const C: usize>(
             tile_backward::<C>(splats, list, bounds, background, &trans, &n_contrib, &grad_color)
         })
         .collect();
-    let mut out = vec![[0.0f64; 5]; splats.len()];
+    let mut out = vec![[0.0f64; 8]; splats.len()];
     for (t, grads) in per_entry.iter().enumerate() {
         let list = &bins.list[bins.ranges[t]..bins.ranges[t + 1]];
         for (&gi, g) in list.iter().zip(grads) {
             let acc = &mut out[gi as usize];
-            for k in 0..5 {
+            for k in 0..8 {
                 acc[k] += g[k] as f64;
             }
         }

@@ -7,7 +7,9 @@
 
 use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
 use nst3d_core::Image;
-use nst3d_splat::{render, render_backward, SplatCamera, SplatError, SplatOutput, StrandStyle, Strands};
+use nst3d_splat::{
+    render, render_backward, render_backward_all, SplatCamera, SplatError, SplatOutput, StrandStyle, Strands,
+};
 
 /// `n` wavy strands of `m` points in front of a camera on +z, each tilted
 /// towards the camera and at its own depth, so depth order is unambiguous and
@@ -345,6 +347,42 @@ fn gradient_rgb_matches_renderer_finite_differences() {
 #[test]
 fn gradient_grey_alpha_matches_renderer_finite_differences() {
     gradcheck_f32(SplatOutput::GreyAlpha, 33);
+}
+
+/// The colour gradient (issue 29) against central differences of the f64
+/// brute-force eq. 7 in every point's colour. The render is linear in the
+/// colours (they scale each splat's feature, never its alpha), so the check
+/// is tight; both channel layouts, since grey + alpha sees colour through
+/// the luminance only.
+fn colour_gradcheck(output: SplatOutput, seed: u64) {
+    let probe = Probe::new(output, 0.03, seed);
+    let s = probe.strands(&probe.points);
+    let (img, cache) = render(&s, &probe.cam, &probe.style).unwrap();
+    let grad = Image::from_vec(img.channels, img.height, img.width, probe.w.clone());
+    let all = render_backward_all(&s, &probe.cam, &probe.style, &cache, &grad).unwrap();
+    assert_eq!(all.points, render_backward(&s, &probe.cam, &probe.style, &cache, &grad).unwrap());
+    let analytic: Vec<f32> = all.colors.iter().flatten().copied().collect();
+    let loss = |x: &[f32]| {
+        let colors = Probe::unflat(x);
+        let st = strands(&probe.points, &probe.offsets, Some(&colors));
+        let img = brute_force(&st, &probe.cam, &probe.style);
+        img.iter().zip(&probe.w).map(|(a, b)| a * *b as f64).sum::<f64>()
+    };
+    let scale = analytic.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+    assert!(scale > 0.1, "probe should have a sizeable colour gradient, got {scale}");
+    let flat: Vec<f32> = probe.colors.iter().flatten().copied().collect();
+    let res = check_gradient(&flat, &analytic, loss, 1.0 / 1024.0, flat.len(), 1e-3 * scale);
+    assert!(res.max_rel_err < 1e-4, "{output:?}: {res:?}, gradient scale {scale}");
+}
+
+#[test]
+fn colour_gradient_rgb_matches_f64_finite_differences() {
+    colour_gradcheck(SplatOutput::Rgb, 21);
+}
+
+#[test]
+fn colour_gradient_grey_alpha_matches_f64_finite_differences() {
+    colour_gradcheck(SplatOutput::GreyAlpha, 33);
 }
 
 // ---------------------------------------------------------------- culling

@@ -50,6 +50,21 @@ pub fn densify(
     scalp: Option<&TriMesh>,
     params: &DensifyParams,
 ) -> Result<FlatStrands, StrandError> {
+    Ok(densify_weighted(guides, scalp, params)?.0)
+}
+
+/// Which guides a proxy strand was blended from, and with what weights
+/// (they sum to 1): its shape is its root plus this blend of the guides'
+/// root-relative shapes, point by point.
+pub type ProxyBlend = Vec<(u32, f32)>;
+
+/// [`densify`] with each proxy's [`ProxyBlend`], so attributes other than
+/// the shape (a stylized colour, issue 29) can be blended the same way.
+pub fn densify_weighted(
+    guides: &FlatStrands,
+    scalp: Option<&TriMesh>,
+    params: &DensifyParams,
+) -> Result<(FlatStrands, Vec<ProxyBlend>), StrandError> {
     if params.neighbors == 0 {
         return Err(StrandError::Parameter("densification needs at least 1 guide per proxy".into()));
     }
@@ -97,6 +112,7 @@ pub fn densify(
     let max_attempts = 1000 * params.count.max(1);
     let mut attempts = 0;
     let mut strands = Vec::with_capacity(params.count);
+    let mut blends = Vec::with_capacity(params.count);
     while strands.len() < params.count {
         attempts += 1;
         if attempts > max_attempts {
@@ -130,11 +146,12 @@ pub fn densify(
             })
             .collect();
         strands.push(pts);
+        blends.push(weights.iter().map(|&(g, w)| (g as u32, w as f32)).collect());
     }
     if strands.is_empty() {
-        return Ok(FlatStrands { points: Vec::new(), offsets: vec![0] });
+        return Ok((FlatStrands { points: Vec::new(), offsets: vec![0] }, blends));
     }
-    FlatStrands::from_strands(strands)
+    Ok((FlatStrands::from_strands(strands)?, blends))
 }
 
 /// Where proxy roots are drawn.

@@ -125,6 +125,11 @@ pub struct StrandsArgs {
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).
     #[arg(long)]
     weights: Option<PathBuf>,
+    /// Stylize the strands' colour too: per-point colours starting from the
+    /// input's (white without), matched to the painting in colour and written as
+    /// the output's colours (.usda displayColor, .ply red/green/blue).
+    #[arg(long)]
+    color: bool,
 }
 
 /// `nst3d strands` subcommands.
@@ -242,6 +247,7 @@ impl StrandsArgs {
             strand_width: self.strand_width,
             rematch: self.rematch,
             weights: self.weights,
+            color: self.color,
         })
     }
 }

@@ -62,6 +62,11 @@ pub struct PreviewArgs {
     /// compare/input per picture, and the median and worst).
     #[arg(long)]
     pub style: Option<PathBuf>,
+    /// For a groom: draw each groom in its own per-point colours (white where it has
+    /// none); with --style judge in colour (the painting's RGB Gram matrices) and
+    /// report the grey judge of the pictures' luminance beside it.
+    #[arg(long)]
+    pub color: bool,
 }
 
 /// Runs `nst3d preview`.
@@ -85,6 +90,7 @@ pub fn run(args: PreviewArgs) -> Result<()> {
             height: args.height,
             up: args.up,
             style: args.style,
+            color: args.color,
         };
         let r = nst3d_groom::preview_groom(&settings)?;
         let n = r.pictures;
@@ -92,8 +98,11 @@ pub fn run(args: PreviewArgs) -> Result<()> {
         print_judgement(&r);
         return Ok(());
     }
-    if args.mesh.is_some() || args.style.is_some() {
-        anyhow::bail!("--mesh and --style apply to grooms; {} is a volume", args.input.display());
+    if args.mesh.is_some() || args.style.is_some() || args.color {
+        anyhow::bail!(
+            "--mesh, --style and --color apply to grooms; {} is a volume (nst3d judge --color judges volumes)",
+            args.input.display()
+        );
     }
     let settings = PreviewSettings {
         input: args.input,
@@ -120,23 +129,33 @@ pub fn run(args: PreviewArgs) -> Result<()> {
 }
 
 /// The judge's lines: the loss of each picture, and with a comparison the
-/// ratio per picture (lower: nearer the painting) and its median and worst.
+/// ratio per picture (lower: nearer the painting) and its median and worst;
+/// in colour, the grey judge of the pictures' luminance too.
 fn print_judgement(r: &nst3d_groom::GroomPreviewReport) {
     if r.input_loss.is_empty() {
         return;
     }
+    let color = !r.input_grey_loss.is_empty();
+    let what = if color { "colour style loss" } else { "style loss" };
     let list = |v: &[f32], f: &dyn Fn(f32) -> String| v.iter().map(|x| f(*x)).collect::<Vec<_>>().join(" ");
-    println!("style loss per picture: input {}", list(&r.input_loss, &|x| format!("{x:.4e}")));
+    println!("{what} per picture: input {}", list(&r.input_loss, &|x| format!("{x:.4e}")));
     if r.compare_loss.is_empty() {
         return;
     }
-    println!("style loss per picture: compare {}", list(&r.compare_loss, &|x| format!("{x:.4e}")));
-    let ratios = r.ratios();
-    let worst = ratios.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-    println!(
-        "compare/input per picture {}; median {:.3}, worst {:.3}",
-        list(&ratios, &|x| format!("{x:.3}")),
-        nst3d_groom::judge::median(&ratios),
-        worst
-    );
+    println!("{what} per picture: compare {}", list(&r.compare_loss, &|x| format!("{x:.4e}")));
+    let line = |name: &str, ratios: Vec<f32>| {
+        let worst = ratios.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        println!(
+            "{name}compare/input per picture {}; median {:.3}, worst {:.3}",
+            list(&ratios, &|x| format!("{x:.3}")),
+            nst3d_groom::judge::median(&ratios),
+            worst
+        );
+    };
+    if color {
+        line("colour: ", r.ratios());
+        line("grey: ", r.grey_ratios());
+    } else {
+        line("", r.ratios());
+    }
 }

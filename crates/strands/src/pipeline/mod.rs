@@ -113,8 +113,12 @@ pub use params::StylizeParams;
 pub use scene::{
     max_length_change, polyline_length, GroomView, StrandScene, CONSTRAINT_PASSES, HARD_TAU_FRACTION, SEGMENT_TOLERANCE,
 };
-pub use step::{iteration, loss_and_gradient, StageTimes, StepReport};
-pub use views::{match_view, match_view_on, poisson_view_angles, style_target, ViewFrame};
+pub use step::{
+    iteration, iteration_colored, loss_and_gradient, loss_and_gradient_colored, ColorStep, StageTimes, StepReport,
+};
+pub use views::{
+    match_view, match_view_colored, match_view_on, poisson_view_angles, style_target, style_target_with, ViewFrame,
+};
 
 use crate::StrandError;
 

@@ -13,9 +13,10 @@ use nst3d_splat::SplatCamera;
 use crate::strands::FlatStrands;
 use crate::StrandError;
 
-use super::step::{flatten, iteration, unflatten};
-use super::views::{match_view, match_view_on, poisson_view_angles, style_target};
+use super::step::{flatten, iteration_colored, unflatten, ColorStep};
+use super::views::{match_view_colored, poisson_view_angles, style_target_with};
 use super::{PipelineError, StrandScene, StylizeParams, NNST_LAYERS};
+use crate::color::COLOR_LEARNING_RATE;
 
 /// What one optimization iteration reports.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -43,6 +44,9 @@ pub struct StylizeResult {
     pub strands: FlatStrands,
     /// Optimized velocities at the field's samples.
     pub velocities: Vec<[f32; 3]>,
+    /// With [`StylizeParams::color`]: the stylized colour of every point of
+    /// [`StylizeResult::strands`] (guides, then proxies).
+    pub colors: Option<Vec<[f32; 3]>>,
     /// Loss of every iteration, in order.
     pub loss_history: Vec<f32>,
     /// Mean NNST loss of the rest groom over the evaluation views.
@@ -86,12 +90,14 @@ impl HeldOut {
 const HELD_OUT_SEED: u64 = 0x4E1D_0075;
 
 /// [`HeldOut`] of `strands` (layout of [`StrandScene::rest`]) from
-/// `params.held_out_views` views against the style `finest`.
+/// `params.held_out_views` views against the style `finest`; with colour,
+/// the rest groom drawn in `colors.0` and the result in `colors.1`.
 pub fn held_out_loss(
     scene: &StrandScene,
     vgg: &Vgg19,
     finest: &NnstTarget,
     strands: &FlatStrands,
+    colors: Option<(&[[f32; 3]], &[[f32; 3]])>,
     params: &StylizeParams,
 ) -> Result<HeldOut, PipelineError> {
     let p = params.preset;
@@ -105,7 +111,10 @@ pub fn held_out_loss(
     let (mut before, mut after, mut rematched) = (0.0f64, 0.0f64, 0.0f64);
     for &(psi, delta) in &angles {
         let cam = scene.camera(psi, delta)?;
-        let (img0, img1) = (scene.render(&scene.undeformed, &cam)?, scene.render(strands, &cam)?);
+        let (img0, img1) = (
+            scene.render_colored(&scene.undeformed, colors.map(|c| c.0), &cam)?,
+            scene.render_colored(strands, colors.map(|c| c.1), &cam)?,
+        );
         let (f0, f1) = (vgg.forward(&img0, &NNST_LAYERS, false), vgg.forward(&img1, &NNST_LAYERS, false));
         let matched = finest.match_content(f0.taps())?;
         let mask = hair_columns(&[&img0, &img1], scene.style.background, matched.grid());
@@ -223,6 +232,11 @@ pub fn stylize_with(
     };
     let (mut done, total) = (0u32, params.iterations.iter().sum::<u32>());
     let mut adam = Adam::adamw(3 * n, 0.0, params.weight_decay);
+    // Colour (issue 29): raw guide colours from the input's, their own Adam.
+    let mut raw_color: Option<Vec<f32>> = params.color.then(|| flatten(&scene.initial_colors));
+    let mut color_adam = Adam::new(raw_color.as_ref().map_or(0, Vec::len), COLOR_LEARNING_RATE);
+    let colors_of = |raw: &Option<Vec<f32>>| raw.as_ref().map(|r| scene.color_layer.forward(&unflatten(r)));
+    let initial_colors = colors_of(&raw_color);
     let mut history = Vec::new();
 
     // Camera angles for all scales from one Poisson sequence, so the
@@ -238,10 +252,15 @@ pub fn stylize_with(
     for (l, &iters) in params.iterations.iter().enumerate() {
         let views = &angles[first..first + per_scale[l]];
         first += per_scale[l];
-        let sstyle = style_target(vgg, style, params.style_height(l))?;
+        let sstyle = style_target_with(vgg, style, params.style_height(l), params.color)?;
         // Where this scale's targets are matched: the rest groom (eq. 2), or
-        // with `rematch` the groom as the coarser scales left it.
-        let base = if params.rematch && l > 0 && iters > 0 { Some(scene.deform(&unflatten(&v))?.0) } else { None };
+        // with `rematch` the groom as the coarser scales left it (in the
+        // colours they left it).
+        let base = if params.rematch && l > 0 && iters > 0 {
+            Some((scene.deform(&unflatten(&v))?.0, colors_of(&raw_color)))
+        } else {
+            None
+        };
         if iters > 0 {
             adam.lr = scale_learning_rate(scene, params, l);
             let mut cache: HashMap<usize, (SplatCamera, NnstMatch)> = HashMap::new();
@@ -249,8 +268,11 @@ pub fn stylize_with(
                 let k = m as usize % views.len();
                 if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(k) {
                     let cam = scene.camera(views[k].0, views[k].1)?;
-                    let (matched, _) =
-                        match_view_on(scene, base.as_ref().unwrap_or(&scene.undeformed), vgg, &sstyle, &cam)?;
+                    let (strands, colors) = match &base {
+                        Some((s, c)) => (s, c.as_deref()),
+                        None => (&scene.undeformed, initial_colors.as_deref()),
+                    };
+                    let (matched, _) = match_view_colored(scene, strands, colors, vgg, &sstyle, &cam)?;
                     e.insert((cam, matched));
                 }
                 let (cam, matched) = &cache[&k];
@@ -260,12 +282,14 @@ pub fn stylize_with(
                     v = flatten(&vv);
                 }
                 done += 1;
-                let step = iteration(scene, vgg, cam, matched, &mut v, &mut adam).map_err(|e| match e {
-                    PipelineError::Diverged(why) => {
-                        PipelineError::Diverged(format!("{why} at scale {} iteration {}", l + 1, m + 1))
-                    }
-                    e => e,
-                })?;
+                let color = raw_color.as_mut().map(|raw| ColorStep { raw, adam: &mut color_adam });
+                let step =
+                    iteration_colored(scene, vgg, cam, matched, &mut v, &mut adam, color).map_err(|e| match e {
+                        PipelineError::Diverged(why) => {
+                            PipelineError::Diverged(format!("{why} at scale {} iteration {}", l + 1, m + 1))
+                        }
+                        e => e,
+                    })?;
                 history.push(step.loss);
                 progress(&IterationReport {
                     scale: l,
@@ -292,11 +316,13 @@ pub fn stylize_with(
     } else {
         poisson_view_angles(&scene.frame, p.polar_deg, p.azimuth_deg, params.eval_views, params.seed ^ 0xE7A1)
     };
+    let colors = colors_of(&raw_color);
     let (mut before, mut after, mut rematched) = (0.0f64, 0.0f64, 0.0f64);
     for &(psi, delta) in &eval_angles {
         let cam = scene.camera(psi, delta)?;
-        let (matched, l0) = match_view(scene, vgg, &finest, &cam)?;
-        let img = scene.render(&strands, &cam)?;
+        let (matched, l0) =
+            match_view_colored(scene, &scene.undeformed, initial_colors.as_deref(), vgg, &finest, &cam)?;
+        let img = scene.render_colored(&strands, colors.as_deref(), &cam)?;
         let feats = vgg.forward(&img, &NNST_LAYERS, false);
         before += l0 as f64;
         after += nnst_loss_matched(feats.taps(), &matched)?.0 as f64;
@@ -304,7 +330,8 @@ pub fn stylize_with(
     }
     let k = eval_angles.len() as f64;
     let held_out = if params.held_out_views > 0 {
-        held_out_loss(scene, vgg, &finest, &strands, params)?
+        let pair = initial_colors.as_deref().zip(colors.as_deref());
+        held_out_loss(scene, vgg, &finest, &strands, pair, params)?
     } else {
         HeldOut::default()
     };
@@ -320,6 +347,7 @@ pub fn stylize_with(
         proxies,
         strands,
         velocities: unflatten(&v),
+        colors,
         loss_history: history,
         eval_before: (before / k) as f32,
         eval_after: (after / k) as f32,

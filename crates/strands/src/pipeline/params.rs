@@ -45,6 +45,10 @@ pub struct StylizeParams {
     /// of on the rest groom `R(x₀)` for every scale as the paper's eq. 2
     /// is written (see the module notes and docs/STRANDS.md).
     pub rematch: bool,
+    /// Stylize the strands' colour with their shape (issue 29): per-point
+    /// colours ([`StrandColorLayer`](crate::StrandColorLayer)) optimized
+    /// with the velocities against the painting in colour.
+    pub color: bool,
 }
 
 impl StylizeParams {
@@ -66,6 +70,7 @@ impl StylizeParams {
             held_out_views: 4,
             strand_width_px: 0.5,
             rematch: true,
+            color: false,
         }
     }
 

@@ -10,10 +10,11 @@ use nst3d_core::Image;
 use nst3d_splat::{render, SplatCamera, SplatOutput, StrandStyle, Strands};
 
 use crate::bvh::MeshBvh;
+use crate::color::{initial_colors, StrandColorLayer};
 use crate::constraints::{
     strand_length_error, CollisionParams, CollisionStats, ConstraintTape, Constraints, EnforceParams,
 };
-use crate::densify::{densify, DensifyParams};
+use crate::densify::{densify_weighted, DensifyParams};
 use crate::field::DeformationField;
 use crate::strands::FlatStrands;
 use crate::StrandError;
@@ -57,6 +58,11 @@ pub struct StrandScene {
     /// How far outside the mesh strands with a root inside are lifted
     /// (`10⁻⁴` of the mesh diagonal; see [`resolve_rest`]).
     pub lift_margin: f32,
+    /// The colours of the rendered points from raw guide colours (issue 29).
+    pub color_layer: StrandColorLayer,
+    /// Raw guide colours a stylization with colour starts from: the input's
+    /// colours re-sampled as the guides are (white where it has none).
+    pub initial_colors: Vec<[f32; 3]>,
 }
 
 impl StrandScene {
@@ -97,6 +103,7 @@ impl StrandScene {
         )?;
         let bvh = head.map(MeshBvh::new).transpose()?;
         let mut raw = guides.clone();
+        let mut blends = Vec::new();
         if params.proxies > 0 {
             status(&format!("growing {} proxy strands", params.proxies));
             let dp = DensifyParams {
@@ -105,7 +112,9 @@ impl StrandScene {
                 seed: params.seed,
                 ..Default::default()
             };
-            raw.append(&densify(&guides, head, &dp)?);
+            let (proxies, b) = densify_weighted(&guides, head, &dp)?;
+            raw.append(&proxies);
+            blends = b;
         }
         let (lo, hi) = match head {
             Some(h) => h.bbox().ok_or_else(|| StrandError::Invalid("the head mesh has no vertices".into()))?,
@@ -134,7 +143,10 @@ impl StrandScene {
         let constraints = Constraints { rest: rest.clone(), collider: bvh, collision };
 
         let (distance, fov_deg, style) = shell(&frame, params);
+        let color_layer = StrandColorLayer::new(&rest, guide_count, blends)?;
         let mut scene = StrandScene {
+            color_layer,
+            initial_colors: initial_colors(groom, n),
             undeformed: rest.clone(),
             rest,
             guide_count,
@@ -201,16 +213,28 @@ impl StrandScene {
         enforce(s, &self.constraints, CONSTRAINT_PASSES, tape)
     }
 
-    pub(super) fn strands<'a>(&'a self, s: &'a FlatStrands) -> Strands<'a> {
-        Strands { points: &s.points, offsets: &s.offsets, colors: None, root_normals: self.root_normals.as_deref() }
+    /// `s` for the renderer, in `colors` (one per point; white without).
+    pub(super) fn strands<'a>(&'a self, s: &'a FlatStrands, colors: Option<&'a [[f32; 3]]>) -> Strands<'a> {
+        Strands { points: &s.points, offsets: &s.offsets, colors, root_normals: self.root_normals.as_deref() }
     }
 
     /// Grey render (three equal channels in `[0, 1]`) of `strands` (same
     /// layout as [`StrandScene::rest`]) through `cam`. The strand width is
     /// scaled with the image so previews at another size look the same.
     pub fn render(&self, strands: &FlatStrands, cam: &SplatCamera) -> Result<Image, PipelineError> {
+        self.render_colored(strands, None, cam)
+    }
+
+    /// [`StrandScene::render`] with a colour per point (the layout of
+    /// [`StrandColorLayer::forward`]); `None` draws white strands, the grey render.
+    pub fn render_colored(
+        &self,
+        strands: &FlatStrands,
+        colors: Option<&[[f32; 3]]>,
+        cam: &SplatCamera,
+    ) -> Result<Image, PipelineError> {
         let style = StrandStyle { width: self.style.width * self.render_size as f32 / cam.height as f32, ..self.style };
-        Ok(render(&self.strands(strands), cam, &style)?.0)
+        Ok(render(&self.strands(strands, colors), cam, &style)?.0)
     }
 }
 
@@ -326,11 +350,24 @@ impl GroomView {
         azimuth_deg: f32,
         size: usize,
     ) -> Result<Image, PipelineError> {
+        self.render_colored(strands, None, polar_deg, azimuth_deg, size)
+    }
+
+    /// [`GroomView::render`] in `colors`, one per point of `strands` (a
+    /// file's own colours); `None` draws white strands.
+    pub fn render_colored(
+        &self,
+        strands: &FlatStrands,
+        colors: Option<&[[f32; 3]]>,
+        polar_deg: f32,
+        azimuth_deg: f32,
+        size: usize,
+    ) -> Result<Image, PipelineError> {
         let eye = add(self.frame.centre, scale(self.frame.direction(polar_deg, azimuth_deg), self.distance));
         let cam = SplatCamera::look_at(eye, self.frame.centre, self.frame.up, self.fov_deg, size, size)?;
         let style = StrandStyle { width: self.style.width * self.render_size as f32 / size as f32, ..self.style };
         let normals = self.root_normals.as_deref().filter(|n| n.len() == strands.strand_count());
-        let s = Strands { points: &strands.points, offsets: &strands.offsets, colors: None, root_normals: normals };
+        let s = Strands { points: &strands.points, offsets: &strands.offsets, colors, root_normals: normals };
         Ok(render(&s, &cam, &style)?.0)
     }
 }
@@ -421,6 +458,42 @@ impl StrandScene {
             }
         }
         Ok(out)
+    }
+
+    /// Stylized guide colours (one per re-sampled guide point, the leading
+    /// points of [`StrandColorLayer::forward`]) carried to the groom's own
+    /// control points `input`, as [`StrandScene::to_input_topology`] carries
+    /// the shapes: each input point takes the colour of its place on its rest
+    /// guide polyline, interpolated along the segment. One list per strand.
+    pub fn colors_to_input_topology(
+        &self,
+        input: &FlatStrands,
+        guide_colors: &[[f32; 3]],
+    ) -> Result<Vec<Vec<[f32; 3]>>, PipelineError> {
+        let g = self.guide_count;
+        if input.strand_count() != g || guide_colors.len() != self.raw_guides.points.len() {
+            return Err(PipelineError::Parameter(format!(
+                "colour topology: {} input strands and {} guide colours for a scene of {g} guides, {} points",
+                input.strand_count(),
+                guide_colors.len(),
+                self.raw_guides.points.len()
+            )));
+        }
+        Ok((0..g)
+            .map(|k| {
+                let (raw, r) = (self.raw_guides.strand(k), self.raw_guides.range(k));
+                let c = &guide_colors[r];
+                input
+                    .strand(k)
+                    .iter()
+                    .map(|&q| {
+                        let (seg, t) = closest_on_polyline(raw, q);
+                        let j = (seg + 1).min(raw.len() - 1);
+                        std::array::from_fn(|ch| c[seg][ch] + (c[j][ch] - c[seg][ch]) * t)
+                    })
+                    .collect()
+            })
+            .collect())
     }
 }
 

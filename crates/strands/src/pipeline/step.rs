@@ -8,8 +8,9 @@ use nst3d_core::FeatureView;
 use nst3d_features::Vgg19;
 use nst3d_loss::nnst::{nnst_loss_matched, NnstMatch};
 use nst3d_optim::Adam;
-use nst3d_splat::{render, render_backward, SplatCamera};
+use nst3d_splat::{render, render_backward_all, SplatCamera};
 
+use crate::color::project_unit;
 use crate::constraints::{CollisionStats, ConstraintTape};
 
 use super::{PipelineError, StrandScene, NNST_LAYERS};
@@ -87,9 +88,39 @@ pub fn iteration(
     v: &mut [f32],
     adam: &mut Adam,
 ) -> Result<StepReport, PipelineError> {
-    let (mut report, grad) = loss_and_gradient(scene, vgg, cam, matched, v)?;
+    iteration_colored(scene, vgg, cam, matched, v, adam, None)
+}
+
+/// The colour a step optimizes beside the velocities (issue 29): the raw
+/// guide colours (flat `3 ×` guide points, [`StrandColorLayer`](crate::StrandColorLayer))
+/// and their own Adam.
+pub struct ColorStep<'a> {
+    /// Raw guide colours, kept in `[0, 1]`.
+    pub raw: &'a mut [f32],
+    /// Their optimizer.
+    pub adam: &'a mut Adam,
+}
+
+/// [`iteration`] stepping the colour too when `color` is given: both
+/// gradients come from the same render, then each parameter takes its own
+/// Adam step and the raw colours are projected back into `[0, 1]`.
+pub fn iteration_colored(
+    scene: &StrandScene,
+    vgg: &Vgg19,
+    cam: &SplatCamera,
+    matched: &NnstMatch,
+    v: &mut [f32],
+    adam: &mut Adam,
+    color: Option<ColorStep<'_>>,
+) -> Result<StepReport, PipelineError> {
+    let raw = color.as_ref().map(|c| unflatten(c.raw));
+    let (mut report, grad, grad_color) = loss_and_gradient_colored(scene, vgg, cam, matched, v, raw.as_deref())?;
     let clock = Instant::now();
     adam.step(v, &grad);
+    if let (Some(c), Some(g)) = (color, grad_color) {
+        c.adam.step(c.raw, &g);
+        project_unit(c.raw);
+    }
     report.times.optimizer = clock.elapsed();
     Ok(report)
 }
@@ -106,6 +137,22 @@ pub fn loss_and_gradient(
     matched: &NnstMatch,
     v: &[f32],
 ) -> Result<(StepReport, Vec<f32>), PipelineError> {
+    let (report, grad, _) = loss_and_gradient_colored(scene, vgg, cam, matched, v, None)?;
+    Ok((report, grad))
+}
+
+/// [`loss_and_gradient`] with the strands drawn in the colours the raw
+/// guide colours `raw_colors` make ([`StrandColorLayer::forward`](crate::StrandColorLayer::forward)),
+/// also returning the gradient w.r.t. them (flat); without, white strands
+/// and no colour gradient.
+pub fn loss_and_gradient_colored(
+    scene: &StrandScene,
+    vgg: &Vgg19,
+    cam: &SplatCamera,
+    matched: &NnstMatch,
+    v: &[f32],
+    raw_colors: Option<&[[f32; 3]]>,
+) -> Result<(StepReport, Vec<f32>, Option<Vec<f32>>), PipelineError> {
     let mut times = StageTimes::default();
     let mut clock = Instant::now();
     let mut lap = |slot: &mut Duration| {
@@ -118,7 +165,8 @@ pub fn loss_and_gradient(
     let mut tape = ConstraintTape::default();
     let stats = scene.constrain_recorded(&mut strands, &mut tape)?;
     lap(&mut times.constraints);
-    let s = scene.strands(&strands);
+    let colors = raw_colors.map(|r| scene.color_layer.forward(r));
+    let s = scene.strands(&strands, colors.as_deref());
     let (img, cache) = render(&s, cam, &scene.style)?;
     lap(&mut times.render);
     let fwd = vgg.forward(&img, &NNST_LAYERS, true);
@@ -131,13 +179,14 @@ pub fn loss_and_gradient(
     let grad_img = vgg.backward(&fwd, &tap_grads.iter().map(FeatureView::from).collect::<Vec<_>>());
     drop(fwd);
     lap(&mut times.vgg_backward);
-    let grad_points = render_backward(&s, cam, &scene.style, &cache, &grad_img)?;
+    let grads = render_backward_all(&s, cam, &scene.style, &cache, &grad_img)?;
+    let grad_color = raw_colors.map(|_| flatten(&scene.color_layer.backward(&grads.colors)));
     lap(&mut times.splat_backward);
-    let grad_points = tape.backward(&scene.constraints.rest, &grad_points)?;
+    let grad_points = tape.backward(&scene.constraints.rest, &grads.points)?;
     lap(&mut times.constraints_backward);
     let grad = flatten(&scene.transport_backward(grad_points)?);
     lap(&mut times.field_backward);
-    Ok((StepReport { loss, stats, times }, grad))
+    Ok((StepReport { loss, stats, times }, grad, grad_color))
 }
 
 pub(super) fn unflatten(v: &[f32]) -> Vec<[f32; 3]> {

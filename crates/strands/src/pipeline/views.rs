@@ -142,7 +142,15 @@ pub fn poisson_view_angles(
 /// Style targets of one scale: `style` (RGB in `[0, 1]`) as grey, resized
 /// to `height` rows, as NNST hyper-columns of its VGG taps.
 pub fn style_target(vgg: &Vgg19, style: &Image, height: usize) -> Result<NnstTarget, PipelineError> {
-    let img = nst3d_io::image::resize_to_height(&style.luminance3(), height);
+    style_target_with(vgg, style, height, false)
+}
+
+/// [`style_target`], in the painting's colours when `color` (issue 29: a
+/// groom stylized with colour is matched to the RGB painting), else its
+/// luminance.
+pub fn style_target_with(vgg: &Vgg19, style: &Image, height: usize, color: bool) -> Result<NnstTarget, PipelineError> {
+    let src = if color { style.clone() } else { style.luminance3() };
+    let img = nst3d_io::image::resize_to_height(&src, height);
     let feats = vgg.forward(&img, &NNST_LAYERS, false);
     Ok(NnstTarget::from_style_features(feats.taps(), &NnstParams::default())?)
 }
@@ -168,7 +176,20 @@ pub fn match_view_on(
     style: &NnstTarget,
     cam: &SplatCamera,
 ) -> Result<(NnstMatch, f32), PipelineError> {
-    let img = scene.render(strands, cam)?;
+    match_view_colored(scene, strands, None, vgg, style, cam)
+}
+
+/// [`match_view_on`] on the render of `strands` in `colors` (one per point,
+/// [`StrandColorLayer::forward`](crate::StrandColorLayer::forward)'s layout).
+pub fn match_view_colored(
+    scene: &StrandScene,
+    strands: &FlatStrands,
+    colors: Option<&[[f32; 3]]>,
+    vgg: &Vgg19,
+    style: &NnstTarget,
+    cam: &SplatCamera,
+) -> Result<(NnstMatch, f32), PipelineError> {
+    let img = scene.render_colored(strands, colors, cam)?;
     let feats = vgg.forward(&img, &NNST_LAYERS, false);
     let m = style.match_content(feats.taps())?;
     let (loss, _) = nnst_loss_matched(feats.taps(), &m)?;
