@@ -266,9 +266,11 @@ def stylize_groom(
     rematch: Optional[bool] = None,
     weights: Optional[PathLike] = None,
     preview: Optional[PathLike] = None,
+    color: Optional[bool] = None,
+    colors: Optional["np.ndarray"] = None,
     progress: Optional[Progress] = None,
     report: Optional[Dict[str, Any]] = None,
-) -> "np.ndarray":
+) -> Union["np.ndarray", Tuple["np.ndarray", "np.ndarray"]]:
     """Stylizes a groom (strand paper, Alg. 1) and returns its new points.
 
     ``points`` is an ``(N, 3)`` float array of every control point, strand
@@ -281,8 +283,10 @@ def stylize_groom(
     (``"short-hair"`` default, ``"short-hair-360"``, ``"long-hair"``,
     ``"cat"``, ``"fur-ball"``, ``"grass"``). ``up`` is the axis the
     points and mesh stand on (``"y"`` default, ``"z"`` for Blender): the
-    cameras circle it and the result is in the same axes. The other options
-    are ``nst3d strands``'s.
+    cameras circle it and the result is in the same axes. With
+    ``color=True`` the strands' colour is stylized too, starting from
+    ``colors`` (an ``(N, 3)`` array in ``[0, 1]``; white without), and the
+    result is ``(points, colors)``. The other options are ``nst3d strands``'s.
     """
     p = np.ascontiguousarray(points, dtype="<f4")
     if p.ndim != 2 or p.shape[1] != 3:
@@ -291,8 +295,14 @@ def stylize_groom(
     opts = _options(
         preset=preset, iters=iters, scale_iters=scale_iters, render_size=render_size, proxies=proxies,
         up=up, seed=seed, lr_scale=lr_scale, style_scale=style_scale, views_per_scale=views_per_scale, eval_views=eval_views,
-        strand_width=strand_width, rematch=rematch, weights=weights, preview=preview,
+        strand_width=strand_width, rematch=rematch, weights=weights, preview=preview, color=color,
     )
+    col = None
+    if colors is not None:
+        cc = np.ascontiguousarray(colors, dtype="<f4")
+        if cc.shape != p.shape:
+            raise ValueError(f"colors must be an (N, 3) array like points, got shape {cc.shape}")
+        col = cc.tobytes()
     mesh_file = None
     mesh_arrays = None
     if isinstance(mesh, (str, os.PathLike)):
@@ -307,11 +317,15 @@ def stylize_groom(
             raise ValueError("mesh: a triangle index is outside the vertices")
         mesh_arrays = (v.tobytes(), [int(i) for i in t.ravel()])
     out, rep = _nst3d.stylize_groom(
-        p.tobytes(), c, os.fspath(style), opts, mesh_file, mesh_arrays, progress, _to_log
+        p.tobytes(), c, os.fspath(style), opts, mesh_file, mesh_arrays, progress, _to_log, col
     )
+    stylized = rep.pop("colors", None)
     if report is not None:
         report.update(rep)
-    return np.frombuffer(out, dtype="<f4").reshape(-1, 3).copy()
+    new_points = np.frombuffer(out, dtype="<f4").reshape(-1, 3).copy()
+    if color:
+        return new_points, np.frombuffer(stylized, dtype="<f4").reshape(-1, 3).copy()
+    return new_points
 
 
 def stylize_groom_file(
@@ -347,6 +361,7 @@ def stylize_groom_file(
     rematch: Optional[bool] = None,
     weights: Optional[PathLike] = None,
     preview: Optional[PathLike] = None,
+    color: Optional[bool] = None,
     progress: Optional[Progress] = None,
 ) -> Dict[str, Any]:
     """Stylizes a groom file (``.hair .data .ply .usda .abc``) into ``out``
@@ -365,7 +380,7 @@ def stylize_groom_file(
         one_euro_beta=one_euro_beta, one_euro_fmin=one_euro_fmin, fps=fps, style_flow=style_flow,
         iters=iters, scale_iters=scale_iters, render_size=render_size, proxies=proxies, up=up,
         seed=seed, lr_scale=lr_scale, style_scale=style_scale, views_per_scale=views_per_scale, eval_views=eval_views,
-        strand_width=strand_width, rematch=rematch, weights=weights, preview=preview,
+        strand_width=strand_width, rematch=rematch, weights=weights, preview=preview, color=color,
     )
     return _nst3d.stylize_groom_file(
         os.fspath(groom), os.fspath(out), os.fspath(style), opts,

@@ -20,7 +20,7 @@ def stylize_vdb(
 def stylize_groom(
     points: bytes, counts: Sequence[int], style: str, options: Dict[str, Any],
     mesh_file: Optional[str] = None, mesh: Optional[Tuple[bytes, Sequence[int]]] = None,
-    progress: _Progress = None, log: _Log = None,
+    progress: _Progress = None, log: _Log = None, colors: Optional[bytes] = None,
 ) -> Tuple[bytes, Dict[str, Any]]: ...
 def stylize_groom_file(
     groom: str, out: str, style: str, options: Dict[str, Any], mesh: Optional[str] = None,

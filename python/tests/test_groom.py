@@ -71,3 +71,19 @@ def test_bad_grooms_are_refused_with_a_message(style):
         nst3d.stylize_groom(np.random.rand(4, 3).astype(np.float32), [2, 2], style, up="x")
     with pytest.raises(nst3d.Nst3dError):
         nst3d.read_groom("/nonexistent.hair")
+
+
+def test_color_returns_stylized_colours_from_the_given_ones(data, style):
+    # Issue 29: with color=True the result is (points, colours); the colours
+    # start from the ones given and move, stay in [0, 1], and the points are
+    # stylized as well.
+    points, counts = nst3d.read_groom(data / "grooms" / "Bangs_100.hair")
+    start = np.tile(np.array([[0.8, 0.6, 0.4]], np.float32), (len(points), 1))
+    out, colors = nst3d.stylize_groom(points, counts, style, mesh=data / "grooms" / "Bangs_head.ply",
+                                      color=True, colors=start, **FAST)
+    assert out.shape == points.shape and colors.shape == points.shape
+    assert not np.allclose(out, points)
+    assert colors.min() >= 0.0 and colors.max() <= 1.0
+    assert np.abs(colors - start).max() > 0.02, "the colours did not move"
+    with pytest.raises(ValueError, match="colors"):
+        nst3d.stylize_groom(points, counts, style, color=True, colors=start[:5], **FAST)

@@ -180,7 +180,7 @@ const PAIRINGS: &[Pairing] = &[
         cli: "strands",
         python: "stylize_groom",
         rust: "apply_strands",
-        not_options: &["points", "counts", "style", "mesh", "progress", "report"],
+        not_options: &["points", "counts", "style", "mesh", "progress", "report", "colors"],
         // Arrays in memory: one frame, no files.
         cli_only: &[
             "groom",
@@ -198,7 +198,7 @@ const PAIRINGS: &[Pairing] = &[
             "fps",
             "style_flow",
         ],
-        python_only: &["points", "counts", "report"],
+        python_only: &["points", "counts", "report", "colors"],
     },
     Pairing {
         cli: "train",

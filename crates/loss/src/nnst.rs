@@ -78,6 +78,14 @@ pub enum NnstError {
         /// Grid of the matched targets.
         expected: (usize, usize),
     },
+    /// A match names a style column the style to retarget it to lacks.
+    #[error("nnst: the match names style column {index}, the style has {columns} (not the same painting and size)")]
+    Retarget {
+        /// The style column named.
+        index: u32,
+        /// Columns of the style.
+        columns: u32,
+    },
 }
 
 /// Settings of the hyper-column construction.
@@ -350,7 +358,7 @@ impl NnstTarget {
         self.check(content)?;
         let grid = common_grid(content, &self.params)?;
         let h = hypercolumns(content, grid);
-        let (d, nc) = (h.channels, h.plane());
+        let nc = h.plane();
         let mean = channel_means(&h);
         let mut centred = h;
         centred.data.par_chunks_mut(nc).zip(&mean).for_each(|(p, m)| p.iter_mut().for_each(|v| *v -= m));
@@ -359,12 +367,34 @@ impl NnstTarget {
             None => self.argmax_fp32(&centred),
         };
 
+        Ok(self.gather(grid, indices))
+    }
+
+    /// The match whose content column `i` takes style column `indices[i]`.
+    fn gather(&self, grid: (usize, usize), indices: Vec<u32>) -> NnstMatch {
+        let (d, nc) = (self.depth(), grid.0 * grid.1);
         let mut targets = Image::zeros(d, grid.0, grid.1);
         targets.data.par_chunks_mut(nc).enumerate().for_each(|(k, t)| {
             let s = self.columns.channel(k);
             t.iter_mut().zip(&indices).for_each(|(t, &j)| *t = s[j as usize]);
         });
-        Ok(NnstMatch { channels: self.channels.clone(), params: self.params, targets, indices })
+        NnstMatch { channels: self.channels.clone(), params: self.params, targets, indices }
+    }
+
+    /// `matched`'s choice of style columns with this style's columns as the
+    /// targets: which patch each content column takes is decided on one
+    /// version of a painting (its luminance), what it is asked to become is
+    /// another (its colours). Both must have the same layers and grid (the
+    /// same painting at the same size).
+    pub fn retarget(&self, matched: &NnstMatch) -> Result<NnstMatch, NnstError> {
+        if matched.channels != self.channels {
+            return Err(NnstError::LayerCount { got: matched.channels.len(), expected: self.layers() });
+        }
+        let ns = self.columns.plane() as u32;
+        if let Some(&j) = matched.indices.iter().find(|&&j| j >= ns) {
+            return Err(NnstError::Retarget { index: j, columns: ns });
+        }
+        Ok(self.gather(matched.grid(), matched.indices.clone()))
     }
 
     /// Arg-max of `centred`'s columns against the unit style columns, fp32:
@@ -660,6 +690,32 @@ mod tests {
             let r = check_gradient(&f.data, &grads[l].data, probe, 1e-2, 150, 1e-4);
             assert!(r.max_rel_err < 2e-2, "layer {l}: {r:?}");
         }
+    }
+
+    /// Retargeting keeps the choice of columns and takes the other style's
+    /// columns; a style of another size is refused.
+    #[test]
+    fn retarget_keeps_the_indices_and_takes_the_other_columns() {
+        let params = NnstParams { grid_divisor: 2 };
+        let grey = vec![image(3, 10, 12, 10), image(5, 5, 6, 11)];
+        let color = vec![image(3, 10, 12, 40), image(5, 5, 6, 41)];
+        let content = vec![image(3, 12, 8, 20), image(5, 6, 4, 21)];
+        let (tg, tc) = (
+            NnstTarget::from_style_features(&grey, &params).unwrap(),
+            NnstTarget::from_style_features(&color, &params).unwrap(),
+        );
+        let m = tg.match_content(&content).unwrap();
+        let r = tc.retarget(&m).unwrap();
+        assert_eq!(r.indices(), m.indices());
+        let (nc, ns) = (r.targets().plane(), tc.columns().plane());
+        for (i, &j) in r.indices().iter().enumerate() {
+            for k in 0..tc.depth() {
+                assert_eq!(r.targets().data[k * nc + i], tc.columns().data[k * ns + j as usize]);
+            }
+        }
+        let small = vec![image(3, 4, 4, 50), image(5, 2, 2, 51)];
+        let ts = NnstTarget::from_style_features(&small, &params).unwrap();
+        assert!(matches!(ts.retarget(&m), Err(NnstError::Retarget { .. })));
     }
 
     #[test]

@@ -168,7 +168,7 @@ fn groom_of(points: &[u8], counts: Vec<usize>) -> PyResult<Groom> {
 /// `counts` are the strands, `mesh` a head mesh file or `(vertices,
 /// triangles)` bytes and counts; returns the new points in the same order.
 #[pyfunction]
-#[pyo3(signature = (points, counts, style, options, mesh_file=None, mesh=None, progress=None, log=None))]
+#[pyo3(signature = (points, counts, style, options, mesh_file=None, mesh=None, progress=None, log=None, colors=None))]
 #[allow(clippy::too_many_arguments)]
 fn stylize_groom<'py>(
     py: Python<'py>,
@@ -180,8 +180,25 @@ fn stylize_groom<'py>(
     mesh: Option<(Vec<u8>, Vec<u32>)>,
     progress: Option<Py<PyAny>>,
     log: Option<Py<PyAny>>,
+    colors: Option<&[u8]>,
 ) -> PyResult<(Bound<'py, PyBytes>, Bound<'py, PyDict>)> {
-    let groom = groom_of(points, counts)?;
+    let mut groom = groom_of(points, counts)?;
+    if let Some(c) = colors {
+        let c = f32s(c, "colors")?;
+        if c.len() != 3 * groom.point_count() {
+            return Err(PyValueError::new_err(format!(
+                "colors: {} values for {} points, expected an (N, 3) array",
+                c.len(),
+                groom.point_count()
+            )));
+        }
+        let mut at = 0;
+        for st in &mut groom.strands {
+            let n = st.points.len();
+            st.colors = Some(c[3 * at..3 * (at + n)].chunks_exact(3).map(|v| [v[0], v[1], v[2]]).collect());
+            at += n;
+        }
+    }
     let mut s = StrandSettings::new("", "", style, "");
     s.mesh = None;
     apply_strands(&mut s, Options::new(options)?)?;
@@ -206,6 +223,9 @@ fn stylize_groom<'py>(
     };
     let r = run_job(py, progress, log, move |rep| nst3d_groom::stylize_groom(&s, &groom, head.as_ref(), rep))?;
     let d = groom_report(py, &r.report)?;
+    if let Some(c) = &r.colors {
+        d.set_item("colors", f32_bytes(py, c.iter().flatten().flatten().copied()))?;
+    }
     Ok((f32_bytes(py, r.strands.points.iter().flatten().copied()), d))
 }
 

@@ -6,8 +6,8 @@
 //!   the guides, RBF-interpolated onto every control point and applied by
 //!   one forward-Euler step (eq. 4–5), with its backward (`Wᵀ`).
 //! - [`densify`]: proxy strands rooted on the scalp between the guides.
-//! - [`StrandColorLayer`]: the per-point colour a groom is stylized to
-//!   (issue 29), smooth along each guide and blended onto the proxies.
+//! - [`StrandColorLayer`]: the colour a groom is stylized to (issue 29),
+//!   offsets at sites on the guides spread by the field's RBF weights.
 //! - [`preserve_lengths`], [`project_collisions`] over a [`MeshBvh`]
 //!   (Sec. 3.4), combined in [`Constraints`].
 //! - [`ema_blend_factor`], [`ema_blend`], [`transport_velocities`] and the
@@ -46,9 +46,7 @@ mod strands;
 mod temporal;
 
 pub use bvh::{closest_point_on_triangle, ClosestHit, Feature, MeshBvh};
-pub use color::{
-    initial_colors, project_unit, smooth_along, StrandColorLayer, COLOR_LEARNING_RATE, COLOR_SMOOTH_PASSES,
-};
+pub use color::{initial_colors, StrandColorLayer, COLOR_LEARNING_RATE, COLOR_NEIGHBORS, COLOR_SITES};
 pub use constraints::{
     preserve_lengths, preserve_lengths_backward, project_collisions, project_collisions_recorded, CollisionParams,
     CollisionRecord, CollisionStats, ConstraintTape, Constraints, EnforceParams,

@@ -138,7 +138,8 @@ fn loss_and_gradient_matches_finite_differences_through_the_collision_projection
 /// The colour half of the chain (issue 29): raw guide colours → smoothing
 /// along the guides and blending onto the proxies → splat render → VGG-19 →
 /// NNST loss against targets matched in colour, differentiated by
-/// [`loss_and_gradient_colored`] and checked against central differences
+/// [`loss_and_gradient_colored`] (targets matched in grey, taken in colour)
+/// and checked against central differences
 /// along the gradient and on its largest entries. Colours never move a
 /// splat, so the loss is smooth in them (no depth-order kinks).
 #[test]
@@ -151,12 +152,13 @@ fn colour_gradient_matches_finite_differences() {
         let scene = StrandScene::new(&groom, None, &params).unwrap();
         let vgg = Vgg19::random(VggFlavor::Torchvision, 7);
         vgg.prepare(VggLayer::Relu4_1);
-        let target = style_target_with(&vgg, &painting(64), 48, true).unwrap();
+        let target = ScaleStyle::new(&vgg, &painting(64), 48, true).unwrap();
         let cam = scene.camera(40.0, 5.0).unwrap();
-        let start = scene.color_layer.forward(&scene.initial_colors);
+        let start = scene.color_layer.forward(&scene.color_layer.start());
         let (matched, _) = match_view_colored(&scene, &scene.undeformed, Some(&start), &vgg, &target, &cam).unwrap();
         let v = vec![0.0f32; 3 * scene.field.sample_count()];
-        let raw: Vec<f32> = pseudo_random(3 * scene.initial_colors.len(), 5).iter().map(|x| 0.5 + 0.3 * x).collect();
+        // Bangs has no colours (white): offsets of -0.5 ± 0.3 keep every colour inside [0, 1].
+        let raw: Vec<f32> = pseudo_random(3 * scene.color_layer.sites(), 5).iter().map(|x| -0.5 + 0.3 * x).collect();
         let unflat = |x: &[f32]| x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
         let loss = |x: &[f32]| {
             loss_and_gradient_colored(&scene, &vgg, &cam, &matched, &v, Some(&unflat(x))).unwrap().0.loss as f64

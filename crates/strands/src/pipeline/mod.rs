@@ -117,7 +117,8 @@ pub use step::{
     iteration, iteration_colored, loss_and_gradient, loss_and_gradient_colored, ColorStep, StageTimes, StepReport,
 };
 pub use views::{
-    match_view, match_view_colored, match_view_on, poisson_view_angles, style_target, style_target_with, ViewFrame,
+    match_view, match_view_colored, match_view_on, poisson_view_angles, style_target, style_target_with, ScaleStyle,
+    ViewFrame,
 };
 
 use crate::StrandError;

@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use nst3d_core::Image;
 use nst3d_features::{Vgg19, VggLayer};
-use nst3d_loss::nnst::{nnst_loss, nnst_loss_matched, nnst_loss_over, NnstMatch, NnstTarget};
+use nst3d_loss::nnst::{nnst_loss_matched, nnst_loss_over, NnstMatch};
 use nst3d_optim::Adam;
 use nst3d_splat::SplatCamera;
 
@@ -14,7 +14,7 @@ use crate::strands::FlatStrands;
 use crate::StrandError;
 
 use super::step::{flatten, iteration_colored, unflatten, ColorStep};
-use super::views::{match_view_colored, poisson_view_angles, style_target_with};
+use super::views::{match_view_colored, poisson_view_angles, ScaleStyle};
 use super::{PipelineError, StrandScene, StylizeParams, NNST_LAYERS};
 use crate::color::COLOR_LEARNING_RATE;
 
@@ -95,7 +95,7 @@ const HELD_OUT_SEED: u64 = 0x4E1D_0075;
 pub fn held_out_loss(
     scene: &StrandScene,
     vgg: &Vgg19,
-    finest: &NnstTarget,
+    finest: &ScaleStyle,
     strands: &FlatStrands,
     colors: Option<(&[[f32; 3]], &[[f32; 3]])>,
     params: &StylizeParams,
@@ -116,11 +116,11 @@ pub fn held_out_loss(
             scene.render_colored(strands, colors.map(|c| c.1), &cam)?,
         );
         let (f0, f1) = (vgg.forward(&img0, &NNST_LAYERS, false), vgg.forward(&img1, &NNST_LAYERS, false));
-        let matched = finest.match_content(f0.taps())?;
+        let matched = finest.match_render(vgg, &img0, f0.taps())?;
         let mask = hair_columns(&[&img0, &img1], scene.style.background, matched.grid());
         before += nnst_loss_over(f0.taps(), &matched, &mask)? as f64;
         after += nnst_loss_over(f1.taps(), &matched, &mask)? as f64;
-        rematched += nnst_loss_over(f1.taps(), &finest.match_content(f1.taps())?, &mask)? as f64;
+        rematched += nnst_loss_over(f1.taps(), &finest.match_render(vgg, &img1, f1.taps())?, &mask)? as f64;
     }
     let k = angles.len().max(1) as f64;
     Ok(HeldOut {
@@ -232,8 +232,8 @@ pub fn stylize_with(
     };
     let (mut done, total) = (0u32, params.iterations.iter().sum::<u32>());
     let mut adam = Adam::adamw(3 * n, 0.0, params.weight_decay);
-    // Colour (issue 29): raw guide colours from the input's, their own Adam.
-    let mut raw_color: Option<Vec<f32>> = params.color.then(|| flatten(&scene.initial_colors));
+    // Colour (issue 29): offsets from the input's colours, their own Adam.
+    let mut raw_color: Option<Vec<f32>> = params.color.then(|| flatten(&scene.color_layer.start()));
     let mut color_adam = Adam::new(raw_color.as_ref().map_or(0, Vec::len), COLOR_LEARNING_RATE);
     let colors_of = |raw: &Option<Vec<f32>>| raw.as_ref().map(|r| scene.color_layer.forward(&unflatten(r)));
     let initial_colors = colors_of(&raw_color);
@@ -252,7 +252,7 @@ pub fn stylize_with(
     for (l, &iters) in params.iterations.iter().enumerate() {
         let views = &angles[first..first + per_scale[l]];
         first += per_scale[l];
-        let sstyle = style_target_with(vgg, style, params.style_height(l), params.color)?;
+        let sstyle = ScaleStyle::new(vgg, style, params.style_height(l), params.color)?;
         // Where this scale's targets are matched: the rest groom (eq. 2), or
         // with `rematch` the groom as the coarser scales left it (in the
         // colours they left it).
@@ -326,7 +326,7 @@ pub fn stylize_with(
         let feats = vgg.forward(&img, &NNST_LAYERS, false);
         before += l0 as f64;
         after += nnst_loss_matched(feats.taps(), &matched)?.0 as f64;
-        rematched += nnst_loss(feats.taps(), &finest)?.0 as f64;
+        rematched += nnst_loss_matched(feats.taps(), &finest.match_render(vgg, &img, feats.taps())?)?.0 as f64;
     }
     let k = eval_angles.len() as f64;
     let held_out = if params.held_out_views > 0 {

@@ -58,11 +58,9 @@ pub struct StrandScene {
     /// How far outside the mesh strands with a root inside are lifted
     /// (`10⁻⁴` of the mesh diagonal; see [`resolve_rest`]).
     pub lift_margin: f32,
-    /// The colours of the rendered points from raw guide colours (issue 29).
+    /// The colours of the rendered points from the colour offsets (issue 29),
+    /// starting at the input's colours.
     pub color_layer: StrandColorLayer,
-    /// Raw guide colours a stylization with colour starts from: the input's
-    /// colours re-sampled as the guides are (white where it has none).
-    pub initial_colors: Vec<[f32; 3]>,
 }
 
 impl StrandScene {
@@ -143,10 +141,10 @@ impl StrandScene {
         let constraints = Constraints { rest: rest.clone(), collider: bvh, collision };
 
         let (distance, fov_deg, style) = shell(&frame, params);
-        let color_layer = StrandColorLayer::new(&rest, guide_count, blends)?;
+        let guide_colors = initial_colors(groom, &vec![n; guide_count]);
+        let color_layer = StrandColorLayer::new(&rest, guide_count, &blends, &guide_colors)?;
         let mut scene = StrandScene {
             color_layer,
-            initial_colors: initial_colors(groom, n),
             undeformed: rest.clone(),
             rest,
             guide_count,

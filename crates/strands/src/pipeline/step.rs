@@ -10,7 +10,6 @@ use nst3d_loss::nnst::{nnst_loss_matched, NnstMatch};
 use nst3d_optim::Adam;
 use nst3d_splat::{render, render_backward_all, SplatCamera};
 
-use crate::color::project_unit;
 use crate::constraints::{CollisionStats, ConstraintTape};
 
 use super::{PipelineError, StrandScene, NNST_LAYERS};
@@ -91,11 +90,11 @@ pub fn iteration(
     iteration_colored(scene, vgg, cam, matched, v, adam, None)
 }
 
-/// The colour a step optimizes beside the velocities (issue 29): the raw
-/// guide colours (flat `3 ×` guide points, [`StrandColorLayer`](crate::StrandColorLayer))
+/// The colour a step optimizes beside the velocities (issue 29): the
+/// colour offsets (flat `3 ×` sites, [`StrandColorLayer`](crate::StrandColorLayer))
 /// and their own Adam.
 pub struct ColorStep<'a> {
-    /// Raw guide colours, kept in `[0, 1]`.
+    /// Colour offsets at the sites.
     pub raw: &'a mut [f32],
     /// Their optimizer.
     pub adam: &'a mut Adam,
@@ -103,7 +102,7 @@ pub struct ColorStep<'a> {
 
 /// [`iteration`] stepping the colour too when `color` is given: both
 /// gradients come from the same render, then each parameter takes its own
-/// Adam step and the raw colours are projected back into `[0, 1]`.
+/// Adam step.
 pub fn iteration_colored(
     scene: &StrandScene,
     vgg: &Vgg19,
@@ -119,7 +118,6 @@ pub fn iteration_colored(
     adam.step(v, &grad);
     if let (Some(c), Some(g)) = (color, grad_color) {
         c.adam.step(c.raw, &g);
-        project_unit(c.raw);
     }
     report.times.optimizer = clock.elapsed();
     Ok(report)
@@ -141,8 +139,8 @@ pub fn loss_and_gradient(
     Ok((report, grad))
 }
 
-/// [`loss_and_gradient`] with the strands drawn in the colours the raw
-/// guide colours `raw_colors` make ([`StrandColorLayer::forward`](crate::StrandColorLayer::forward)),
+/// [`loss_and_gradient`] with the strands drawn in the colours the colour
+/// offsets `raw_colors` make ([`StrandColorLayer::forward`](crate::StrandColorLayer::forward)),
 /// also returning the gradient w.r.t. them (flat); without, white strands
 /// and no colour gradient.
 pub fn loss_and_gradient_colored(
@@ -180,7 +178,7 @@ pub fn loss_and_gradient_colored(
     drop(fwd);
     lap(&mut times.vgg_backward);
     let grads = render_backward_all(&s, cam, &scene.style, &cache, &grad_img)?;
-    let grad_color = raw_colors.map(|_| flatten(&scene.color_layer.backward(&grads.colors)));
+    let grad_color = raw_colors.map(|r| flatten(&scene.color_layer.backward(r, &grads.colors)));
     lap(&mut times.splat_backward);
     let grad_points = tape.backward(&scene.constraints.rest, &grads.points)?;
     lap(&mut times.constraints_backward);
