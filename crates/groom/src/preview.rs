@@ -79,6 +79,11 @@ pub struct GroomPreviewReport {
     pub input_grey_loss: Vec<f32>,
     /// That of `compare`.
     pub compare_grey_loss: Vec<f32>,
+    /// With colour and a painting: per picture, the colour Gram loss over
+    /// the hair only ([`GramJudge::hair_loss`]) of `input`.
+    pub input_hair_loss: Vec<f32>,
+    /// That of `compare`.
+    pub compare_hair_loss: Vec<f32>,
 }
 
 impl GroomPreviewReport {
@@ -86,6 +91,11 @@ impl GroomPreviewReport {
     /// groom is nearer the painting from that side.
     pub fn ratios(&self) -> Vec<f32> {
         self.compare_loss.iter().zip(&self.input_loss).map(|(c, i)| c / i).collect()
+    }
+
+    /// With colour: [`GroomPreviewReport::ratios`] of the hair-only losses.
+    pub fn hair_ratios(&self) -> Vec<f32> {
+        self.compare_hair_loss.iter().zip(&self.input_hair_loss).map(|(c, i)| c / i).collect()
     }
 
     /// With colour: [`GroomPreviewReport::ratios`] of the grey losses.
@@ -159,6 +169,13 @@ pub fn preview_groom(s: &GroomPreviewSettings) -> Result<GroomPreviewReport> {
             report.input_loss.push(j.loss(&pictures[0])?);
             if let Some(p) = pictures.get(1) {
                 report.compare_loss.push(j.loss(p)?);
+            }
+        }
+        if let (Some(j), true) = (&judge, s.color) {
+            let nan = |v: Option<f32>| v.unwrap_or(f32::NAN);
+            report.input_hair_loss.push(nan(j.hair_loss(&pictures[0])?));
+            if let Some(p) = pictures.get(1) {
+                report.compare_hair_loss.push(nan(j.hair_loss(p)?));
             }
         }
         if let Some(j) = &grey_judge {

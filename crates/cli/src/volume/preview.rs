@@ -154,6 +154,7 @@ fn print_judgement(r: &nst3d_groom::GroomPreviewReport) {
     };
     if color {
         line("colour: ", r.ratios());
+        line("colour, hair only: ", r.hair_ratios());
         line("grey: ", r.grey_ratios());
     } else {
         line("", r.ratios());
