@@ -189,7 +189,7 @@ pub fn initial_colors(groom: &Groom, points: &[usize]) -> Vec<[f32; 3]> {
     let mut out = Vec::with_capacity(points.iter().sum());
     for (s, &points) in groom.strands.iter().zip(points) {
         let Some(colors) = s.colors.as_ref().filter(|c| c.len() == s.points.len() && !c.is_empty()) else {
-            out.extend(std::iter::repeat([1.0; 3]).take(points));
+            out.extend(std::iter::repeat_n([1.0; 3], points));
             continue;
         };
         // Cumulative arc length of the input polyline.

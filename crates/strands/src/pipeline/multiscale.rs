@@ -86,6 +86,9 @@ impl HeldOut {
     }
 }
 
+/// The colours of the rest groom and of the result, one per point.
+pub type ColorPair<'a> = (&'a [[f32; 3]], &'a [[f32; 3]]);
+
 /// Seed offset of the held-out views (see [`HeldOut`]).
 const HELD_OUT_SEED: u64 = 0x4E1D_0075;
 
@@ -97,7 +100,7 @@ pub fn held_out_loss(
     vgg: &Vgg19,
     finest: &ScaleStyle,
     strands: &FlatStrands,
-    colors: Option<(&[[f32; 3]], &[[f32; 3]])>,
+    colors: Option<ColorPair<'_>>,
     params: &StylizeParams,
 ) -> Result<HeldOut, PipelineError> {
     let p = params.preset;

@@ -139,6 +139,10 @@ pub fn loss_and_gradient(
     Ok((report, grad))
 }
 
+/// What [`loss_and_gradient_colored`] returns: the report, the gradient
+/// w.r.t. the velocities and, with colour, w.r.t. the colour offsets.
+pub type ColoredStep = (StepReport, Vec<f32>, Option<Vec<f32>>);
+
 /// [`loss_and_gradient`] with the strands drawn in the colours the colour
 /// offsets `raw_colors` make ([`StrandColorLayer::forward`](crate::StrandColorLayer::forward)),
 /// also returning the gradient w.r.t. them (flat); without, white strands
@@ -150,7 +154,7 @@ pub fn loss_and_gradient_colored(
     matched: &NnstMatch,
     v: &[f32],
     raw_colors: Option<&[[f32; 3]]>,
-) -> Result<(StepReport, Vec<f32>, Option<Vec<f32>>), PipelineError> {
+) -> Result<ColoredStep, PipelineError> {
     let mut times = StageTimes::default();
     let mut clock = Instant::now();
     let mut lap = |slot: &mut Duration| {
