@@ -7,8 +7,9 @@
 folder). Bakes a small Mantaflow smoke (32 voxels, 30 frames) with ../shared/tools/blender_bake_smoke.py,
 runs the add-on's "Stylize smoke" operator on the domain with colour, checks the new
 Volume object reads a stylized density grid and the colour grid its material
-uses, renders the original and the stylized frame with Cycles into OUTDIR/blender_smoke_before_after.png, and
-stylizes a hair Curves object in place."""
+uses, renders the original and the stylized frame with Cycles into OUTDIR/blender_smoke_before_after.png,
+stylizes particle hair, and stylizes a hair Curves object in place with colour, rendered before and
+after with Cycles into OUTDIR/blender_hair_before_after.png."""
 
 import os
 import runpy
@@ -226,6 +227,28 @@ d.attributes["position"].data.foreach_get("vector", before_c)
 curves.nst3d.style = STYLE
 curves.nst3d.hair_iters = 9
 curves.nst3d.render_size = 128
+curves.nst3d.color = True
+# Cycles before: the hair as Blender grew it (no material), alone in the
+# picture, seen from the front of the ball.
+for o in bpy.data.objects:
+    o.hide_render = o is not curves and o.type != "LIGHT"
+cam.location = (5.0, -7.0, 0.0)
+cam.rotation_euler = (np.pi / 2, 0.0, 0.0)
+cam_data.lens = 60
+scene.render.resolution_x, scene.render.resolution_y = 200, 200
+hair_shots = []
+
+
+def render_hair(name):
+    scene.render.filepath = os.path.join(OUT, f"blender_hair_{name}.png")
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(scene.render.filepath)
+    px = np.array(img.pixels[:], dtype=np.float32).reshape(img.size[1], img.size[0], 4)
+    hair_shots.append(px)
+    check(np.abs(px[..., :3] - bg).max() > 0.1, f"the {name} hair render shows hair")
+
+
+render_hair("before")
 with bpy.context.temp_override(object=curves, active_object=curves, selected_objects=[curves]):
     check(bpy.ops.nst3d.stylize_hair.poll(), "Stylize hair is offered on a Curves object")
     result = bpy.ops.nst3d.stylize_hair()
@@ -234,4 +257,34 @@ after_c = np.empty_like(before_c)
 d.attributes["position"].data.foreach_get("vector", after_c)
 move = np.abs(after_c - before_c).reshape(-1, 3).max(axis=1)
 check(move.mean() > 1e-4 and len(d.curves) == 200, f"the Curves object's strands are written back (mean move {move.mean():.4f})")
+# Colour (issue 29): a 'color' point attribute, read by the hair material.
+attr = d.attributes.get(nst3d_blender.HAIR_COLOR)
+check(attr is not None and attr.domain == "POINT", "the stylized colour is a point attribute of the Curves")
+rgba = np.empty(len(d.points) * 4, np.float32)
+attr.data.foreach_get("color", rgba)
+rgb = rgba.reshape(-1, 4)[:, :3]
+check(rgb.min() >= 0.0 and rgb.max() <= 1.0 and rgb.std(axis=0).max() > 0.01,
+      f"the colours are in [0, 1] and vary (std {rgb.std(axis=0).round(3)})")
+mat = d.materials[0] if len(d.materials) else None
+check(mat is not None and any(n.type == "ATTRIBUTE" and n.attribute_name == nst3d_blender.HAIR_COLOR
+                              for n in mat.node_tree.nodes), "the hair material reads the colour attribute")
+render_hair("after")
+
+
+def hair_chroma(px):
+    """Mean channel spread over the pixels that show hair."""
+    lit = np.abs(px[..., :3] - bg).max(axis=2) > 0.05
+    spread = px[..., :3].max(axis=2) - px[..., :3].min(axis=2)
+    return float(spread[lit].mean()) if lit.any() else 0.0
+
+
+h0, h1 = hair_chroma(hair_shots[0]), hair_chroma(hair_shots[1])
+check(h1 > 0.02 and h1 > 2 * h0, f"Cycles shows the stylized hair in colour (channel spread {h1:.3f}, the original's {h0:.3f})")
+gap = np.ones((hair_shots[0].shape[0], 6, 4), np.float32)
+pair = np.concatenate([hair_shots[0], gap, hair_shots[1]], axis=1)
+sheet = bpy.data.images.new("hair_sheet", pair.shape[1], pair.shape[0])
+sheet.pixels[:] = pair.ravel()
+sheet.filepath_raw = os.path.join(OUT, "blender_hair_before_after.png")
+sheet.file_format = "PNG"
+sheet.save()
 print("ALL OK", flush=True)

@@ -160,11 +160,15 @@ fn colour_gradient_matches_finite_differences() {
         // Bangs has no colours (white): offsets of -0.5 ± 0.3 keep every colour inside [0, 1].
         let raw: Vec<f32> = pseudo_random(3 * scene.color_layer.sites(), 5).iter().map(|x| -0.5 + 0.3 * x).collect();
         let unflat = |x: &[f32]| x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
+        let color = matched.color.as_ref().expect("colour targets");
         let loss = |x: &[f32]| {
-            loss_and_gradient_colored(&scene, &vgg, &cam, &matched, &v, Some(&unflat(x))).unwrap().0.loss as f64
+            let r = unflat(x);
+            let step = loss_and_gradient_colored(&scene, &vgg, &cam, &matched.grey, &v, Some((&r, color))).unwrap();
+            step.0.color_loss.expect("a colour loss") as f64
         };
+        let r = unflat(&raw);
         let (_, grad_v, grad) =
-            loss_and_gradient_colored(&scene, &vgg, &cam, &matched, &v, Some(&unflat(&raw))).unwrap();
+            loss_and_gradient_colored(&scene, &vgg, &cam, &matched.grey, &v, Some((&r, color))).unwrap();
         let grad = grad.expect("a colour gradient");
         assert!(grad_v.iter().any(|g| *g != 0.0) && grad.iter().all(|g| g.is_finite()));
         let norm = grad.iter().map(|g| (*g as f64).powi(2)).sum::<f64>().sqrt();

@@ -14,6 +14,9 @@ or point the add-on preferences at a folder that holds the package.
   hair particle system): the strands are stylized and written back, with
   the surface mesh (if any) as the collision head. Particle hair goes
   through Blender's own conversions (particles → Curves → particles).
+  With **Colour** on a Curves object the strands' colour is stylized too,
+  written as a ``color`` point attribute and read by a Principled Hair
+  material the object gets (particle hair has nowhere to keep it).
 
 In the UI the job runs in a background thread with a progress bar in the
 panel and the window's progress cursor; ``bpy.app.background`` runs it in
@@ -84,7 +87,8 @@ class Nst3dSettings(bpy.types.PropertyGroup):
                             description="front, omniview:N (all around) or ring:N[:ELEV]")
     iters: IntProperty(name="Iterations", default=20, min=1, description="Iterations per octave")
     color: BoolProperty(name="Colour", default=False,
-                        description="Stylize the smoke's colour too: a 'color' grid the loaded volume's material reads")
+                        description="Stylize the colour too: smoke gets a 'color' grid and hair Curves a 'color' "
+                                    "point attribute, each read by a material the add-on gives the result")
     output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="",
                                description="New cache folder (default: the cache's data folder + _nst3d)")
     preset: EnumProperty(name="Preset", items=_PRESETS, default="short-hair")
@@ -268,6 +272,28 @@ def color_material(name):
     return mat
 
 
+HAIR_COLOR = "color"
+
+
+def hair_color_material(name):
+    """A Principled Hair BSDF coloured directly by the stylized point
+    attribute (`HAIR_COLOR`), so a Cycles render shows the painting's palette
+    in the hair."""
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nodes = mat.node_tree.nodes
+    for n in [n for n in nodes if n.type != "OUTPUT_MATERIAL"]:
+        nodes.remove(n)
+    hair = nodes.new("ShaderNodeBsdfHairPrincipled")
+    hair.parametrization = "COLOR"
+    attr = nodes.new("ShaderNodeAttribute")
+    attr.attribute_name = HAIR_COLOR
+    mat.node_tree.links.new(attr.outputs["Color"], hair.inputs["Color"])
+    out = next(n for n in nodes if n.type == "OUTPUT_MATERIAL")
+    mat.node_tree.links.new(hair.outputs["BSDF"], out.inputs["Surface"])
+    return mat
+
+
 def _frame(pattern, f):
     return pattern.replace("####", f"{f:04d}")
 
@@ -392,6 +418,16 @@ class NST3D_OT_stylize_hair(_Nst3dOperator, bpy.types.Operator):
             # Blender is z-up: the cameras circle z and the result stays in
             # the object's axes (issue 27).
             opts = dict(preset=s.preset, iters=s.hair_iters or None, render_size=s.render_size or None, up="z")
+            # Colour (issue 29) lives in a point attribute of a Curves
+            # object; particle hair has nowhere to keep it.
+            self._color = bool(s.color) and self._particles is None
+            if self._color:
+                opts["color"] = True
+                attr = curves.attributes.get(HAIR_COLOR)
+                if attr is not None and attr.domain == "POINT" and attr.data_type in ("FLOAT_COLOR", "BYTE_COLOR"):
+                    rgba = np.empty(n * 4, dtype=np.float32)
+                    attr.data.foreach_get("color", rgba)
+                    opts["colors"] = rgba.reshape(-1, 4)[:, :3]
 
             def work(progress):
                 return nst3d.stylize_groom(points.reshape(-1, 3), counts, style, mesh=mesh, progress=progress, **opts)
@@ -406,7 +442,22 @@ class NST3D_OT_stylize_hair(_Nst3dOperator, bpy.types.Operator):
 
     def finish(self, context, result):
         obj = bpy.data.objects[self._obj_name]
+        colors = None
+        if self._color:
+            result, colors = result
         obj.data.attributes["position"].data.foreach_set("vector", result.ravel())
+        if colors is not None:
+            import numpy as np
+
+            attr = obj.data.attributes.get(HAIR_COLOR)
+            if attr is None or attr.domain != "POINT" or attr.data_type != "FLOAT_COLOR":
+                if attr is not None:
+                    obj.data.attributes.remove(attr)
+                attr = obj.data.attributes.new(HAIR_COLOR, "FLOAT_COLOR", "POINT")
+            rgba = np.concatenate([colors, np.ones((len(colors), 1), np.float32)], axis=1)
+            attr.data.foreach_set("color", rgba.astype(np.float32).ravel())
+            obj.data.materials.clear()
+            obj.data.materials.append(hair_color_material(obj.name + "_nst3d"))
         obj.data.update_tag()
         n = len(obj.data.curves)
         if self._particles is not None:
@@ -433,6 +484,7 @@ def _draw_common(layout, s, smoke):
         layout.prop(s, "preset")
         layout.prop(s, "hair_iters")
         layout.prop(s, "render_size")
+        layout.prop(s, "color")
     if s.message:
         layout.prop(s, "progress", text=s.message[:60])
 

@@ -118,7 +118,7 @@ pub use step::{
 };
 pub use views::{
     match_view, match_view_colored, match_view_on, poisson_view_angles, style_target, style_target_with, ScaleStyle,
-    ViewFrame,
+    ViewFrame, ViewTargets,
 };
 
 use crate::StrandError;

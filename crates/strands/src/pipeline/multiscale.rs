@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use nst3d_core::Image;
 use nst3d_features::{Vgg19, VggLayer};
-use nst3d_loss::nnst::{nnst_loss_matched, nnst_loss_over, NnstMatch};
+use nst3d_loss::nnst::{nnst_loss_matched, nnst_loss_over};
 use nst3d_optim::Adam;
 use nst3d_splat::SplatCamera;
 
@@ -14,7 +14,7 @@ use crate::strands::FlatStrands;
 use crate::StrandError;
 
 use super::step::{flatten, iteration_colored, unflatten, ColorStep};
-use super::views::{match_view_colored, poisson_view_angles, ScaleStyle};
+use super::views::{match_view_colored, poisson_view_angles, ScaleStyle, ViewTargets};
 use super::{PipelineError, StrandScene, StylizeParams, NNST_LAYERS};
 use crate::color::COLOR_LEARNING_RATE;
 
@@ -119,11 +119,12 @@ pub fn held_out_loss(
             scene.render_colored(strands, colors.map(|c| c.1), &cam)?,
         );
         let (f0, f1) = (vgg.forward(&img0, &NNST_LAYERS, false), vgg.forward(&img1, &NNST_LAYERS, false));
-        let matched = finest.match_render(vgg, &img0, f0.taps())?;
+        let targets = finest.match_render(vgg, &img0, f0.taps())?;
+        let matched = targets.scored();
         let mask = hair_columns(&[&img0, &img1], scene.style.background, matched.grid());
-        before += nnst_loss_over(f0.taps(), &matched, &mask)? as f64;
-        after += nnst_loss_over(f1.taps(), &matched, &mask)? as f64;
-        rematched += nnst_loss_over(f1.taps(), &finest.match_render(vgg, &img1, f1.taps())?, &mask)? as f64;
+        before += nnst_loss_over(f0.taps(), matched, &mask)? as f64;
+        after += nnst_loss_over(f1.taps(), matched, &mask)? as f64;
+        rematched += nnst_loss_over(f1.taps(), finest.match_render(vgg, &img1, f1.taps())?.scored(), &mask)? as f64;
     }
     let k = angles.len().max(1) as f64;
     Ok(HeldOut {
@@ -266,7 +267,7 @@ pub fn stylize_with(
         };
         if iters > 0 {
             adam.lr = scale_learning_rate(scene, params, l);
-            let mut cache: HashMap<usize, (SplatCamera, NnstMatch)> = HashMap::new();
+            let mut cache: HashMap<usize, (SplatCamera, ViewTargets)> = HashMap::new();
             for m in 0..iters {
                 let k = m as usize % views.len();
                 if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(k) {
@@ -285,14 +286,18 @@ pub fn stylize_with(
                     v = flatten(&vv);
                 }
                 done += 1;
-                let color = raw_color.as_mut().map(|raw| ColorStep { raw, adam: &mut color_adam });
-                let step =
-                    iteration_colored(scene, vgg, cam, matched, &mut v, &mut adam, color).map_err(|e| match e {
+                let color = match (raw_color.as_mut(), &matched.color) {
+                    (Some(raw), Some(targets)) => Some(ColorStep { raw, adam: &mut color_adam, targets }),
+                    _ => None,
+                };
+                let step = iteration_colored(scene, vgg, cam, &matched.grey, &mut v, &mut adam, color).map_err(
+                    |e| match e {
                         PipelineError::Diverged(why) => {
                             PipelineError::Diverged(format!("{why} at scale {} iteration {}", l + 1, m + 1))
                         }
                         e => e,
-                    })?;
+                    },
+                )?;
                 history.push(step.loss);
                 progress(&IterationReport {
                     scale: l,
@@ -328,8 +333,8 @@ pub fn stylize_with(
         let img = scene.render_colored(&strands, colors.as_deref(), &cam)?;
         let feats = vgg.forward(&img, &NNST_LAYERS, false);
         before += l0 as f64;
-        after += nnst_loss_matched(feats.taps(), &matched)?.0 as f64;
-        rematched += nnst_loss_matched(feats.taps(), &finest.match_render(vgg, &img, feats.taps())?)?.0 as f64;
+        after += nnst_loss_matched(feats.taps(), matched.scored())?.0 as f64;
+        rematched += nnst_loss_matched(feats.taps(), finest.match_render(vgg, &img, feats.taps())?.scored())?.0 as f64;
     }
     let k = eval_angles.len() as f64;
     let held_out = if params.held_out_views > 0 {

@@ -183,14 +183,33 @@ impl ScaleStyle {
     }
 
     /// The targets for a render `img` whose VGG taps are `feats` (eq. 2).
-    pub fn match_render(&self, vgg: &Vgg19, img: &Image, feats: &[Image]) -> Result<NnstMatch, PipelineError> {
+    pub fn match_render(&self, vgg: &Vgg19, img: &Image, feats: &[Image]) -> Result<ViewTargets, PipelineError> {
         Ok(match &self.color {
-            None => self.grey.match_content(feats)?,
+            None => ViewTargets { grey: self.grey.match_content(feats)?, color: None },
             Some(color) => {
                 let grey = vgg.forward(&img.luminance3(), &NNST_LAYERS, false);
-                color.retarget(&self.grey.match_content(grey.taps())?)?
+                let grey = self.grey.match_content(grey.taps())?;
+                ViewTargets { color: Some(color.retarget(&grey)?), grey }
             }
         })
+    }
+}
+
+/// One view's targets: in grey (what the strands' shape is pulled to) and,
+/// with colour, the same patches in colour (what the colour is pulled to).
+#[derive(Clone, Debug)]
+pub struct ViewTargets {
+    /// Matched on the render's luminance against the painting's.
+    pub grey: NnstMatch,
+    /// With colour: `grey`'s patches in the painting's colours.
+    pub color: Option<NnstMatch>,
+}
+
+impl ViewTargets {
+    /// The targets a render is scored against: in colour when there are
+    /// colour targets (the render is then in colour too), else grey.
+    pub fn scored(&self) -> &NnstMatch {
+        self.color.as_ref().unwrap_or(&self.grey)
     }
 }
 
@@ -232,11 +251,11 @@ pub fn match_view_colored(
     vgg: &Vgg19,
     style: &ScaleStyle,
     cam: &SplatCamera,
-) -> Result<(NnstMatch, f32), PipelineError> {
+) -> Result<(ViewTargets, f32), PipelineError> {
     let img = scene.render_colored(strands, colors, cam)?;
     let feats = vgg.forward(&img, &NNST_LAYERS, false);
     let m = style.match_render(vgg, &img, feats.taps())?;
-    let (loss, _) = nnst_loss_matched(feats.taps(), &m)?;
+    let (loss, _) = nnst_loss_matched(feats.taps(), m.scored())?;
     Ok((m, loss))
 }
 
