@@ -15,7 +15,7 @@ or point the add-on preferences at a folder that holds the package.
   the surface mesh (if any) as the collision head. Particle hair goes
   through Blender's own conversions (particles → Curves → particles).
   With **Colour** on a Curves object the strands' colour is stylized too,
-  written as a ``color`` point attribute and read by a Principled Hair
+  written as an ``nst3d_color`` point attribute and read by a Principled BSDF
   material the object gets (particle hair has nowhere to keep it).
 
 In the UI the job runs in a background thread with a progress bar in the
@@ -87,8 +87,8 @@ class Nst3dSettings(bpy.types.PropertyGroup):
                             description="front, omniview:N (all around) or ring:N[:ELEV]")
     iters: IntProperty(name="Iterations", default=20, min=1, description="Iterations per octave")
     color: BoolProperty(name="Colour", default=False,
-                        description="Stylize the colour too: smoke gets a 'color' grid and hair Curves a 'color' "
-                                    "point attribute, each read by a material the add-on gives the result")
+                        description="Stylize the colour too: smoke gets a 'color' grid and hair Curves an "
+                                    "'nst3d_color' point attribute, each read by a material the add-on gives the result")
     output_dir: StringProperty(name="Output", subtype="DIR_PATH", default="",
                                description="New cache folder (default: the cache's data folder + _nst3d)")
     preset: EnumProperty(name="Preset", items=_PRESETS, default="short-hair")
@@ -272,23 +272,26 @@ def color_material(name):
     return mat
 
 
-HAIR_COLOR = "color"
+# Not "color": Blender 3.4's Cycles reads a Curves point attribute of that
+# name as black through an Attribute node (measured); any other name works.
+HAIR_COLOR = "nst3d_color"
 
 
 def hair_color_material(name):
-    """A Principled Hair BSDF coloured directly by the stylized point
-    attribute (`HAIR_COLOR`), so a Cycles render shows the painting's palette
-    in the hair."""
+    """A Principled BSDF whose base colour is the stylized point attribute
+    (`HAIR_COLOR`), so a Cycles or EEVEE render shows the painting's palette
+    in the hair. (A Principled Hair BSDF in direct colouring reads the same
+    attribute, but turns these light colours into dark hair under the
+    test's light: a starting point, not the look.)"""
     mat = bpy.data.materials.new(name)
     mat.use_nodes = True
     nodes = mat.node_tree.nodes
     for n in [n for n in nodes if n.type != "OUTPUT_MATERIAL"]:
         nodes.remove(n)
-    hair = nodes.new("ShaderNodeBsdfHairPrincipled")
-    hair.parametrization = "COLOR"
+    hair = nodes.new("ShaderNodeBsdfPrincipled")
     attr = nodes.new("ShaderNodeAttribute")
     attr.attribute_name = HAIR_COLOR
-    mat.node_tree.links.new(attr.outputs["Color"], hair.inputs["Color"])
+    mat.node_tree.links.new(attr.outputs["Color"], hair.inputs["Base Color"])
     out = next(n for n in nodes if n.type == "OUTPUT_MATERIAL")
     mat.node_tree.links.new(hair.outputs["BSDF"], out.inputs["Surface"])
     return mat
