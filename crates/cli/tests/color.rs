@@ -108,6 +108,11 @@ fn color_adds_a_vec3_grid_python_openvdb_reads() {
     let o = nst3d(&["judge", "--style", s(&style), "--baseline", s(&input), "--cameras", "ring:3:30", s(&fine)]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stdout).contains(" grey worst "));
+    // Voxels need not be cubes: smoke_000003's are 0.1326 x 0.1329 x 0.1317.
+    let boxy = shared("volumes/smoke_000003.vdb");
+    let o = nst3d(&["judge", "--style", s(&style), "--baseline", s(&boxy), "--cameras", "ring:2:30", s(&boxy)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("views 1.000 1.000"), "{}", String::from_utf8_lossy(&o.stdout));
     let o = nst3d(&["judge", "--style", s(&style), "--baseline", s(&input), "--grid", "smoke", s(&out)]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");

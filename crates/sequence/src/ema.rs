@@ -111,7 +111,7 @@ impl ColorState {
 
     /// The colour, one grid per channel of `dims`.
     pub fn color(&self, dims: [usize; 3]) -> Vec<Grid3> {
-        color::chroma(&color::raw_of(&self.raw), dims).0
+        color::chroma(&color::raw_of(&self.raw), dims, color::SMOOTH_PASSES).0
     }
 
     fn constrain(&mut self) {
@@ -182,6 +182,14 @@ pub struct SequenceParams {
     /// first sweep, which farm chunks need to meet a single run at their seams
     /// (docs/FARM.md, "Why the first sweep does not blend").
     pub settle_first_sweep: bool,
+    /// Stylise an RGB colour per voxel with the density (issue 29): the
+    /// chroma layer's raw channels ([`nst3d_stylize::color`]) ride in every
+    /// frame's state, are blended by the EMA like the field, and follow the
+    /// RGB Gram loss of each frame's views (the painting given to the loss
+    /// must be the colour one), which then drives the density too. A single
+    /// frame colours in a stage of its own instead
+    /// ([`nst3d_stylize::color_stage`]).
+    pub color: bool,
 }
 
 /// Progress of the sweeps.
@@ -285,12 +293,12 @@ pub fn stylize_sequence_with(
                 };
                 let voxels = here.iter().product();
                 let (field, color) = match saved {
-                    None => (Field::initial(fp.mode, voxels), fp.color.then(|| ColorState::white(voxels))),
+                    None => (Field::initial(fp.mode, voxels), params.color.then(|| ColorState::white(voxels))),
                     Some((s, coarser)) => (
                         s.field.resize(coarser, here),
                         s.color
                             .map(|c| c.resize(coarser, here))
-                            .or_else(|| fp.color.then(|| ColorState::white(voxels))),
+                            .or_else(|| params.color.then(|| ColorState::white(voxels))),
                     ),
                 };
                 let len = field.len();
@@ -334,7 +342,7 @@ pub fn stylize_sequence_with(
                         }
                     }
                     Some(cs) => {
-                        let (grids, chroma_tape) = color::chroma(&color::raw_of(&cs.raw), d.dims);
+                        let (grids, chroma_tape) = color::chroma(&color::raw_of(&cs.raw), d.dims, color::SMOOTH_PASSES);
                         let mut grad_color: Vec<Grid3> = (0..3).map(|_| Grid3::zeros(d.dims)).collect();
                         for view in &level_views(t) {
                             let (l, g, gc) = loss.loss_and_grad_color(&dstar, &grids, view)?;

@@ -56,10 +56,9 @@ fn ema_cuts_flicker() {
             learning_rate: 0.3,
             limits: Limits { vmax: 2.0, smin: 0.0, smax: 2.0 },
             view: view.clone(),
-            color: false,
         };
         let mut store = MemoryStore::default();
-        let params = SequenceParams { frame, alpha, settle_first_sweep: false };
+        let params = SequenceParams { frame, alpha, settle_first_sweep: false, color: false };
         stylize_sequence(&sim, &loss, std::slice::from_ref(&view), &params, &mut store, &mut |_| {}).unwrap();
         let frames: Vec<Grid3> = (0..sim.len()).map(|t| stylized_density(&sim, &mut store, t).unwrap()).collect();
         let vels: Vec<_> = (0..sim.len()).map(|t| sim.velocity(t).unwrap()).collect();
@@ -117,9 +116,8 @@ fn disk_store_resumes_exactly() {
         learning_rate: 0.3,
         limits: Limits { vmax: 2.0, smin: 0.0, smax: 2.0 },
         view: view.clone(),
-        color: false,
     };
-    let params = SequenceParams { frame, alpha: 0.7, settle_first_sweep: true };
+    let params = SequenceParams { frame, alpha: 0.7, settle_first_sweep: true, color: false };
     // Two views per frame, the second a turntable step that moves with the frame (a camera path).
     let views = |t: usize| {
         vec![
@@ -214,9 +212,8 @@ fn a_break_splits_the_ema_chain() {
         learning_rate: 0.3,
         limits: Limits { vmax: 2.0, smin: 0.0, smax: 2.0 },
         view: view.clone(),
-        color: false,
     };
-    let params = SequenceParams { frame, alpha: 0.7, settle_first_sweep: false };
+    let params = SequenceParams { frame, alpha: 0.7, settle_first_sweep: false, color: false };
     let run = |sim: &dyn Simulation| {
         let mut store = MemoryStore::default();
         stylize_sequence(sim, &loss, std::slice::from_ref(&view), &params, &mut store, &mut |_| {}).unwrap();

@@ -84,7 +84,7 @@ pub fn volume_iter_with(n: usize, mode: Mode, iters: usize, color: bool) -> Benc
         let t0 = Instant::now();
         let (dstar, tape) = field.forward(&d);
         let (l, grad_dstar) = if color {
-            let (c, tape) = crate::color::chroma(&crate::color::raw_of(&raw), d.dims);
+            let (c, tape) = crate::color::chroma(&crate::color::raw_of(&raw), d.dims, crate::color::SMOOTH_PASSES);
             let (l, g, gc) = loss.loss_and_grad_color(&dstar, &c, &view).expect("the benchmark view renders");
             let grad_raw = crate::color::chroma_backward(&tape, &gc);
             for ((f, a), g) in raw.iter_mut().zip(&mut color_adam).zip(grad_raw) {

@@ -35,9 +35,10 @@ use rayon::prelude::*;
 /// colours are mixed) and keeps any channel's emission finite.
 pub const RAW_RANGE: (f32, f32) = (0.02, 2.0);
 
-/// Tent passes `k` applied to the raw channels: two passes spread a
-/// voxel's colour over a 5-voxel support (at each octave's resolution, so
-/// coarse octaves place broad patches).
+/// Tent passes `k` applied to the raw channels in a sequence's sweeps: two
+/// passes spread a voxel's colour over a 5-voxel support (at each octave's
+/// resolution, so coarse octaves place broad patches). A single frame's
+/// colour stage uses its own count ([`crate::color_stage::SMOOTH_PASSES`]).
 pub const SMOOTH_PASSES: usize = 2;
 
 /// Adam's step on the raw channels, whatever the density's mode and rate
@@ -56,28 +57,30 @@ pub struct ChromaTape {
     /// The smoothed channels `s`.
     smoothed: Vec<Vec<f32>>,
     dims: [usize; 3],
+    passes: usize,
 }
 
-fn smooth(v: &[f32], dims: [usize; 3]) -> Vec<f32> {
-    if SMOOTH_PASSES == 0 {
+fn smooth(v: &[f32], dims: [usize; 3], passes: usize) -> Vec<f32> {
+    if passes == 0 {
         return v.to_vec();
     }
     let mut out = transport::tent_smooth_flat(v, 1, dims);
     let mut spare = vec![0.0; v.len()];
-    for _ in 1..SMOOTH_PASSES {
+    for _ in 1..passes {
         transport::tent_smooth_into(&out, 1, dims, &mut spare);
         std::mem::swap(&mut out, &mut spare);
     }
     out
 }
 
-/// The colour `c` (three grids of `dims`) of the raw channels `raw`.
+/// The colour `c` (three grids of `dims`) of the raw channels `raw`, smoothed
+/// by `passes` tent passes first.
 ///
 /// # Panics
 /// If there are not three channels of the voxel count of `dims`.
-pub fn chroma(raw: &[&[f32]], dims: [usize; 3]) -> (Vec<Grid3>, ChromaTape) {
+pub fn chroma(raw: &[&[f32]], dims: [usize; 3], passes: usize) -> (Vec<Grid3>, ChromaTape) {
     assert_eq!(raw.len(), 3, "three colour channels");
-    let smoothed: Vec<Vec<f32>> = raw.par_iter().map(|r| smooth(r, dims)).collect();
+    let smoothed: Vec<Vec<f32>> = raw.par_iter().map(|r| smooth(r, dims, passes)).collect();
     let n = smoothed[0].len();
     let mut color: Vec<Vec<f32>> = vec![vec![0.0; n]; 3];
     let [c0, c1, c2] = &mut color[..] else { unreachable!("three channels") };
@@ -94,7 +97,7 @@ pub fn chroma(raw: &[&[f32]], dims: [usize; 3]) -> (Vec<Grid3>, ChromaTape) {
             }
         });
     let color = color.into_iter().map(|c| Grid3::from_vec(dims, c)).collect();
-    (color, ChromaTape { smoothed, dims })
+    (color, ChromaTape { smoothed, dims, passes })
 }
 
 /// Voxels per unit of parallel work in the per-voxel loops.
@@ -130,7 +133,7 @@ pub fn chroma_backward(tape: &ChromaTape, grad_color: &[Grid3]) -> Vec<Vec<f32>>
                 b[i] = (gv[2] - LUMA[2] * g_dot_c) / lum;
             }
         });
-    grad_s.par_iter().map(|g| smooth(g, tape.dims)).collect()
+    grad_s.par_iter().map(|g| smooth(g, tape.dims, tape.passes)).collect()
 }
 
 #[cfg(test)]
@@ -147,34 +150,37 @@ mod tests {
     #[test]
     fn colour_has_luminance_one_and_white_stays_white() {
         let r = raw();
-        let (c, _) = chroma(&[&r[0], &r[1], &r[2]], DIMS);
+        let (c, _) = chroma(&[&r[0], &r[1], &r[2]], DIMS, SMOOTH_PASSES);
         for i in 0..60 {
             let lum: f32 = (0..3).map(|ch| LUMA[ch] * c[ch].data[i]).sum();
             assert!((lum - 1.0).abs() < 1e-5, "voxel {i}: luminance {lum}");
         }
         let one = vec![0.7f32; 60];
-        let (w, _) = chroma(&[&one, &one, &one], DIMS);
+        let (w, _) = chroma(&[&one, &one, &one], DIMS, SMOOTH_PASSES);
         // The tent is zero outside the grid, so borders smooth towards 0 in
         // every channel alike: still grey, still white after the division.
         assert!(w.iter().all(|g| g.data.iter().all(|v| (v - 1.0).abs() < 1e-5)));
     }
 
+    /// Both smoothings in use: the stage's (none) and the sequences' (two passes).
     #[test]
     fn chroma_gradient_matches_finite_differences() {
-        let r = raw();
-        let y: Vec<f32> = pseudo_random(180, 80);
-        let tape_of = |x: &[f32]| chroma(&[&x[..60], &x[60..120], &x[120..]], DIMS);
-        let x0: Vec<f32> = r.concat();
-        let (_, tape) = tape_of(&x0);
-        let gc: Vec<Grid3> = (0..3).map(|ch| Grid3::from_vec(DIMS, y[ch * 60..][..60].to_vec())).collect();
-        let analytic = chroma_backward(&tape, &gc).concat();
-        let f = |x: &[f32]| {
-            let (c, _) = tape_of(x);
-            dot(&y, &c.iter().flat_map(|g| g.data.clone()).collect::<Vec<f32>>())
-        };
-        // f32 forward: a step of 1e-2 keeps round-off below the
-        // rational function's curvature; gradients are O(1), floor 1e-2.
-        let check = check_gradient(&x0, &analytic, f, 1e-2, 180, 1e-2);
-        assert!(check.max_rel_err < 1e-2, "{check:?}");
+        for passes in [0, SMOOTH_PASSES, crate::color_stage::SMOOTH_PASSES] {
+            let r = raw();
+            let y: Vec<f32> = pseudo_random(180, 80);
+            let tape_of = |x: &[f32]| chroma(&[&x[..60], &x[60..120], &x[120..]], DIMS, passes);
+            let x0: Vec<f32> = r.concat();
+            let (_, tape) = tape_of(&x0);
+            let gc: Vec<Grid3> = (0..3).map(|ch| Grid3::from_vec(DIMS, y[ch * 60..][..60].to_vec())).collect();
+            let analytic = chroma_backward(&tape, &gc).concat();
+            let f = |x: &[f32]| {
+                let (c, _) = tape_of(x);
+                dot(&y, &c.iter().flat_map(|g| g.data.clone()).collect::<Vec<f32>>())
+            };
+            // f32 forward: a step of 1e-2 keeps round-off below the
+            // rational function's curvature; gradients are O(1), floor 1e-2.
+            let check = check_gradient(&x0, &analytic, f, 1e-2, 180, 1e-2);
+            assert!(check.max_rel_err < 1e-2, "{passes} passes: {check:?}");
+        }
     }
 }

@@ -11,7 +11,6 @@ use nst3d_optim::Adam;
 use nst3d_render::Camera;
 use nst3d_transport as transport;
 
-use crate::color;
 use crate::field::{Field, Limits, Mode};
 use crate::view::{ViewError, ViewLoss, ViewSpec};
 
@@ -30,10 +29,6 @@ pub struct FrameParams {
     pub limits: Limits,
     /// The view at full resolution.
     pub view: ViewSpec,
-    /// Stylise an RGB colour per voxel with the density (issue 29): the
-    /// views render emission–absorption in colour and the loss is the RGB
-    /// Gram loss (the painting given to [`ViewLoss`] must be the colour one).
-    pub color: bool,
 }
 
 /// Reported after every iteration.
@@ -58,9 +53,6 @@ pub struct FrameResult {
     pub density: Grid3,
     /// The optimised field at full resolution.
     pub field: Field,
-    /// With [`FrameParams::color`]: the colour, one grid per RGB channel at
-    /// full resolution, of luminance 1 in every voxel ([`crate::color`]).
-    pub color: Option<Vec<Grid3>>,
     /// Style loss of the input seen from the view (full resolution).
     pub loss_before: f32,
     /// Style loss of the result seen from the same view.
@@ -145,60 +137,27 @@ pub fn stylize_frame_views(
     let octaves = levels.len();
     let mut field: Option<(Field, [usize; 3])> = None;
 
-    // The colour's raw channels (crate::color) are scale fields: they start
-    // at 1 (white, the grey picture) and are carried between octaves and
-    // clamped like the density's scale.
-    let color_limits = Limits { smin: color::RAW_RANGE.0, smax: color::RAW_RANGE.1, ..params.limits };
-    let mut color: Option<Vec<Field>> = None;
-
     for (k, level) in levels.iter().rev().enumerate() {
         let factor = (1usize << (octaves - 1 - k)) as f32;
         let level_views: Vec<ViewSpec> = views.iter().map(|v| view_at(v, factor)).collect();
-        let (mut f, from) = match field.take() {
-            None => (Field::initial(params.mode, level.len()), None),
-            Some((f, dims)) => (f.resize(dims, level.dims), Some(dims)),
+        let mut f = match field.take() {
+            None => Field::initial(params.mode, level.len()),
+            Some((f, dims)) => f.resize(dims, level.dims),
         };
         let vmax_here = params.limits.vmax / factor;
         f.constrain(&params.limits, vmax_here);
-        if params.color {
-            color = Some(match (color.take(), from) {
-                (Some(c), Some(dims)) => c.iter().map(|ch| ch.resize(dims, level.dims)).collect(),
-                _ => (0..3).map(|_| Field::identity(Mode::Density, level.len())).collect(),
-            });
-        }
         // A fresh Adam per octave: the moments of a coarser grid do not map
         // onto the finer one, and the paper restarts the optimiser per level.
         let mut adam = Adam::new(f.len(), params.learning_rate);
-        let mut color_adam: Vec<Adam> =
-            color.iter().flatten().map(|c| Adam::new(c.len(), color::LEARNING_RATE)).collect();
         for it in 0..params.iterations {
             let (dstar, tape) = f.forward(level);
             let mut l = 0.0;
             let mut grad_dstar = Grid3::zeros(level.dims);
             let add = |acc: &mut Grid3, g: &Grid3| acc.data.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
-            match &mut color {
-                None => {
-                    for view in &level_views {
-                        let (lv, gv) = loss.loss_and_grad(&dstar, view)?;
-                        l += lv;
-                        add(&mut grad_dstar, &gv);
-                    }
-                }
-                Some(raw) => {
-                    let (grids, chroma_tape) = color::chroma(&color::raw_of(raw), level.dims);
-                    let mut grad_color: Vec<Grid3> = (0..3).map(|_| Grid3::zeros(level.dims)).collect();
-                    for view in &level_views {
-                        let (lv, gv, gc) = loss.loss_and_grad_color(&dstar, &grids, view)?;
-                        l += lv;
-                        add(&mut grad_dstar, &gv);
-                        grad_color.iter_mut().zip(&gc).for_each(|(a, g)| add(a, g));
-                    }
-                    let grad_raw = color::chroma_backward(&chroma_tape, &grad_color);
-                    for ((c, a), g) in raw.iter_mut().zip(&mut color_adam).zip(grad_raw) {
-                        a.step(c.params_mut(), &g);
-                        c.constrain(&color_limits, 0.0);
-                    }
-                }
+            for view in &level_views {
+                let (lv, gv) = loss.loss_and_grad(&dstar, view)?;
+                l += lv;
+                add(&mut grad_dstar, &gv);
             }
             let grad = f.descent(f.backward(level, &tape, &grad_dstar.data), level.dims);
             adam.step(f.params_mut(), &grad);
@@ -212,27 +171,13 @@ pub fn stylize_frame_views(
     let (field, dims) = field.expect("at least one octave");
     let full = |f: Field| if dims == d.dims { f } else { f.resize(dims, d.dims) };
     let field = full(field);
-    let color: Option<Vec<Grid3>> = color.map(|raw| {
-        let raw: Vec<Field> = raw.into_iter().map(full).collect();
-        color::chroma(&color::raw_of(&raw), d.dims).0
-    });
     let density = field.transport(d);
     let (mut loss_before, mut loss_after) = (0.0, 0.0);
-    // The input is scored as the grey picture it is: colour 1 everywhere.
-    let white = color.as_ref().map(|_| vec![Grid3::from_vec(d.dims, vec![1.0; d.len()]); 3]);
     for view in views {
-        match &color {
-            None => {
-                loss_before += loss.loss(d, view)?;
-                loss_after += loss.loss(&density, view)?;
-            }
-            Some(c) => {
-                loss_before += loss.loss_color(d, white.as_deref().unwrap_or_default(), view)?;
-                loss_after += loss.loss_color(&density, c, view)?;
-            }
-        }
+        loss_before += loss.loss(d, view)?;
+        loss_after += loss.loss(&density, view)?;
     }
-    Ok(FrameResult { density, field, color, loss_before, loss_after })
+    Ok(FrameResult { density, field, loss_before, loss_after })
 }
 
 #[cfg(test)]

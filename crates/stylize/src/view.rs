@@ -163,6 +163,21 @@ impl ViewLoss<'_> {
     }
 }
 
+/// Pictures that are not renders (issue 29's bound on what any colour
+/// could reach from one view: `color_bound` in nst3d-volume's examples).
+impl ViewLoss<'_> {
+    /// Style loss of an RGB picture (3 x H x W, before the 2x upsampling
+    /// every view gets) and its gradient w.r.t. the picture.
+    pub fn loss_and_grad_image(&self, rgb: &Image) -> Result<(f32, Image), ViewError> {
+        let fwd = self.vgg.forward(&render::upsample2x(rgb), &self.layers, true);
+        let feats = fwd.features();
+        let (loss, tap_grads) = nst3d_loss::style_loss(&feats, &self.target)?;
+        let grads: Vec<FeatureView> =
+            feats.iter().zip(&tap_grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
+        Ok((loss, render::upsample2x_backward(&self.vgg.backward(&fwd, &grads))))
+    }
+}
+
 /// The colour picture of `d` with `color` seen from `view` (render and
 /// exposure; no equalisation), before upsampling.
 pub fn color_view_image(d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result<Image, ViewError> {

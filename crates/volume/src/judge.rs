@@ -160,17 +160,19 @@ pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdi
     // Files at a coarser resolution than the finest (an input beside a
     // result `nst3d volume` wrote 2x finer) are refined to it, as the job
     // refines; other mismatches cannot be compared voxel for voxel.
-    let finest = files.iter().map(|f| f.transform.voxel_size[0]).fold(f64::INFINITY, f64::min);
+    // Per axis: a file's voxels need not be cubes (smoke_000003's are not).
+    let finest: [f64; 3] =
+        std::array::from_fn(|a| files.iter().map(|f| f.transform.voxel_size[a]).fold(f64::INFINITY, f64::min));
     let files: Vec<Loaded> = files
         .into_iter()
         .zip(std::iter::once(&s.baseline).chain(&s.results))
         .map(|(f, path)| {
-            let k = f.transform.voxel_size[0] / finest;
+            let k = f.transform.voxel_size[0] / finest[0];
             let ki = k.round() as usize;
-            let same_shape = f.transform.voxel_size.iter().all(|v| ((v / finest) - k).abs() < 1e-6 * k);
+            let same_shape = (0..3).all(|a| ((f.transform.voxel_size[a] / finest[a]) - k).abs() < 1e-6 * k);
             if (k - ki as f64).abs() > 1e-6 * k || !same_shape || ki == 0 {
                 bail!(
-                    "{} has voxels of {:?}, another file {finest}: judge files whose resolutions differ by a whole factor",
+                    "{} has voxels of {:?}, another file {finest:?}: judge files whose resolutions differ by a whole factor",
                     path.display(),
                     f.transform.voxel_size
                 );

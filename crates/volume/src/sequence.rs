@@ -441,7 +441,12 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         None => views_of(&cams_at(all[live_all[0]]), gamma, s.equalize).remove(0),
     };
     let params =
-        SequenceParams { frame: s.frame_params(vmax, &first_view), alpha: seq.ema, settle_first_sweep: seq.ema_settle };
+        SequenceParams {
+        frame: s.frame_params(vmax, &first_view),
+        alpha: seq.ema,
+        settle_first_sweep: seq.ema_settle,
+        color: s.color,
+    };
 
     if seq.force {
         DiskStore::remove(&work).with_context(|| format!("cannot clear the work folder {}", work.display()))?;

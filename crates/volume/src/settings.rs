@@ -55,7 +55,11 @@ pub struct VolumeSettings {
     /// Stylize an RGB colour per voxel with the density (issue 29): the
     /// smoke is rendered in colour (emission–absorption), the painting's
     /// colour Grams are matched, and the output gains a vec3 colour grid
-    /// over the smoke's voxels. Single frames, optimisation only for now.
+    /// over the smoke's voxels. A single frame colours in a stage after the
+    /// density ([`nst3d_stylize::color_stage`]), from
+    /// [`nst3d_stylize::COLOR_VIEWS`] omniview cameras for as many sweeps as
+    /// [`VolumeSettings::iterations`]; a sequence colours in its sweeps.
+    /// Optimisation only for now.
     pub color: bool,
     /// Name of the written colour grid; `None`: by the input's grid names,
     /// else the up axis ([`crate::output::color_grid_name`]).
@@ -264,7 +268,6 @@ impl VolumeSettings {
                 smax: 1.0 + self.reach() * (self.smax - 1.0),
             },
             view: view.clone(),
-            color: self.color,
         }
     }
 

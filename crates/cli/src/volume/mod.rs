@@ -99,9 +99,11 @@ pub struct VolumeArgs {
     /// luminance: the renderer draws grey smoke, which cannot reach colour Grams).
     #[arg(long)]
     pub style_color: bool,
-    /// Stylize an RGB colour per voxel with the smoke (rendered in colour,
-    /// matched to the painting's colours) and write it as a vec3 grid beside
-    /// the density, in every frame of a sequence. Optimisation only for now.
+    /// Stylize an RGB colour per voxel (rendered in colour, matched to the
+    /// painting's colours) and write it as a vec3 grid beside the density, in
+    /// every frame of a sequence. A single frame is coloured after its smoke,
+    /// from 16 cameras around it, its grey look unchanged; a sequence colours
+    /// with the smoke in its sweeps. Optimisation only for now.
     #[arg(long, conflicts_with = "model")]
     pub color: bool,
     /// Name of the written colour grid (default: the input's colour grid, else
