@@ -124,8 +124,20 @@ fn main() -> Result<()> {
     let (style, grey, out) = (PathBuf::from(&args[0]), PathBuf::from(&args[1]), &args[2]);
     let iters: usize = args.get(3).map_or(Ok(150), |s| s.parse())?;
     let file = read_vdb(&grey).map_err(|e| anyhow!("{e}"))?;
-    let (_, d) = density_grid(&file, &grey, "density")?.to_dense()?;
+    let (dbox, d) = density_grid(&file, &grey, "density")?.to_dense()?;
+    // FILE_COLOR=X.vdb: judge X's colour grid on this density (a diagnosis:
+    // the colour a job wrote, seen with these views).
+    let file_color: Option<Vec<Grid3>> = match std::env::var("FILE_COLOR") {
+        Ok(p) => {
+            let f = read_vdb(Path::new(&p)).map_err(|e| anyhow!("{e}"))?;
+            let g = f.grid("color").or_else(|| f.grid("Cd")).ok_or_else(|| anyhow!("{p}: no colour grid"))?;
+            let (cbox, ch) = g.to_dense_vec3()?;
+            Some(ch.into_iter().map(|c| pad(&nst3d_volume::dense::in_box(Some((cbox, c)), &dbox), 4)).collect())
+        }
+        Err(_) => None,
+    };
     // The judge's margin, cameras, absorption and lens (crates/volume/src/judge.rs).
+    let raw_d = d.clone();
     let d = pad(&d, 4);
     let lens = Lens { up: UpAxis::Z, ..Lens::of(&VolumeSettings::new("", "", "")) };
     let cams = CameraSet::parse("ring:8:30")?.cameras(&lens, d.dims);
@@ -140,7 +152,25 @@ fn main() -> Result<()> {
     let painting = nst3d_io::image::load_style(&style, 1.0)?;
     let loss = ViewLoss::new(&vgg, &painting, &StyleSpec::default())?;
     let white = vec![Grid3::from_vec(d.dims, vec![1.0; d.len()]); 3];
+    if let Some(mut c) = file_color {
+        for i in 0..d.len() {
+            if c.iter().all(|g| g.data[i] == 0.0) {
+                c.iter_mut().for_each(|g| g.data[i] = 1.0);
+            }
+        }
+        let r: Vec<f32> = views
+            .iter()
+            .map(|v| Ok(loss.loss_color(&d, &c, v)? / loss.loss_color(&d, &white, v)?))
+            .collect::<Result<_>>()?;
+        println!("file colour: {}", r.iter().map(|r| format!("{r:.3}")).collect::<Vec<_>>().join(" "));
+        return Ok(());
+    }
     if let Some(train) = train_cams {
+        // PAD=0 trains in the job's framing (density mode pads nothing); the
+        // judge's views keep their 4-voxel margin.
+        let pad_n: usize = std::env::var("PAD").ok().and_then(|v| v.parse().ok()).unwrap_or(4).min(4);
+        let full = d.clone();
+        let d = pad(&raw_d, pad_n);
         let tcams = CameraSet::parse(&train)?.cameras(&lens, d.dims);
         // The job's absorption (its front camera) and the smallest over the
         // colour cameras; GAMMA=judge|job|min|mix picks the training views'.
@@ -160,7 +190,7 @@ fn main() -> Result<()> {
             }
             _ => views_of(&tcams, gamma, false),
         };
-        let base: Vec<f32> = views.iter().map(|v| loss.loss_color(&d, &white, v)).collect::<Result<_, _>>()?;
+        let base: Vec<f32> = views.iter().map(|v| loss.loss_color(&full, &white, v)).collect::<Result<_, _>>()?;
         let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f32>().ok());
         let params = ColorStageParams {
             iterations: iters * tcams.len(),
@@ -171,6 +201,9 @@ fn main() -> Result<()> {
                 eprintln!("iter {}: {:.4e}", p.iteration, p.loss)
             }
         })?;
+        let color: Vec<Grid3> = r.color.iter().map(|c| pad(c, 4 - pad_n)).collect();
+        let d = full;
+        let r = nst3d_stylize::ColorResult { color, ..r };
         let got: Vec<f32> = views.iter().map(|v| loss.loss_color(&d, &r.color, v)).collect::<Result<_, _>>()?;
         for k in [0, 2] {
             let grey = color_view_image(&d, &white, &views[k])?;
