@@ -7,8 +7,8 @@ use nst3d_core::{Grid3, Image};
 use nst3d_features::{Vgg19, VggFlavor, VggLayer};
 use nst3d_render::{Camera, Projection};
 use nst3d_stylize::{
-    bench::synthetic_smoke, stylize_color, stylize_frame, ColorStageParams, Field, FrameParams, Limits, Mode, StyleSpec,
-    ViewLoss, ViewSpec,
+    bench::synthetic_smoke, stylize_color, stylize_frame, ColorStageParams, Field, FrameParams, Limits, Mode,
+    StyleSpec, ViewLoss, ViewSpec,
 };
 
 fn style(n: usize) -> Image {
@@ -104,14 +104,7 @@ fn octaves_lower_the_loss_and_keep_the_limits() {
     let view = ViewSpec { camera: Some(Camera::front(d.dims)), gamma: 0.2, exposure: 0.2, equalize: false };
     for (mode, lr) in [(Mode::Velocity, 0.5), (Mode::Density, 0.1)] {
         let limits = Limits { vmax: 1.5, smin: 0.2, smax: 1.8 };
-        let params = FrameParams {
-            mode,
-            octaves: 2,
-            iterations: 8,
-            learning_rate: lr,
-            limits,
-            view: view.clone(),
-        };
+        let params = FrameParams { mode, octaves: 2, iterations: 8, learning_rate: lr, limits, view: view.clone() };
         let mut steps = 0;
         let r = stylize_frame(&d, &loss, &params, &mut |_| steps += 1).unwrap();
         assert_eq!(steps, 16);
@@ -246,14 +239,8 @@ fn color_stage_lowers_the_rgb_loss_of_every_view() {
     let d = synthetic_smoke(24, 9);
     let view = ViewSpec { camera: Some(Camera::front(d.dims)), gamma: 0.2, exposure: 0.2, equalize: false };
     let limits = Limits { vmax: 1.5, smin: 0.2, smax: 1.8 };
-    let grey = FrameParams {
-        mode: Mode::Density,
-        octaves: 2,
-        iterations: 8,
-        learning_rate: 0.1,
-        limits,
-        view: view.clone(),
-    };
+    let grey =
+        FrameParams { mode: Mode::Density, octaves: 2, iterations: 8, learning_rate: 0.1, limits, view: view.clone() };
     let g = stylize_frame(&d, &grey_loss, &grey, &mut |_| {}).unwrap();
     let views: Vec<ViewSpec> = [0.0, 120.0, 240.0]
         .iter()

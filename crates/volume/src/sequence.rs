@@ -440,8 +440,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         Some(v) => v[0].clone(),
         None => views_of(&cams_at(all[live_all[0]]), gamma, s.equalize).remove(0),
     };
-    let params =
-        SequenceParams {
+    let params = SequenceParams {
         frame: s.frame_params(vmax, &first_view),
         alpha: seq.ema,
         settle_first_sweep: seq.ema_settle,
