@@ -146,12 +146,7 @@ impl ViewLoss<'_> {
         view: &ViewSpec,
     ) -> Result<(f32, Grid3, Vec<Grid3>), ViewError> {
         let (rgb, cache) = rgb(d, color, view)?;
-        let fwd = self.vgg.forward(&render::upsample2x(&rgb), &self.layers, true);
-        let feats = fwd.features();
-        let (loss, tap_grads) = nst3d_loss::style_loss(&feats, &self.target)?;
-        let grads: Vec<FeatureView> =
-            feats.iter().zip(&tap_grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
-        let mut grad = render::upsample2x_backward(&self.vgg.backward(&fwd, &grads));
+        let (loss, mut grad) = self.loss_and_grad_image(&rgb)?;
         if view.exposure != 1.0 {
             grad.data.iter_mut().for_each(|v| *v *= view.exposure);
         }
