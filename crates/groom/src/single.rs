@@ -13,7 +13,7 @@ use nst3d_core::{Groom, Reporter, TriMesh, UpAxis};
 use nst3d_features::Vgg19;
 use nst3d_io::groom::{read_groom_file, GroomFile};
 use nst3d_io::mesh::read_mesh;
-use nst3d_strands::pipeline::{stylize, HeldOut, StrandScene};
+use nst3d_strands::pipeline::{color_iterations, stylize, HeldOut, StrandScene};
 use nst3d_strands::FlatStrands;
 
 use crate::axis;
@@ -145,15 +145,14 @@ pub fn stylize_groom(
             None => s.groom.display().to_string(),
         })?;
     let total: u32 = params.iterations.iter().sum();
-    reporter.begin(total as u64);
+    let color_total = if params.color { color_iterations() } else { 0 };
+    reporter.begin((total + color_total) as u64);
     let result = stylize(&scene, &painting, &vgg, &params, &mut |r| {
-        reporter.step(&format!(
-            "scale {}/3 iteration {}/{} loss {:.4e}",
-            r.scale + 1,
-            r.iteration,
-            r.iterations,
-            r.loss
-        ))
+        reporter.step(&if r.color {
+            format!("colour iteration {}/{} loss {:.4e}", r.iteration, r.iterations, r.loss)
+        } else {
+            format!("scale {}/3 iteration {}/{} loss {:.4e}", r.scale + 1, r.iteration, r.iterations, r.loss)
+        })
     })?;
     reporter.end();
 

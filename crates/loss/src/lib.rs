@@ -293,6 +293,69 @@ pub fn style_loss(feats: &[FeatureView<'_>], target: &StyleTarget) -> Result<(f3
     Ok((loss as f32, grads))
 }
 
+/// Cells of a `height x width` feature map that hold a marked pixel of a
+/// `mask_height x mask_width` picture (row-major both): a picture pixel
+/// counts for the cell it falls in.
+pub fn cell_mask(pixels: &[bool], mask_height: usize, mask_width: usize, height: usize, width: usize) -> Vec<bool> {
+    assert_eq!(pixels.len(), mask_height * mask_width, "one mark per picture pixel");
+    let mut cells = vec![false; height * width];
+    if height == 0 || width == 0 {
+        return cells;
+    }
+    for y in 0..mask_height {
+        let r = (y * height / mask_height).min(height - 1);
+        for x in 0..mask_width {
+            if pixels[y * mask_width + x] {
+                cells[r * width + (x * width / mask_width).min(width - 1)] = true;
+            }
+        }
+    }
+    cells
+}
+
+/// [`style_loss`] of the marked cells only: each layer's Gram matrix is
+/// summed over the cells `masks[l]` marks (row-major over its map) and
+/// divided by their count, so a picture's empty background (a groom on
+/// black) neither counts nor dilutes the statistics of what is drawn. It
+/// is [`style_loss`] of the features zeroed off the mask and scaled by
+/// `√(P / count)`, and the backward is the same mask and scale applied to
+/// that loss's gradient. A layer with no marked cell is an error
+/// ([`LossError::EmptyLayer`]).
+pub fn style_loss_masked(
+    feats: &[FeatureView<'_>],
+    masks: &[Vec<bool>],
+    target: &StyleTarget,
+) -> Result<(f32, Vec<Vec<f32>>), LossError> {
+    if masks.len() != feats.len() {
+        return Err(LossError::LayerCount { got: masks.len(), expected: feats.len() });
+    }
+    // Per layer: the scale of every value (0 off the mask), in `data`'s order.
+    let mut scales = Vec::with_capacity(feats.len());
+    for (layer, (f, m)) in feats.iter().zip(masks).enumerate() {
+        let count = m.iter().filter(|&&v| v).count();
+        if m.len() != f.pixels() || count == 0 {
+            return Err(LossError::EmptyLayer { layer, channels: f.channels, height: f.height, width: f.width });
+        }
+        let s = (f.pixels() as f32 / count as f32).sqrt();
+        let (cs, ps) = f.strides();
+        let mut scale = vec![0.0f32; f.data.len()];
+        for (p, _) in m.iter().enumerate().filter(|(_, &v)| v) {
+            for c in 0..f.channels {
+                scale[c * cs + p * ps] = s;
+            }
+        }
+        scales.push(scale);
+    }
+    let masked: Vec<Vec<f32>> =
+        feats.iter().zip(&scales).map(|(f, s)| f.data.iter().zip(s).map(|(v, s)| v * s).collect()).collect();
+    let views: Vec<FeatureView<'_>> = feats.iter().zip(&masked).map(|(f, d)| FeatureView { data: d, ..*f }).collect();
+    let (loss, mut grads) = style_loss(&views, target)?;
+    for (g, s) in grads.iter_mut().zip(&scales) {
+        g.iter_mut().zip(s).for_each(|(g, s)| *g *= s);
+    }
+    Ok((loss, grads))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -379,6 +442,67 @@ mod tests {
                     assert!((a - b).abs() <= 1e-5 * (1.0 + a.abs()), "gram_backward {a} vs {b}");
                 }
             }
+        })
+    }
+
+    /// The masked loss's gradient by finite differences (planar and
+    /// channels-last), and with every cell marked it is the plain loss.
+    #[test]
+    fn style_loss_masked_gradcheck_and_full_mask() {
+        nst3d_core::precision::fp32(|| {
+            let shapes = [(4, 5, 6), (8, 3, 4)];
+            let style: Vec<Image> =
+                shapes.iter().enumerate().map(|(i, &(c, h, w))| image(c, h, w, 300 + i as u64)).collect();
+            let target = StyleTarget::from_features(&views(&style), &[1.0, 2.0]).unwrap();
+            let feats: Vec<Image> =
+                shapes.iter().enumerate().map(|(i, &(c, h, w))| image(c, h, w, 400 + i as u64)).collect();
+            let pixels: Vec<bool> = (0..10 * 12).map(|i| i / 12 < 8 && i % 12 < 7 && i % 5 != 0).collect();
+            let masks: Vec<Vec<bool>> = shapes.iter().map(|&(_, h, w)| cell_mask(&pixels, 10, 12, h, w)).collect();
+            assert!(masks.iter().all(|m| m.iter().any(|&v| !v)), "some cells unmarked");
+            let (_, grads) = style_loss_masked(&views(&feats), &masks, &target).unwrap();
+            for l in 0..shapes.len() {
+                let (c, h, w) = shapes[l];
+                let probe = |x: &[f32]| {
+                    let mut fs = feats.clone();
+                    fs[l] = Image::from_vec(c, h, w, x.to_vec());
+                    style_loss_masked(&views(&fs), &masks, &target).unwrap().0 as f64
+                };
+                let r = check_gradient(&feats[l].data, &grads[l], probe, 1e-2, 60, 1e-4);
+                assert!(r.max_rel_err < 2e-2, "layer {l}: {r:?}");
+                // Unmarked cells get no gradient.
+                let p = h * w;
+                for (i, &m) in masks[l].iter().enumerate() {
+                    if !m {
+                        assert!((0..c).all(|ch| grads[l][ch * p + i] == 0.0));
+                    }
+                }
+            }
+            // Channels-last: the same loss and the gradient transposed.
+            let cl: Vec<Vec<f32>> = feats.iter().map(channels_last).collect();
+            let cl_views: Vec<FeatureView<'_>> = feats
+                .iter()
+                .zip(&cl)
+                .map(|(f, d)| FeatureView {
+                    channels: f.channels,
+                    height: f.height,
+                    width: f.width,
+                    layout: Layout::ChannelsLast,
+                    data: d,
+                })
+                .collect();
+            let (a, _) = style_loss_masked(&views(&feats), &masks, &target).unwrap();
+            let (b, gb) = style_loss_masked(&cl_views, &masks, &target).unwrap();
+            assert!((a - b).abs() <= 1e-5 * a.abs(), "{a} vs {b}");
+            for (l, f) in feats.iter().enumerate() {
+                let planar = Image::from_vec(f.channels, f.height, f.width, grads[l].clone());
+                for (x, y) in channels_last(&planar).iter().zip(&gb[l]) {
+                    assert!((x - y).abs() <= 1e-5 * (1.0 + x.abs()));
+                }
+            }
+            let full: Vec<Vec<bool>> = shapes.iter().map(|&(_, h, w)| vec![true; h * w]).collect();
+            let plain = style_loss(&views(&feats), &target).unwrap().0;
+            let all = style_loss_masked(&views(&feats), &full, &target).unwrap().0;
+            assert!((plain - all).abs() <= 1e-6 * plain.abs(), "{plain} vs {all}");
         })
     }
 

@@ -78,14 +78,6 @@ pub enum NnstError {
         /// Grid of the matched targets.
         expected: (usize, usize),
     },
-    /// A match names a style column the style to retarget it to lacks.
-    #[error("nnst: the match names style column {index}, the style has {columns} (not the same painting and size)")]
-    Retarget {
-        /// The style column named.
-        index: u32,
-        /// Columns of the style.
-        columns: u32,
-    },
 }
 
 /// Settings of the hyper-column construction.
@@ -381,22 +373,6 @@ impl NnstTarget {
         NnstMatch { channels: self.channels.clone(), params: self.params, targets, indices }
     }
 
-    /// `matched`'s choice of style columns with this style's columns as the
-    /// targets: which patch each content column takes is decided on one
-    /// version of a painting (its luminance), what it is asked to become is
-    /// another (its colours). Both must have the same layers and grid (the
-    /// same painting at the same size).
-    pub fn retarget(&self, matched: &NnstMatch) -> Result<NnstMatch, NnstError> {
-        if matched.channels != self.channels {
-            return Err(NnstError::LayerCount { got: matched.channels.len(), expected: self.layers() });
-        }
-        let ns = self.columns.plane() as u32;
-        if let Some(&j) = matched.indices.iter().find(|&&j| j >= ns) {
-            return Err(NnstError::Retarget { index: j, columns: ns });
-        }
-        Ok(self.gather(matched.grid(), matched.indices.clone()))
-    }
-
     /// Arg-max of `centred`'s columns against the unit style columns, fp32:
     /// content rows gathered pixel-major, style columns in panels of 64
     /// (`[panel][D][64]`, zero past `N_s`), 6 x 64 scores per kernel call.
@@ -690,32 +666,6 @@ mod tests {
             let r = check_gradient(&f.data, &grads[l].data, probe, 1e-2, 150, 1e-4);
             assert!(r.max_rel_err < 2e-2, "layer {l}: {r:?}");
         }
-    }
-
-    /// Retargeting keeps the choice of columns and takes the other style's
-    /// columns; a style of another size is refused.
-    #[test]
-    fn retarget_keeps_the_indices_and_takes_the_other_columns() {
-        let params = NnstParams { grid_divisor: 2 };
-        let grey = vec![image(3, 10, 12, 10), image(5, 5, 6, 11)];
-        let color = vec![image(3, 10, 12, 40), image(5, 5, 6, 41)];
-        let content = vec![image(3, 12, 8, 20), image(5, 6, 4, 21)];
-        let (tg, tc) = (
-            NnstTarget::from_style_features(&grey, &params).unwrap(),
-            NnstTarget::from_style_features(&color, &params).unwrap(),
-        );
-        let m = tg.match_content(&content).unwrap();
-        let r = tc.retarget(&m).unwrap();
-        assert_eq!(r.indices(), m.indices());
-        let (nc, ns) = (r.targets().plane(), tc.columns().plane());
-        for (i, &j) in r.indices().iter().enumerate() {
-            for k in 0..tc.depth() {
-                assert_eq!(r.targets().data[k * nc + i], tc.columns().data[k * ns + j as usize]);
-            }
-        }
-        let small = vec![image(3, 4, 4, 50), image(5, 2, 2, 51)];
-        let ts = NnstTarget::from_style_features(&small, &params).unwrap();
-        assert!(matches!(ts.retarget(&m), Err(NnstError::Retarget { .. })));
     }
 
     #[test]

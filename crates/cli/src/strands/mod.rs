@@ -125,8 +125,9 @@ pub struct StrandsArgs {
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).
     #[arg(long)]
     weights: Option<PathBuf>,
-    /// Stylize the strands' colour too: per-point colours starting from the
-    /// input's (white without), matched to the painting in colour and written as
+    /// Stylize the strands' colour too: after the shape (the same as without
+    /// --color), a colour stage starting from the input's colours (white without)
+    /// matches the painting's colours from cameras all around the groom; written as
     /// the output's colours (.usda displayColor, .ply red/green/blue).
     #[arg(long)]
     color: bool,

@@ -88,6 +88,7 @@
 //! [`StrandStyle::default`]: nst3d_splat::StrandStyle::default
 //! [`densify`]: fn@crate::densify
 
+mod color_stage;
 mod multiscale;
 mod params;
 mod scene;
@@ -105,6 +106,10 @@ pub use nst3d_loss::nnst::{NnstMatch, NnstTarget};
 pub use nst3d_optim::Adam;
 pub use nst3d_splat::SplatCamera;
 
+pub use color_stage::{
+    color_iterations, color_target, color_view_angles, color_view_loss, stylize_color, ColorStageResult, ColorView,
+    COLOR_ELEVATIONS, COLOR_LAYERS, COLOR_PASSES, COLOR_VIEWS,
+};
 pub use multiscale::{
     hair_columns, held_out_loss, scale_learning_rate, stylize, stylize_with, FrameHooks, HeldOut, IterationClock,
     IterationReport, StylizeResult,
@@ -113,13 +118,8 @@ pub use params::StylizeParams;
 pub use scene::{
     max_length_change, polyline_length, GroomView, StrandScene, CONSTRAINT_PASSES, HARD_TAU_FRACTION, SEGMENT_TOLERANCE,
 };
-pub use step::{
-    iteration, iteration_colored, loss_and_gradient, loss_and_gradient_colored, ColorStep, StageTimes, StepReport,
-};
-pub use views::{
-    match_view, match_view_colored, match_view_on, poisson_view_angles, style_target, style_target_with, ScaleStyle,
-    ViewFrame, ViewTargets,
-};
+pub use step::{iteration, loss_and_gradient, StageTimes, StepReport};
+pub use views::{match_view, match_view_on, poisson_view_angles, style_target, ViewFrame};
 
 use crate::StrandError;
 
@@ -141,6 +141,9 @@ pub enum PipelineError {
     /// The style loss refused its input.
     #[error(transparent)]
     Loss(#[from] NnstError),
+    /// The colour stage's Gram loss refused its input.
+    #[error("colour loss: {0}")]
+    Gram(#[from] nst3d_loss::LossError),
     /// A setting outside its valid range.
     #[error("bad parameter: {0}")]
     Parameter(String),

@@ -6,17 +6,17 @@ use std::collections::HashMap;
 
 use nst3d_core::Image;
 use nst3d_features::{Vgg19, VggLayer};
-use nst3d_loss::nnst::{nnst_loss_matched, nnst_loss_over};
+use nst3d_loss::nnst::{nnst_loss_matched, nnst_loss_over, NnstMatch, NnstTarget};
 use nst3d_optim::Adam;
 use nst3d_splat::SplatCamera;
 
 use crate::strands::FlatStrands;
 use crate::StrandError;
 
-use super::step::{flatten, iteration_colored, unflatten, ColorStep};
-use super::views::{match_view_colored, poisson_view_angles, ScaleStyle, ViewTargets};
+use super::color_stage::{color_iterations, stylize_color};
+use super::step::{flatten, iteration, unflatten};
+use super::views::{match_view_on, poisson_view_angles, style_target};
 use super::{PipelineError, StrandScene, StylizeParams, NNST_LAYERS};
-use crate::color::COLOR_LEARNING_RATE;
 
 /// What one optimization iteration reports.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -31,6 +31,9 @@ pub struct IterationReport {
     pub loss: f32,
     /// Control points the collision pass found inside the mesh.
     pub inside: usize,
+    /// An iteration of the colour stage ([`stylize_color`]; `loss` is its
+    /// colour loss, `scale` the finest) rather than of the shape.
+    pub color: bool,
 }
 
 /// Result of [`stylize`].
@@ -86,21 +89,16 @@ impl HeldOut {
     }
 }
 
-/// The colours of the rest groom and of the result, one per point.
-pub type ColorPair<'a> = (&'a [[f32; 3]], &'a [[f32; 3]]);
-
 /// Seed offset of the held-out views (see [`HeldOut`]).
 const HELD_OUT_SEED: u64 = 0x4E1D_0075;
 
 /// [`HeldOut`] of `strands` (layout of [`StrandScene::rest`]) from
-/// `params.held_out_views` views against the style `finest`; with colour,
-/// the rest groom drawn in `colors.0` and the result in `colors.1`.
+/// `params.held_out_views` views against the style `finest`.
 pub fn held_out_loss(
     scene: &StrandScene,
     vgg: &Vgg19,
-    finest: &ScaleStyle,
+    finest: &NnstTarget,
     strands: &FlatStrands,
-    colors: Option<ColorPair<'_>>,
     params: &StylizeParams,
 ) -> Result<HeldOut, PipelineError> {
     let p = params.preset;
@@ -114,17 +112,13 @@ pub fn held_out_loss(
     let (mut before, mut after, mut rematched) = (0.0f64, 0.0f64, 0.0f64);
     for &(psi, delta) in &angles {
         let cam = scene.camera(psi, delta)?;
-        let (img0, img1) = (
-            scene.render_colored(&scene.undeformed, colors.map(|c| c.0), &cam)?,
-            scene.render_colored(strands, colors.map(|c| c.1), &cam)?,
-        );
+        let (img0, img1) = (scene.render(&scene.undeformed, &cam)?, scene.render(strands, &cam)?);
         let (f0, f1) = (vgg.forward(&img0, &NNST_LAYERS, false), vgg.forward(&img1, &NNST_LAYERS, false));
-        let targets = finest.match_render(vgg, &img0, f0.taps())?;
-        let matched = targets.scored();
+        let matched = finest.match_content(f0.taps())?;
         let mask = hair_columns(&[&img0, &img1], scene.style.background, matched.grid());
-        before += nnst_loss_over(f0.taps(), matched, &mask)? as f64;
-        after += nnst_loss_over(f1.taps(), matched, &mask)? as f64;
-        rematched += nnst_loss_over(f1.taps(), finest.match_render(vgg, &img1, f1.taps())?.scored(), &mask)? as f64;
+        before += nnst_loss_over(f0.taps(), &matched, &mask)? as f64;
+        after += nnst_loss_over(f1.taps(), &matched, &mask)? as f64;
+        rematched += nnst_loss_over(f1.taps(), &finest.match_content(f1.taps())?, &mask)? as f64;
     }
     let k = angles.len().max(1) as f64;
     Ok(HeldOut {
@@ -236,11 +230,6 @@ pub fn stylize_with(
     };
     let (mut done, total) = (0u32, params.iterations.iter().sum::<u32>());
     let mut adam = Adam::adamw(3 * n, 0.0, params.weight_decay);
-    // Colour (issue 29): offsets from the input's colours, their own Adam.
-    let mut raw_color: Option<Vec<f32>> = params.color.then(|| flatten(&scene.color_layer.start()));
-    let mut color_adam = Adam::new(raw_color.as_ref().map_or(0, Vec::len), COLOR_LEARNING_RATE);
-    let colors_of = |raw: &Option<Vec<f32>>| raw.as_ref().map(|r| scene.color_layer.forward(&unflatten(r)));
-    let initial_colors = colors_of(&raw_color);
     let mut history = Vec::new();
 
     // Camera angles for all scales from one Poisson sequence, so the
@@ -256,27 +245,21 @@ pub fn stylize_with(
     for (l, &iters) in params.iterations.iter().enumerate() {
         let views = &angles[first..first + per_scale[l]];
         first += per_scale[l];
-        let sstyle = ScaleStyle::new(vgg, style, params.style_height(l), params.color)?;
+        // The shape follows the painting's luminance, with or without
+        // colour (the colour has a stage of its own, after the shape).
+        let sstyle = style_target(vgg, style, params.style_height(l))?;
         // Where this scale's targets are matched: the rest groom (eq. 2), or
-        // with `rematch` the groom as the coarser scales left it (in the
-        // colours they left it).
-        let base = if params.rematch && l > 0 && iters > 0 {
-            Some((scene.deform(&unflatten(&v))?.0, colors_of(&raw_color)))
-        } else {
-            None
-        };
+        // with `rematch` the groom as the coarser scales left it.
+        let base = if params.rematch && l > 0 && iters > 0 { Some(scene.deform(&unflatten(&v))?.0) } else { None };
         if iters > 0 {
             adam.lr = scale_learning_rate(scene, params, l);
-            let mut cache: HashMap<usize, (SplatCamera, ViewTargets)> = HashMap::new();
+            let mut cache: HashMap<usize, (SplatCamera, NnstMatch)> = HashMap::new();
             for m in 0..iters {
                 let k = m as usize % views.len();
                 if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(k) {
                     let cam = scene.camera(views[k].0, views[k].1)?;
-                    let (strands, colors) = match &base {
-                        Some((s, c)) => (s, c.as_deref()),
-                        None => (&scene.undeformed, initial_colors.as_deref()),
-                    };
-                    let (matched, _) = match_view_colored(scene, strands, colors, vgg, &sstyle, &cam)?;
+                    let strands = base.as_ref().unwrap_or(&scene.undeformed);
+                    let (matched, _) = match_view_on(scene, strands, vgg, &sstyle, &cam)?;
                     e.insert((cam, matched));
                 }
                 let (cam, matched) = &cache[&k];
@@ -286,18 +269,12 @@ pub fn stylize_with(
                     v = flatten(&vv);
                 }
                 done += 1;
-                let color = match (raw_color.as_mut(), &matched.color) {
-                    (Some(raw), Some(targets)) => Some(ColorStep { raw, adam: &mut color_adam, targets }),
-                    _ => None,
-                };
-                let step = iteration_colored(scene, vgg, cam, &matched.grey, &mut v, &mut adam, color).map_err(
-                    |e| match e {
-                        PipelineError::Diverged(why) => {
-                            PipelineError::Diverged(format!("{why} at scale {} iteration {}", l + 1, m + 1))
-                        }
-                        e => e,
-                    },
-                )?;
+                let step = iteration(scene, vgg, cam, matched, &mut v, &mut adam).map_err(|e| match e {
+                    PipelineError::Diverged(why) => {
+                        PipelineError::Diverged(format!("{why} at scale {} iteration {}", l + 1, m + 1))
+                    }
+                    e => e,
+                })?;
                 history.push(step.loss);
                 progress(&IterationReport {
                     scale: l,
@@ -305,6 +282,7 @@ pub fn stylize_with(
                     iterations: iters,
                     loss: step.loss,
                     inside: step.stats.inside,
+                    color: false,
                 });
                 nst3d_core::stop::check()?;
             }
@@ -324,24 +302,32 @@ pub fn stylize_with(
     } else {
         poisson_view_angles(&scene.frame, p.polar_deg, p.azimuth_deg, params.eval_views, params.seed ^ 0xE7A1)
     };
-    let colors = colors_of(&raw_color);
     let (mut before, mut after, mut rematched) = (0.0f64, 0.0f64, 0.0f64);
     for &(psi, delta) in &eval_angles {
         let cam = scene.camera(psi, delta)?;
-        let (matched, l0) =
-            match_view_colored(scene, &scene.undeformed, initial_colors.as_deref(), vgg, &finest, &cam)?;
-        let img = scene.render_colored(&strands, colors.as_deref(), &cam)?;
+        let (matched, l0) = match_view_on(scene, &scene.undeformed, vgg, &finest, &cam)?;
+        let img = scene.render(&strands, &cam)?;
         let feats = vgg.forward(&img, &NNST_LAYERS, false);
         before += l0 as f64;
-        after += nnst_loss_matched(feats.taps(), matched.scored())?.0 as f64;
-        rematched += nnst_loss_matched(feats.taps(), finest.match_render(vgg, &img, feats.taps())?.scored())?.0 as f64;
+        after += nnst_loss_matched(feats.taps(), &matched)?.0 as f64;
+        rematched += nnst_loss_matched(feats.taps(), &finest.match_content(feats.taps())?)?.0 as f64;
     }
     let k = eval_angles.len() as f64;
     let held_out = if params.held_out_views > 0 {
-        let pair = initial_colors.as_deref().zip(colors.as_deref());
-        held_out_loss(scene, vgg, &finest, &strands, pair, params)?
+        held_out_loss(scene, vgg, &finest, &strands, params)?
     } else {
         HeldOut::default()
+    };
+    // Colour (issue 29): a stage of its own on the finished strands.
+    let colors = if params.color {
+        let iterations = color_iterations();
+        let stage = stylize_color(scene, style, vgg, &strands, params, &mut |i, loss| {
+            progress(&IterationReport { scale: 2, iteration: i, iterations, loss, inside: 0, color: true });
+            Ok(nst3d_core::stop::check()?)
+        })?;
+        Some(stage.colors)
+    } else {
+        None
     };
     let g = scene.guide_count;
     let split = strands.offsets[g];

@@ -140,77 +140,13 @@ pub fn poisson_view_angles(
 }
 
 /// Style targets of one scale: `style` (RGB in `[0, 1]`) as grey, resized
-/// to `height` rows, as NNST hyper-columns of its VGG taps.
+/// to `height` rows, as NNST hyper-columns of its VGG taps. The shape
+/// follows the painting's luminance, with or without `--color` (the colour
+/// has a stage of its own, [`stylize_color`](super::stylize_color)).
 pub fn style_target(vgg: &Vgg19, style: &Image, height: usize) -> Result<NnstTarget, PipelineError> {
-    style_target_with(vgg, style, height, false)
-}
-
-/// [`style_target`], in the painting's colours when `color`, else its
-/// luminance.
-pub fn style_target_with(vgg: &Vgg19, style: &Image, height: usize, color: bool) -> Result<NnstTarget, PipelineError> {
-    let src = if color { style.clone() } else { style.luminance3() };
-    let img = nst3d_io::image::resize_to_height(&src, height);
+    let img = nst3d_io::image::resize_to_height(&style.luminance3(), height);
     let feats = vgg.forward(&img, &NNST_LAYERS, false);
     Ok(NnstTarget::from_style_features(feats.taps(), &NnstParams::default())?)
-}
-
-/// The style side of one scale: the painting's luminance as NNST
-/// hyper-columns, and for a stylization with colour (issue 29) its colours
-/// too.
-///
-/// With colour, which painting patch a render's hyper-column takes is
-/// still decided in grey (the render's luminance against the painting's),
-/// and the target is that patch *in colour* ([`NnstTarget::retarget`]).
-/// Matched in colour, a tan groom takes the painting's tan patches and its
-/// colours hardly move (measured on monkey_curly with Woman with a Hat:
-/// colour judge 0.963 of the grey result's); matched in grey, the hair is
-/// asked for the colours of the patches whose strokes it matches.
-#[derive(Clone, Debug)]
-pub struct ScaleStyle {
-    /// The painting's luminance.
-    pub grey: NnstTarget,
-    /// The painting in colour, with colour.
-    pub color: Option<NnstTarget>,
-}
-
-impl ScaleStyle {
-    /// The painting `style` (RGB in `[0, 1]`) at `height` rows.
-    pub fn new(vgg: &Vgg19, style: &Image, height: usize, color: bool) -> Result<Self, PipelineError> {
-        Ok(Self {
-            grey: style_target_with(vgg, style, height, false)?,
-            color: if color { Some(style_target_with(vgg, style, height, true)?) } else { None },
-        })
-    }
-
-    /// The targets for a render `img` whose VGG taps are `feats` (eq. 2).
-    pub fn match_render(&self, vgg: &Vgg19, img: &Image, feats: &[Image]) -> Result<ViewTargets, PipelineError> {
-        Ok(match &self.color {
-            None => ViewTargets { grey: self.grey.match_content(feats)?, color: None },
-            Some(color) => {
-                let grey = vgg.forward(&img.luminance3(), &NNST_LAYERS, false);
-                let grey = self.grey.match_content(grey.taps())?;
-                ViewTargets { color: Some(color.retarget(&grey)?), grey }
-            }
-        })
-    }
-}
-
-/// One view's targets: in grey (what the strands' shape is pulled to) and,
-/// with colour, the same patches in colour (what the colour is pulled to).
-#[derive(Clone, Debug)]
-pub struct ViewTargets {
-    /// Matched on the render's luminance against the painting's.
-    pub grey: NnstMatch,
-    /// With colour: `grey`'s patches in the painting's colours.
-    pub color: Option<NnstMatch>,
-}
-
-impl ViewTargets {
-    /// The targets a render is scored against: in colour when there are
-    /// colour targets (the render is then in colour too), else grey.
-    pub fn scored(&self) -> &NnstMatch {
-        self.color.as_ref().unwrap_or(&self.grey)
-    }
 }
 
 /// Targets of one view (eq. 2): VGG taps of the undeformed render matched
@@ -238,24 +174,6 @@ pub fn match_view_on(
     let feats = vgg.forward(&img, &NNST_LAYERS, false);
     let m = style.match_content(feats.taps())?;
     let (loss, _) = nnst_loss_matched(feats.taps(), &m)?;
-    Ok((m, loss))
-}
-
-/// [`match_view_on`] on the render of `strands` in `colors` (one per point,
-/// [`StrandColorLayer::forward`](crate::StrandColorLayer::forward)'s
-/// layout), against a [`ScaleStyle`].
-pub fn match_view_colored(
-    scene: &StrandScene,
-    strands: &FlatStrands,
-    colors: Option<&[[f32; 3]]>,
-    vgg: &Vgg19,
-    style: &ScaleStyle,
-    cam: &SplatCamera,
-) -> Result<(ViewTargets, f32), PipelineError> {
-    let img = scene.render_colored(strands, colors, cam)?;
-    let feats = vgg.forward(&img, &NNST_LAYERS, false);
-    let m = style.match_render(vgg, &img, feats.taps())?;
-    let (loss, _) = nnst_loss_matched(feats.taps(), m.scored())?;
     Ok((m, loss))
 }
 

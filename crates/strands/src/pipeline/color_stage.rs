@@ -1,0 +1,226 @@
+//! Colour from every side (issue 29): the groom's colour stylized in a
+//! stage of its own, after the shape, as the volume pipeline's colour
+//! stage does for smoke (`nst3d_stylize::color_stage`).
+//!
+//! Why a stage of its own. Stepped beside the velocities, the colour had
+//! the shape's views (a few cached cameras per scale around the front) and
+//! NNST targets matched on grey renders; from held-out views all around the
+//! monkey its hair-only colour loss fell only 10–20 % (docs/STRANDS.md).
+//! Here the strands are fixed (the shape run exactly as without colour, so
+//! the grey result is the same), and only the colour offsets `δ` of the
+//! [`StrandColorLayer`](crate::StrandColorLayer) move:
+//! - from [`COLOR_VIEWS`] cameras evenly around the up axis, at alternating
+//!   elevations ([`COLOR_ELEVATIONS`]), one view per iteration in turn;
+//! - against the painting's RGB Gram matrices (relu1_1 … relu4_1, equal
+//!   weights, [`COLOR_LAYERS`]) over the hair only
+//!   ([`nst3d_loss::style_loss_masked`]): the black background, the same in
+//!   every picture and out of the colour's reach, neither counts nor
+//!   dilutes the hair's statistics. Gram statistics say which colours and
+//!   textures, not where, which is what a colour seen from every side can
+//!   agree on; NNST's per-view targets pulled each view's strands towards
+//!   another hue;
+//! - the painting at the render's height times [`StylizeParams::style_scale`]
+//!   (a palette taken from the whole canvas, as the canvas fills its frame).
+//!
+//! The chain: offsets → layer (chroma only, clamped) → splat render in
+//! colour → VGG-19 → masked Gram loss, and back; each link has its own
+//! finite-difference check, and `tests/chain_gradient.rs` checks the whole
+//! of [`color_view_loss`].
+
+use nst3d_core::{FeatureView, Image};
+use nst3d_features::{Vgg19, VggLayer};
+use nst3d_io::image::resize_to_height;
+use nst3d_loss::{cell_mask, style_loss_masked, StyleTarget};
+use nst3d_optim::Adam;
+use nst3d_splat::{render, render_backward_all, SplatCamera, Strands};
+
+use super::step::{flatten, unflatten};
+use super::{PipelineError, StrandScene, StylizeParams};
+use crate::color::COLOR_LEARNING_RATE;
+use crate::strands::FlatStrands;
+
+/// Cameras of the colour stage, evenly spaced in azimuth around the up axis.
+pub const COLOR_VIEWS: usize = 16;
+
+/// Elevations (polar angles, degrees) the colour cameras alternate between:
+/// level with the groom and from above, where a head of hair is seen.
+pub const COLOR_ELEVATIONS: [f32; 2] = [0.0, 30.0];
+
+/// VGG-19 taps of the colour loss (Gatys et al.'s, as the volume's).
+pub const COLOR_LAYERS: [VggLayer; 4] = [VggLayer::Relu1_1, VggLayer::Relu2_1, VggLayer::Relu3_1, VggLayer::Relu4_1];
+
+/// Passes over the [`COLOR_VIEWS`] cameras the stage makes by default.
+pub const COLOR_PASSES: u32 = 4;
+
+/// A render pixel counts as hair when a channel is off the background by
+/// more than this (as the held-out loss and the judge count).
+const HAIR_THRESHOLD: f32 = 0.02;
+
+/// Azimuth and elevation (degrees) of colour camera `k`; the azimuths are
+/// offset half a step from the front so no camera sits on the turntable
+/// views `nst3d preview --turntable` judges from.
+pub fn color_view_angles() -> Vec<(f32, f32)> {
+    (0..COLOR_VIEWS)
+        .map(|k| {
+            let azimuth = 360.0 * (k as f32 + 0.5) / COLOR_VIEWS as f32;
+            (COLOR_ELEVATIONS[k % COLOR_ELEVATIONS.len()], azimuth)
+        })
+        .collect()
+}
+
+/// One colour camera and which cells of each tap hold hair (the strands
+/// are fixed, so the mask is too).
+pub struct ColorView {
+    /// The camera.
+    pub camera: SplatCamera,
+    /// Per [`COLOR_LAYERS`] tap, row-major over its map: cells with hair.
+    pub masks: Vec<Vec<bool>>,
+}
+
+impl ColorView {
+    /// The view of `strands` through `camera`; `None` when no hair is in
+    /// sight (nothing to colour from there).
+    pub fn new(
+        scene: &StrandScene,
+        vgg: &Vgg19,
+        strands: &FlatStrands,
+        camera: SplatCamera,
+    ) -> Result<Option<Self>, PipelineError> {
+        let white = render(&written(scene, strands, None), &camera, &scene.style)?.0;
+        let (bg, plane) = (scene.style.background, white.plane());
+        let pixels: Vec<bool> = (0..plane)
+            .map(|i| (0..white.channels.min(3)).any(|c| (white.data[c * plane + i] - bg[c]).abs() > HAIR_THRESHOLD))
+            .collect();
+        if !pixels.iter().any(|&p| p) {
+            return Ok(None);
+        }
+        // The taps' map sizes, from a forward of the render itself.
+        let fwd = vgg.forward(&white, &COLOR_LAYERS, false);
+        let masks: Vec<Vec<bool>> =
+            fwd.taps().iter().map(|t| cell_mask(&pixels, white.height, white.width, t.height, t.width)).collect();
+        if masks.iter().any(|m| !m.iter().any(|&v| v)) {
+            return Ok(None);
+        }
+        Ok(Some(Self { camera, masks }))
+    }
+}
+
+/// What the colour stage draws of `strands` (layout of
+/// [`StrandScene::rest`]), in `colors` (one per point of `strands`): the
+/// guides only, the strands the written file holds. The proxies are the
+/// optimisation's densification and are not written; drawn, they made the
+/// hair denser than any picture of the file, and the colour fitted to the
+/// dense hair scored worse on pictures of the file (monkey_curly, Woman
+/// with a Hat: hair-only judge 0.921 of the grey result's with proxies,
+/// 0.818 without; docs/STRANDS.md).
+fn written<'a>(scene: &'a StrandScene, strands: &'a FlatStrands, colors: Option<&'a [[f32; 3]]>) -> Strands<'a> {
+    let g = scene.guide_count;
+    let points = strands.offsets[g];
+    Strands {
+        points: &strands.points[..points],
+        offsets: &strands.offsets[..=g],
+        colors: colors.map(|c| &c[..points]),
+        root_normals: scene.root_normals.as_deref().map(|n| &n[..g]),
+    }
+}
+
+/// The painting's RGB Gram matrices for the colour loss at `height` rows.
+pub fn color_target(vgg: &Vgg19, style: &Image, height: usize) -> Result<StyleTarget, PipelineError> {
+    let painting = resize_to_height(style, height.max(16));
+    let fwd = vgg.forward(&painting, &COLOR_LAYERS, false);
+    Ok(StyleTarget::from_features(&fwd.features(), &[1.0; COLOR_LAYERS.len()])?)
+}
+
+/// The colour loss of `strands` drawn in the colours offsets `delta` make,
+/// seen from `view`, and its gradient w.r.t. `delta`.
+pub fn color_view_loss(
+    scene: &StrandScene,
+    vgg: &Vgg19,
+    target: &StyleTarget,
+    strands: &FlatStrands,
+    view: &ColorView,
+    delta: &[[f32; 3]],
+) -> Result<(f32, Vec<[f32; 3]>), PipelineError> {
+    let colors = scene.color_layer.forward(delta);
+    let s = written(scene, strands, Some(&colors));
+    let (img, cache) = render(&s, &view.camera, &scene.style)?;
+    let fwd = vgg.forward(&img, &COLOR_LAYERS, true);
+    let taps: Vec<FeatureView<'_>> = fwd.taps().iter().map(FeatureView::from).collect();
+    let (loss, grads) = style_loss_masked(&taps, &view.masks, target)?;
+    if !loss.is_finite() {
+        return Err(PipelineError::Diverged(format!("colour loss is {loss}")));
+    }
+    let grads: Vec<FeatureView<'_>> = taps.iter().zip(&grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
+    let grad_img = vgg.backward(&fwd, &grads);
+    // The proxies are not drawn: their colours get no gradient.
+    let mut grad_colors = render_backward_all(&s, &view.camera, &scene.style, &cache, &grad_img)?.colors;
+    grad_colors.resize(colors.len(), [0.0; 3]);
+    Ok((loss, scene.color_layer.backward(delta, &grad_colors)))
+}
+
+/// What [`stylize_color`] reached.
+#[derive(Clone, Debug)]
+pub struct ColorStageResult {
+    /// The colour offsets at the layer's sites.
+    pub delta: Vec<[f32; 3]>,
+    /// The colour of every point of the strands (guides, then proxies).
+    pub colors: Vec<[f32; 3]>,
+    /// Mean colour loss over the views in the first pass over them.
+    pub loss_first_pass: f32,
+    /// The same in the last pass.
+    pub loss_last_pass: f32,
+}
+
+/// Iterations of the colour stage: [`COLOR_PASSES`] passes over the views.
+pub fn color_iterations() -> u32 {
+    COLOR_PASSES * COLOR_VIEWS as u32
+}
+
+/// Stylizes the colour of the fixed `strands` (layout of
+/// [`StrandScene::rest`]) with `style` from the colour cameras, starting
+/// from the input's colours; `progress(i, loss)` after each of the
+/// [`color_iterations`].
+pub fn stylize_color(
+    scene: &StrandScene,
+    style: &Image,
+    vgg: &Vgg19,
+    strands: &FlatStrands,
+    params: &StylizeParams,
+    progress: &mut dyn FnMut(u32, f32) -> Result<(), PipelineError>,
+) -> Result<ColorStageResult, PipelineError> {
+    let height = (params.style_scale * params.render_size as f32).round() as usize;
+    let target = color_target(vgg, style, height)?;
+    let mut views = Vec::with_capacity(COLOR_VIEWS);
+    for (elevation, azimuth) in color_view_angles() {
+        if let Some(v) = ColorView::new(scene, vgg, strands, scene.camera(elevation, azimuth)?)? {
+            views.push(v);
+        }
+    }
+    let mut raw = flatten(&scene.color_layer.start());
+    if views.is_empty() {
+        // No hair in sight from anywhere: the input's colours stand.
+        let colors = scene.color_layer.forward(&unflatten(&raw));
+        return Ok(ColorStageResult { delta: unflatten(&raw), colors, loss_first_pass: 0.0, loss_last_pass: 0.0 });
+    }
+    let mut adam = Adam::new(raw.len(), COLOR_LEARNING_RATE);
+    let iterations = color_iterations();
+    let n = views.len() as u32;
+    let (mut first, mut last, mut pass) = (0.0f64, 0.0f64, 0.0f64);
+    for i in 0..iterations {
+        let view = &views[(i % n) as usize];
+        let (loss, grad) = color_view_loss(scene, vgg, &target, strands, view, &unflatten(&raw))?;
+        adam.step(&mut raw, &flatten(&grad));
+        pass += loss as f64;
+        if (i + 1) % n == 0 {
+            if i + 1 == n {
+                first = pass / n as f64;
+            }
+            last = pass / n as f64;
+            pass = 0.0;
+        }
+        progress(i + 1, loss)?;
+    }
+    let delta = unflatten(&raw);
+    let colors = scene.color_layer.forward(&delta);
+    Ok(ColorStageResult { delta, colors, loss_first_pass: first as f32, loss_last_pass: last as f32 })
+}
