@@ -13,7 +13,7 @@ use anyhow::Result;
 use nst3d_core::{FeatureView, Image};
 use nst3d_features::{Vgg19, VggLayer};
 use nst3d_io::image::{luminance_rgb, resize_to_height};
-use nst3d_loss::{style_loss, StyleTarget};
+use nst3d_loss::{cell_mask, style_loss, style_loss_masked, StyleTarget};
 
 /// Gram matrices of a painting, for scoring pictures of one height.
 pub struct GramJudge {
@@ -70,32 +70,13 @@ impl GramJudge {
         let plane = rgb.plane();
         let hair: Vec<bool> = (0..plane).map(|i| (0..3).any(|c| rgb.data[c * plane + i].abs() > 0.02)).collect();
         let fwd = self.vgg.forward(&rgb, &LAYERS, false);
-        let mut taps: Vec<Image> = fwd.taps().to_vec();
-        for t in &mut taps {
-            let mut mask = vec![false; t.plane()];
-            for y in 0..rgb.height {
-                let r = (y * t.height / rgb.height).min(t.height - 1);
-                for x in 0..rgb.width {
-                    if hair[y * rgb.width + x] {
-                        mask[r * t.width + (x * t.width / rgb.width).min(t.width - 1)] = true;
-                    }
-                }
-            }
-            let count = mask.iter().filter(|&&m| m).count();
-            if count == 0 {
-                return Ok(None);
-            }
-            // Gram = F Fᵀ / P: scaled so the sum over hair cells is divided by their count.
-            let scale = (t.plane() as f32 / count as f32).sqrt();
-            let tp = t.plane();
-            for ch in t.data.chunks_mut(tp) {
-                for (v, &m) in ch.iter_mut().zip(&mask) {
-                    *v = if m { *v * scale } else { 0.0 };
-                }
-            }
+        let masks: Vec<Vec<bool>> =
+            fwd.taps().iter().map(|t| cell_mask(&hair, rgb.height, rgb.width, t.height, t.width)).collect();
+        if masks.iter().any(|m| !m.contains(&true)) {
+            return Ok(None);
         }
-        let views: Vec<FeatureView<'_>> = taps.iter().map(FeatureView::from).collect();
-        Ok(Some(style_loss(&views, &self.target)?.0))
+        let views: Vec<FeatureView<'_>> = fwd.taps().iter().map(FeatureView::from).collect();
+        Ok(Some(style_loss_masked(&views, &masks, &self.target)?.0))
     }
 }
 
