@@ -20,7 +20,10 @@
 //!   agree on; NNST's per-view targets pulled each view's strands towards
 //!   another hue;
 //! - the painting at the render's height times [`StylizeParams::style_scale`]
-//!   (a palette taken from the whole canvas, as the canvas fills its frame).
+//!   (a palette taken from the whole canvas, as the canvas fills its frame);
+//! - drawing the guides only, the strands the written file holds (see
+//!   `written` below for what drawing the proxies cost);
+//! - with Adam at [`COLOR_LEARNING_RATE`] for [`COLOR_PASSES`] passes.
 //!
 //! The chain: offsets → layer (chroma only, clamped) → splat render in
 //! colour → VGG-19 → masked Gram loss, and back; each link has its own
@@ -56,7 +59,7 @@ pub const COLOR_PASSES: u32 = 4;
 /// more than this (as the held-out loss and the judge count).
 const HAIR_THRESHOLD: f32 = 0.02;
 
-/// Azimuth and elevation (degrees) of colour camera `k`; the azimuths are
+/// `(elevation, azimuth)` in degrees of each colour camera; the azimuths are
 /// offset half a step from the front so no camera sits on the turntable
 /// views `nst3d preview --turntable` judges from.
 pub fn color_view_angles() -> Vec<(f32, f32)> {
