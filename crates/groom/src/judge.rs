@@ -67,8 +67,7 @@ impl GramJudge {
         } else {
             picture.clone()
         };
-        let plane = rgb.plane();
-        let hair: Vec<bool> = (0..plane).map(|i| (0..3).any(|c| rgb.data[c * plane + i].abs() > 0.02)).collect();
+        let hair = nst3d_strands::pipeline::hair_pixels(&rgb, [0.0; 3]);
         let fwd = self.vgg.forward(&rgb, &LAYERS, false);
         let masks: Vec<Vec<bool>> =
             fwd.taps().iter().map(|t| cell_mask(&hair, rgb.height, rgb.width, t.height, t.width)).collect();

@@ -37,6 +37,7 @@ use nst3d_loss::{cell_mask, style_loss_masked, StyleTarget};
 use nst3d_optim::Adam;
 use nst3d_splat::{render, render_backward_all, SplatCamera, Strands};
 
+use super::multiscale::hair_pixels;
 use super::step::{flatten, unflatten};
 use super::{PipelineError, StrandScene, StylizeParams};
 use crate::color::COLOR_LEARNING_RATE;
@@ -54,10 +55,6 @@ pub const COLOR_LAYERS: [VggLayer; 4] = [VggLayer::Relu1_1, VggLayer::Relu2_1, V
 
 /// Passes over the [`COLOR_VIEWS`] cameras the stage makes by default.
 pub const COLOR_PASSES: u32 = 4;
-
-/// A render pixel counts as hair when a channel is off the background by
-/// more than this (as the held-out loss and the judge count).
-const HAIR_THRESHOLD: f32 = 0.02;
 
 /// `(elevation, azimuth)` in degrees of each colour camera; the azimuths are
 /// offset half a step from the front so no camera sits on the turntable
@@ -90,10 +87,7 @@ impl ColorView {
         camera: SplatCamera,
     ) -> Result<Option<Self>, PipelineError> {
         let white = render(&written(scene, strands, None), &camera, &scene.style)?.0;
-        let (bg, plane) = (scene.style.background, white.plane());
-        let pixels: Vec<bool> = (0..plane)
-            .map(|i| (0..white.channels.min(3)).any(|c| (white.data[c * plane + i] - bg[c]).abs() > HAIR_THRESHOLD))
-            .collect();
+        let pixels = hair_pixels(&white, scene.style.background);
         if !pixels.iter().any(|&p| p) {
             return Ok(None);
         }

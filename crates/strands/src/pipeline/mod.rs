@@ -111,8 +111,8 @@ pub use color_stage::{
     COLOR_ELEVATIONS, COLOR_LAYERS, COLOR_PASSES, COLOR_VIEWS,
 };
 pub use multiscale::{
-    hair_columns, held_out_loss, scale_learning_rate, stylize, stylize_with, FrameHooks, HeldOut, IterationClock,
-    IterationReport, StylizeResult,
+    hair_columns, hair_pixels, held_out_loss, scale_learning_rate, stylize, stylize_with, FrameHooks, HeldOut,
+    IterationClock, IterationReport, StylizeResult,
 };
 pub use params::StylizeParams;
 pub use scene::{

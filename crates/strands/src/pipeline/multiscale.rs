@@ -6,6 +6,7 @@ use std::collections::HashMap;
 
 use nst3d_core::Image;
 use nst3d_features::{Vgg19, VggLayer};
+use nst3d_loss::cell_mask;
 use nst3d_loss::nnst::{nnst_loss_matched, nnst_loss_over, NnstMatch, NnstTarget};
 use nst3d_optim::Adam;
 use nst3d_splat::SplatCamera;
@@ -134,18 +135,20 @@ pub fn held_out_loss(
 pub fn hair_columns(renders: &[&Image], background: [f32; 3], grid: (usize, usize)) -> Vec<bool> {
     let mut mask = vec![false; grid.0 * grid.1];
     for img in renders {
-        let plane = img.plane();
-        for y in 0..img.height {
-            let r = (y * grid.0 / img.height).min(grid.0 - 1);
-            for x in 0..img.width {
-                let i = y * img.width + x;
-                if (0..img.channels.min(3)).any(|c| (img.data[c * plane + i] - background[c]).abs() > 0.02) {
-                    mask[r * grid.1 + (x * grid.1 / img.width).min(grid.1 - 1)] = true;
-                }
-            }
-        }
+        let cells = cell_mask(&hair_pixels(img, background), img.height, img.width, grid.0, grid.1);
+        mask.iter_mut().zip(cells).for_each(|(m, c)| *m |= c);
     }
     mask
+}
+
+/// Pixels of `img` (row-major) that hold hair: a channel off `background`
+/// by more than 0.02 (the held-out loss, the colour stage and the judge
+/// all count hair so).
+pub fn hair_pixels(img: &Image, background: [f32; 3]) -> Vec<bool> {
+    let plane = img.plane();
+    (0..plane)
+        .map(|i| (0..img.channels.min(3)).any(|c| (img.data[c * plane + i] - background[c]).abs() > 0.02))
+        .collect()
 }
 
 impl StylizeResult {
