@@ -47,6 +47,26 @@ impl Image {
         let grey: Vec<f32> = (0..p).map(|i| (0..3).map(|c| LUMA[c] * self.data[c * p + i]).sum()).collect();
         Image::from_vec(3, self.height, self.width, [grey.as_slice(); 3].concat())
     }
+
+    /// Backward of [`Image::luminance3`]: given the gradient w.r.t. the grey
+    /// image `grad` (three channels), the gradient w.r.t. the RGB image.
+    /// Every grey channel is `Σ_c LUMA[c] · rgb[c]`, so each RGB channel
+    /// gets its luma weight times the sum of the three grey gradients.
+    ///
+    /// # Panics
+    /// If `grad` does not have three channels.
+    pub fn luminance3_backward(grad: &Image) -> Image {
+        assert_eq!(grad.channels, 3, "gradient of a three-channel grey image");
+        let p = grad.plane();
+        let mut out = Image::zeros(3, grad.height, grad.width);
+        for i in 0..p {
+            let g: f32 = (0..3).map(|c| grad.data[c * p + i]).sum();
+            for (c, w) in LUMA.iter().enumerate() {
+                out.data[c * p + i] = w * g;
+            }
+        }
+        out
+    }
 }
 
 /// Rec. 601 luma weights of R, G and B (PIL's `convert("L")`): the one
@@ -101,5 +121,23 @@ impl FeatureView<'_> {
 impl<'a> From<&'a Image> for FeatureView<'a> {
     fn from(img: &'a Image) -> Self {
         Self { channels: img.channels, height: img.height, width: img.width, layout: Layout::Planar, data: &img.data }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gradcheck::{check_gradient, dot, pseudo_random};
+
+    /// [`Image::luminance3_backward`] against central differences of
+    /// [`Image::luminance3`].
+    #[test]
+    fn luminance3_backward_matches_finite_differences() {
+        let x = pseudo_random(3 * 4 * 5, 1);
+        let w = pseudo_random(3 * 4 * 5, 2);
+        let g = Image::luminance3_backward(&Image::from_vec(3, 4, 5, w.clone()));
+        let loss = |v: &[f32]| dot(&w, &Image::from_vec(3, 4, 5, v.to_vec()).luminance3().data);
+        let r = check_gradient(&x, &g.data, loss, 1e-2, x.len(), 1e-4);
+        assert!(r.max_rel_err < 1e-3, "{r:?}");
     }
 }

@@ -7,18 +7,19 @@
 //! `s_j` on the rest guides, and every rendered point `p_i` (guides and
 //! proxies) is drawn in
 //!
-//! `c_i = clamp(c⁰_i + P Σ_j w_ij δ_j, 0, 1)`,
+//! `c_i = clamp(c⁰_i + Σ_j w_ij δ_j, 0, 1)`,
 //!
 //! with `w` the same partition-of-unity RBF weights as the velocity field
 //! ([`RbfWeights`], cubic kernel, [`COLOR_NEIGHBORS`] nearest sites) and
 //! `c⁰` the input's own colours (white where it has none; a proxy takes the
 //! blend of its guides' with the weights its shape was blended with,
-//! [`ProxyBlend`]). `P` removes an offset's luminance (Rec. 601, [`LUMA`]):
-//! the colour changes hue and saturation, never brightness (until the
-//! clamp), so the grey look stays the shape's, as the volume's colour
-//! layer keeps the density's brightness. Free in luminance, the colour
-//! brightened the monkey's hair, and the grey judge of the pictures'
-//! luminance came out 1–5 % worse than the grey run's. So
+//! [`ProxyBlend`]). The offsets change brightness as well as hue: the
+//! version before this one removed each offset's luminance, so a tan groom
+//! stayed as bright as it was and, within `[0, 1]`, could not take a
+//! painting's dark, saturated colours (monkey_curly, Woman with a Hat:
+//! hair-only colour judge 0.818 of the grey result's with the luminance
+//! held, 0.565 free). What keeps the grey look is the colour stage's grey
+//! guard ([`GREY_GUARD`](crate::pipeline::GREY_GUARD)), not the layer. So
 //! - the result starts exactly at the artist's colours (`δ = 0`);
 //! - colour changes in patches about a site spacing across, shared by
 //!   neighbouring strands, as a painting's colour comes in patches. The two
@@ -33,7 +34,6 @@
 //! side, checked against finite differences below.
 
 use nst3d_core::groom::Groom;
-use nst3d_core::image::LUMA;
 
 use crate::densify::ProxyBlend;
 use crate::field::{Kernel, RbfWeights};
@@ -152,10 +152,10 @@ impl StrandColorLayer {
         vec![[0.0; 3]; self.sites()]
     }
 
-    /// `c⁰ + P W δ`, before the clamp.
+    /// `c⁰ + W δ`, before the clamp.
     fn unclamped(&self, delta: &[[f32; 3]]) -> Vec<[f32; 3]> {
         let d = self.weights.apply(delta).expect("one offset per colour site");
-        self.base.iter().zip(d).map(|(b, d)| add(*b, chroma(d))).collect()
+        self.base.iter().zip(d).map(|(b, d)| add(*b, d)).collect()
     }
 
     /// The colour of every rendered point (guides, then proxies) for the
@@ -173,9 +173,7 @@ impl StrandColorLayer {
             .unclamped(delta)
             .iter()
             .zip(grad)
-            .map(|(c, g)| {
-                chroma_transpose(std::array::from_fn(|ch| if (0.0..=1.0).contains(&c[ch]) { g[ch] } else { 0.0 }))
-            })
+            .map(|(c, g)| std::array::from_fn(|ch| if (0.0..=1.0).contains(&c[ch]) { g[ch] } else { 0.0 }))
             .collect();
         self.weights.apply_transpose(&masked).expect("one gradient per rendered point")
     }
@@ -183,20 +181,6 @@ impl StrandColorLayer {
 
 fn add(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     std::array::from_fn(|ch| a[ch] + b[ch])
-}
-
-/// `P d = d − (w·d)·(1, 1, 1)` with `w` the luma weights ([`LUMA`], summing
-/// to 1): the part of an offset that changes hue and saturation but not
-/// luminance.
-fn chroma(d: [f32; 3]) -> [f32; 3] {
-    let l: f32 = (0..3).map(|ch| LUMA[ch] * d[ch]).sum();
-    d.map(|v| v - l)
-}
-
-/// `Pᵀ g = g − w (g₀ + g₁ + g₂)`.
-fn chroma_transpose(g: [f32; 3]) -> [f32; 3] {
-    let s: f32 = g.iter().sum();
-    std::array::from_fn(|ch| g[ch] - LUMA[ch] * s)
 }
 
 /// The point of a strand of `n` points at the place point `k` of `len` is
@@ -295,13 +279,11 @@ mod tests {
         assert!((0..3).all(|ch| (c[18 + 2][ch] - mid[ch]).abs() < 1e-6), "{:?} vs {mid:?}", c[20]);
         let big = l.forward(&vec![[5.0, -5.0, 0.0]; l.sites()]);
         assert!(big.iter().all(|v| v[0] == 1.0 && v[1] == 0.0));
-        // A constant offset moves every point by its chroma (partition of
-        // unity), and no colour's luminance changes.
-        let shifted = l.forward(&vec![[0.1, 0.0, 0.0]; l.sites()]);
-        let luma = |v: &[f32; 3]| (0..3).map(|ch| LUMA[ch] * v[ch]).sum::<f32>();
+        // A constant offset moves every point by itself (partition of unity).
+        let shifted = l.forward(&vec![[0.1, -0.1, 0.0]; l.sites()]);
         for (a, b) in shifted.iter().zip(&c) {
-            assert!((a[0] - b[0] - 0.1 * (1.0 - LUMA[0])).abs() < 1e-5, "{a:?} {b:?}");
-            assert!((luma(a) - luma(b)).abs() < 1e-5);
+            assert!((a[0] - b[0] - 0.1).abs() < 1e-5 && (a[1] - b[1] + 0.1).abs() < 1e-5, "{a:?} {b:?}");
+            assert!((a[2] - b[2]).abs() < 1e-6, "{a:?} {b:?}");
         }
     }
 
