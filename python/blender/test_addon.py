@@ -287,9 +287,12 @@ def hair_variety(px):
     return float(np.linalg.norm(chrom[lit].std(axis=0))) if lit.any() else 0.0
 
 
-# Measured on the saved pictures: 0.026 against the tan's 0.014.
+# Measured on the saved pictures: 0.026 against the tan's 0.014 while the
+# colour kept the hair's brightness; 0.0218 against 0.0144 since it may
+# darken the hair (session 20: darker colours spread less in chromaticity
+# under Cycles' shading). Unstylized tan hair gives the same spread (1x).
 h0, h1 = hair_variety(hair_shots[0]), hair_variety(hair_shots[1])
-check(h1 > 1.5 * h0, f"Cycles shows the stylized hair in varied colour (chromaticity spread {h1:.4f}, the tan original's {h0:.4f})")
+check(h1 > 1.3 * h0, f"Cycles shows the stylized hair in varied colour (chromaticity spread {h1:.4f}, the tan original's {h0:.4f})")
 gap = np.ones((hair_shots[0].shape[0], 6, 4), np.float32)
 pair = np.concatenate([hair_shots[0], gap, hair_shots[1]], axis=1)
 sheet = bpy.data.images.new("hair_sheet", pair.shape[1], pair.shape[0])
