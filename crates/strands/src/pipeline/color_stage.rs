@@ -147,14 +147,22 @@ impl ColorView {
     }
 }
 
-/// The Gram loss of `img`'s luminance to the painting's, over the whole
-/// picture, and its gradient w.r.t. `img`.
-fn grey_loss(vgg: &Vgg19, targets: &ColorTargets, img: &Image) -> Result<(f32, Image), PipelineError> {
-    let fwd = vgg.forward(&img.luminance3(), &COLOR_LAYERS, true);
+/// The Gram loss of `img` to `target` at [`COLOR_LAYERS`] (over the cells
+/// `masks` marks, or the whole picture), and its gradient w.r.t. `img`.
+fn gram_loss(
+    vgg: &Vgg19,
+    img: &Image,
+    target: &StyleTarget,
+    masks: Option<&[Vec<bool>]>,
+) -> Result<(f32, Image), PipelineError> {
+    let fwd = vgg.forward(img, &COLOR_LAYERS, true);
     let taps: Vec<FeatureView<'_>> = fwd.taps().iter().map(FeatureView::from).collect();
-    let (loss, grads) = style_loss(&taps, &targets.grey)?;
+    let (loss, grads) = match masks {
+        Some(m) => style_loss_masked(&taps, m, target)?,
+        None => style_loss(&taps, target)?,
+    };
     let grads: Vec<FeatureView<'_>> = taps.iter().zip(&grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
-    Ok((loss, Image::luminance3_backward(&vgg.backward(&fwd, &grads))))
+    Ok((loss, vgg.backward(&fwd, &grads)))
 }
 
 /// What the colour stage draws of `strands` (layout of
@@ -191,14 +199,10 @@ pub fn color_view_loss(
     let colors = scene.color_layer.forward(delta);
     let s = written(scene, strands, Some(&colors));
     let (img, cache) = render(&s, &view.camera, &scene.style)?;
-    // The hair's colour.
-    let fwd = vgg.forward(&img, &COLOR_LAYERS, true);
-    let taps: Vec<FeatureView<'_>> = fwd.taps().iter().map(FeatureView::from).collect();
-    let (color_loss, grads) = style_loss_masked(&taps, &view.masks, &targets.color)?;
-    let grads: Vec<FeatureView<'_>> = taps.iter().zip(&grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
-    let mut grad_img = vgg.backward(&fwd, &grads);
-    // The grey guard.
-    let (grey, grad_grey) = grey_loss(vgg, targets, &img)?;
+    // The hair's colour, and the grey guard over the whole picture.
+    let (color_loss, mut grad_img) = gram_loss(vgg, &img, &targets.color, Some(&view.masks))?;
+    let (grey, grad_grey) = gram_loss(vgg, &img.luminance3(), &targets.grey, None)?;
+    let grad_grey = Image::luminance3_backward(&grad_grey);
     for (a, b) in grad_img.data.iter_mut().zip(&grad_grey.data) {
         *a += GREY_GUARD * b;
     }
