@@ -66,6 +66,9 @@ pub fn run(args: JudgeArgs) -> Result<()> {
         if let Some(c) = &v.color {
             println!("{} colour {}", v.file.display(), line(c));
         }
+        if let Some(c) = &v.color_smoke {
+            println!("{} colour-on-smoke {}", v.file.display(), line(c));
+        }
     }
     Ok(())
 }

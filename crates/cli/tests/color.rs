@@ -66,23 +66,23 @@ fn color_adds_a_vec3_grid_python_openvdb_reads() {
     let active = |g: &str| g.rsplit(':').next().unwrap().parse::<u64>().unwrap();
     assert!(active(grid("color")) > 1000 && active(grid("color")) <= active(grid("density")), "{summary}");
     let stats: Vec<f32> = lines.next().unwrap().split(' ').map(|v| v.parse().unwrap()).collect();
-    // Luminance 1 and no channel below 0 put channel c at most 1 / luma_c.
-    let top = nst3d_core::image::LUMA.map(|w| 1.0 / w + 1e-3);
-    assert!(stats[..3].iter().all(|v| *v >= 0.0) && stats[3..6].iter().zip(top).all(|(v, t)| *v <= t), "{summary}");
+    // A single frame's colour stage keeps every channel in its range.
+    let (lo, hi) = nst3d_stylize::color_stage::COLOR_RANGE;
+    assert!(stats[..3].iter().all(|v| *v >= lo) && stats[3..6].iter().all(|v| *v <= hi + 1e-3), "{summary}");
     assert!(stats[..3].iter().zip(&stats[3..6]).any(|(lo, hi)| hi - lo > 0.2), "the colour stayed flat: {summary}");
     assert_eq!(stats[6], 0.0, "colour where there is no smoke: {summary}");
     let png = image::open(&preview).unwrap().to_rgb8();
     let coloured = png.pixels().filter(|p| p[0].abs_diff(p[1]) > 40 || p[1].abs_diff(p[2]) > 40).count();
     assert!(coloured > 1000, "the preview is grey");
 
-    // The judge: a file against itself scores 1 from every view, grey and
-    // colour; an input 2x coarser than the result is refined to the result's
+    // The judge: a file against itself scores 1 from every view, grey,
+    // colour and colour on the smoke; an input 2x coarser than the result is refined to the result's
     // voxels and judged beside it; a grid the files lack is one line.
     let o =
         nst3d(&["judge", "--style", s(&style), "--baseline", s(&out), "--color", "--cameras", "ring:3:30", s(&out)]);
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    for kind in ["grey", "colour"] {
+    for kind in ["grey", "colour", "colour-on-smoke"] {
         let line = text.lines().find(|l| l.contains(&format!(" {kind} worst"))).unwrap_or_else(|| panic!("{text}"));
         assert!(line.ends_with("views 1.000 1.000 1.000"), "{line}");
     }

@@ -1,4 +1,7 @@
-//! The smoke's colour (issue 29) as a chroma layer over the density.
+//! The smoke's colour (issue 29) as a chroma layer over the density, as a
+//! sequence steps it in its sweeps. (A single frame's colour stage,
+//! [`crate::color_stage`], holds the colour itself, free in brightness
+//! under a grey guard: measured better there, not yet in sequences.)
 //!
 //! Each voxel's colour `c` multiplies its grey emission (the renderer's
 //! premultiplied `e = c·d`, [`nst3d_render::render_color_view`]). The
@@ -38,7 +41,7 @@ pub const RAW_RANGE: (f32, f32) = (0.02, 2.0);
 /// Tent passes `k` applied to the raw channels in a sequence's sweeps: two
 /// passes spread a voxel's colour over a 5-voxel support (at each octave's
 /// resolution, so coarse octaves place broad patches). A single frame's
-/// colour stage uses its own count ([`crate::color_stage::SMOOTH_PASSES`]).
+/// colour stage does not use this layer ([`crate::color_stage`]).
 pub const SMOOTH_PASSES: usize = 2;
 
 /// Adam's step on the raw channels, whatever the density's mode and rate
@@ -162,10 +165,10 @@ mod tests {
         assert!(w.iter().all(|g| g.data.iter().all(|v| (v - 1.0).abs() < 1e-5)));
     }
 
-    /// Both smoothings in use: the stage's (none) and the sequences' (two passes).
+    /// Without smoothing and with the sequences' two passes.
     #[test]
     fn chroma_gradient_matches_finite_differences() {
-        for passes in [0, SMOOTH_PASSES, crate::color_stage::SMOOTH_PASSES] {
+        for passes in [0, SMOOTH_PASSES] {
             let r = raw();
             let y: Vec<f32> = pseudo_random(180, 80);
             let tape_of = |x: &[f32]| chroma(&[&x[..60], &x[60..120], &x[120..]], DIMS, passes);

@@ -21,7 +21,7 @@
 //!
 //! runs the colour stage itself (`nst3d_stylize::stylize_color`, on the
 //! fixed grey density) from the `CAMERAS` set for `SWEEPS` passes (`LR=`
-//! sets its rate) and prints the 8 held-out ratios: with `ring:8:30` (the
+//! sets its rate, `GUARD=` its grey guard's weight) and prints the 8 held-out ratios: with `ring:8:30` (the
 //! judge's own views) it is the layer's bound when every judged view is
 //! trained on.
 
@@ -195,8 +195,10 @@ fn main() -> Result<()> {
         let params = ColorStageParams {
             iterations: iters * tcams.len(),
             learning_rate: env("LR").unwrap_or(nst3d_stylize::color::LEARNING_RATE),
+            grey_guard: env("GUARD").unwrap_or(nst3d_stylize::color_stage::GREY_GUARD),
         };
-        let r = stylize_color(&d, &loss, &tviews, &params, &mut |p| {
+        let grey = ViewLoss::new(&vgg, &painting.luminance3(), &StyleSpec::default())?;
+        let r = stylize_color(&d, &loss, &grey, &tviews, &params, &mut |p| {
             if p.iteration % 32 == 0 {
                 eprintln!("iter {}: {:.4e}", p.iteration, p.loss)
             }

@@ -202,6 +202,7 @@ pub fn stylize_grid(
     let color_params = ColorStageParams {
         iterations: COLOR_VIEWS * s.iterations(),
         learning_rate: nst3d_stylize::color::LEARNING_RATE,
+        grey_guard: nst3d_stylize::color_stage::GREY_GUARD,
     };
     // The colour views see the smoke at the job's absorption, as its own
     // views do. (The smallest absorption over them instead, so the colour is
@@ -239,7 +240,7 @@ pub fn stylize_grid(
     let color = match &color_loss {
         None => None,
         Some(cl) => {
-            let c = stylize_color(&result.density, cl, &color_views, &color_params, &mut |p| {
+            let c = stylize_color(&result.density, cl, &loss, &color_views, &color_params, &mut |p| {
                 reporter.step(&format!("colour iteration {}/{} loss {:.4e}", p.iteration, p.iterations, p.loss))
             })?;
             Some(c.color)

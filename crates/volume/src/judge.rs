@@ -9,7 +9,9 @@
 //!   the loss the grey pipeline optimises;
 //! - **colour** (with [`JudgeSettings::color`]): the emission–absorption
 //!   render with the file's colour grid (`Cd` or `color`; white where a file
-//!   has none) against the colour painting (issue 29).
+//!   has none) against the colour painting (issue 29), over the whole
+//!   picture and over the smoke only (the pixels the file's density shows;
+//!   the background is out of any colour's reach).
 //!
 //! A verdict is the per-view ratio loss(result) / loss(baseline): below 1
 //! is closer to the painting; its worst (largest) view is the side from
@@ -108,6 +110,9 @@ pub struct Verdict {
     pub grey: Ratios,
     /// Colour loss ratios, with [`JudgeSettings::color`].
     pub color: Option<Ratios>,
+    /// The same over the smoke only
+    /// ([`nst3d_stylize::ViewLoss::loss_color_on_smoke`]).
+    pub color_smoke: Option<Ratios>,
 }
 
 /// One file's density and (white if absent) colour, before boxing.
@@ -214,12 +219,25 @@ pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdi
     let mut scores = Vec::new();
     for f in &files {
         let (d, c) = boxed(f);
-        let grey: Vec<f32> = views.iter().map(|v| grey_loss.loss(&d, v)).collect::<Result<_, _>>()?;
+        // A coloured file's grey look is its colour render's luminance.
+        let grey: Vec<f32> = views
+            .iter()
+            .map(|v| match &c {
+                Some(c) => grey_loss.loss_color_luminance(&d, c, v),
+                None => grey_loss.loss(&d, v),
+            })
+            .collect::<Result<_, _>>()?;
         let rgb = match &rgb_loss {
             None => None,
             Some(l) => {
                 let c = c.unwrap_or_else(|| vec![Grid3::from_vec(d.dims, vec![1.0; d.len()]); 3]);
-                Some(views.iter().map(|v| l.loss_color(&d, &c, v)).collect::<Result<Vec<f32>, _>>()?)
+                let whole = views.iter().map(|v| l.loss_color(&d, &c, v)).collect::<Result<Vec<f32>, _>>()?;
+                // A view with no smoke scores 0, so its ratio is 1.
+                let smoke = views
+                    .iter()
+                    .map(|v| Ok(l.loss_color_on_smoke(&d, &c, v)?.unwrap_or(0.0)))
+                    .collect::<Result<Vec<f32>, nst3d_stylize::ViewError>>()?;
+                Some((whole, smoke))
             }
         };
         scores.push((grey, rgb));
@@ -235,7 +253,8 @@ pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdi
         .map(|(file, (grey, rgb))| Verdict {
             file: file.clone(),
             grey: ratio(grey, base_grey),
-            color: rgb.as_ref().zip(base_rgb.as_ref()).map(|(a, b)| ratio(a, b)),
+            color: rgb.as_ref().zip(base_rgb.as_ref()).map(|(a, b)| ratio(&a.0, &b.0)),
+            color_smoke: rgb.as_ref().zip(base_rgb.as_ref()).map(|(a, b)| ratio(&a.1, &b.1)),
         })
         .collect())
 }

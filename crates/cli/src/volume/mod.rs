@@ -102,7 +102,8 @@ pub struct VolumeArgs {
     /// Stylize an RGB colour per voxel (rendered in colour, matched to the
     /// painting's colours) and write it as a vec3 grid beside the density, in
     /// every frame of a sequence. A single frame is coloured after its smoke,
-    /// from 16 cameras around it, its grey look unchanged; a sequence colours
+    /// from 16 cameras around it, free in brightness with its grey look
+    /// guarded (docs/VOLUME_LOOK.md); a sequence colours
     /// with the smoke in its sweeps. Optimisation only for now.
     #[arg(long, conflicts_with = "model")]
     pub color: bool,
