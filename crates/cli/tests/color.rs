@@ -118,6 +118,32 @@ fn color_adds_a_vec3_grid_python_openvdb_reads() {
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("no grid named 'smoke'") && err.lines().count() == 1, "{err}");
 
+    // `nst3d preview --color`: the input (no colour grid) drawn grey beside
+    // the result drawn in its colour, with one camera and absorption.
+    let sheet = dir.path().join("sheet.png");
+    let o = nst3d(&[
+        "preview",
+        "--input",
+        s(&input),
+        "--compare",
+        s(&out),
+        "--color",
+        "--height",
+        "256",
+        "--out",
+        s(&sheet),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let png = image::open(&sheet).unwrap().to_rgb8();
+    let half = png.width() / 2;
+    let tinted = |left: bool| {
+        png.enumerate_pixels()
+            .filter(|(x, _, p)| (*x < half) == left && (p[0].abs_diff(p[1]) > 40 || p[1].abs_diff(p[2]) > 40))
+            .count()
+    };
+    assert_eq!(tinted(true), 0, "the input has no colour grid: drawn grey");
+    assert!(tinted(false) > 1000, "the coloured result is drawn in colour ({} pixels)", tinted(false));
+
     // The name follows --color-grid, and --color-grid alone is refused.
     let o = nst3d(&[
         "volume",

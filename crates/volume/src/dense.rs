@@ -61,6 +61,41 @@ pub fn pad(g: &Grid3, m: usize) -> Grid3 {
     out
 }
 
+/// Names a colour grid is read under, in order: Houdini's, then Blender's
+/// (the names `nst3d volume --color` writes, [`crate::output::color_grid_name`]).
+pub const COLOR_GRID_NAMES: [&str; 2] = ["Cd", "color"];
+
+/// A colour grid's three channels densified over its active box.
+pub type DenseColor = (DenseBox, [Grid3; 3]);
+
+/// The vec3 colour grid of `file` ([`COLOR_GRID_NAMES`]), densified over its
+/// active box; `None` when the file has none.
+pub fn color_grid(file: &VdbFile) -> Result<Option<DenseColor>> {
+    COLOR_GRID_NAMES
+        .iter()
+        .filter_map(|n| file.grid(n))
+        .find(|c| matches!(c.values, GridValues::Vec3(_)))
+        .map(|c| c.to_dense_vec3())
+        .transpose()
+        .map_err(anyhow::Error::from)
+}
+
+/// Colour channels moved into the box `into`, white (1, 1, 1) wherever no
+/// channel has a value: smoke without a colour is drawn grey, as a grey
+/// result is. `None` (a file without colour) is white everywhere.
+pub fn color_in_box(color: Option<&DenseColor>, into: &DenseBox) -> Vec<Grid3> {
+    let Some((own, ch)) = color else {
+        return vec![Grid3::from_vec(into.dims, vec![1.0; into.dims.iter().product()]); 3];
+    };
+    let mut ch: Vec<Grid3> = ch.iter().map(|g| in_box(Some((*own, g.clone())), into)).collect();
+    for i in 0..ch[0].len() {
+        if ch.iter().all(|g| g.data[i] == 0.0) {
+            ch.iter_mut().for_each(|g| g.data[i] = 1.0);
+        }
+    }
+    ch
+}
+
 /// Smallest box holding both.
 pub fn union_box(a: &DenseBox, b: &DenseBox) -> DenseBox {
     let lo: [i32; 3] = std::array::from_fn(|i| a.origin[i].min(b.origin[i]));

@@ -22,16 +22,13 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, bail, Result};
 use nst3d_core::{Grid3, Reporter, UpAxis};
 use nst3d_features::Vgg19;
-use nst3d_io::vdb::{read_vdb, DenseBox, GridValues, Transform};
+use nst3d_io::vdb::{read_vdb, DenseBox, Transform};
 use nst3d_stylize::{StyleSpec, ViewLoss};
 
 use crate::cameras::{CameraSet, Lens};
-use crate::dense::{in_box, pad, union_box};
+use crate::dense::{color_grid, color_in_box, in_box, pad, union_box, DenseColor};
 use crate::look::{absorption_for, views_of};
 use crate::upsample::{refine_density, refine_origin, refine_transform};
-
-/// Names a colour grid is read under, in order.
-pub const COLOR_GRID_NAMES: [&str; 2] = ["Cd", "color"];
 
 /// Empty voxels around the shared box, so no camera clips the smoke.
 const MARGIN: usize = 4;
@@ -118,20 +115,14 @@ pub struct Verdict {
 /// One file's density and (white if absent) colour, before boxing.
 struct Loaded {
     density: (DenseBox, Grid3),
-    color: Option<(DenseBox, [Grid3; 3])>,
+    color: Option<DenseColor>,
     transform: Transform,
 }
 
 fn load(path: &Path, grid: &str) -> Result<Loaded> {
     let file = read_vdb(path).map_err(|e| anyhow!("{e}"))?;
     let g = crate::dense::density_grid(&file, path, grid)?;
-    let color = COLOR_GRID_NAMES
-        .iter()
-        .filter_map(|n| file.grid(n))
-        .find(|c| matches!(c.values, GridValues::Vec3(_)))
-        .map(|c| c.to_dense_vec3())
-        .transpose()?;
-    Ok(Loaded { density: g.to_dense()?, color, transform: g.transform.clone() })
+    Ok(Loaded { density: g.to_dense()?, color: color_grid(&file)?, transform: g.transform.clone() })
 }
 
 /// `f` made `k` times finer (trilinear, as `nst3d volume --upsample` refines).
@@ -188,16 +179,9 @@ pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdi
     let bx = files.iter().map(|f| f.density.0).reduce(|a, b| union_box(&a, &b)).expect("a baseline");
     let boxed = |f: &Loaded| -> (Grid3, Option<Vec<Grid3>>) {
         let d = pad(&in_box(Some(f.density.clone()), &bx), MARGIN);
-        let c = f.color.as_ref().map(|(cb, ch)| {
-            let mut ch: Vec<Grid3> = ch.iter().map(|g| pad(&in_box(Some((*cb, g.clone())), &bx), MARGIN)).collect();
-            // Outside the colour grid's voxels: white, the grey picture.
-            for i in 0..d.len() {
-                if ch.iter().all(|g| g.data[i] == 0.0) {
-                    ch.iter_mut().for_each(|g| g.data[i] = 1.0);
-                }
-            }
-            ch
-        });
+        // Outside the colour grid's voxels: white, the grey picture (the
+        // margin's colour is never drawn: it has no density).
+        let c = f.color.as_ref().map(|c| color_in_box(Some(c), &bx).iter().map(|g| pad(g, MARGIN)).collect::<Vec<_>>());
         (d, c)
     };
 
@@ -230,7 +214,7 @@ pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdi
         let rgb = match &rgb_loss {
             None => None,
             Some(l) => {
-                let c = c.unwrap_or_else(|| vec![Grid3::from_vec(d.dims, vec![1.0; d.len()]); 3]);
+                let c = c.unwrap_or_else(|| color_in_box(None, &DenseBox { origin: [0; 3], dims: d.dims }));
                 let whole = views.iter().map(|v| l.loss_color(&d, &c, v)).collect::<Result<Vec<f32>, _>>()?;
                 // A view with no smoke scores 0, so its ratio is 1.
                 let smoke = views

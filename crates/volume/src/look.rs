@@ -131,6 +131,15 @@ pub fn transmittance_image(d: &Grid3, cam: &Camera, gamma: f32) -> Result<Image>
     Ok(img)
 }
 
+/// [`transmittance_image`] in colour: each voxel's emission tinted by its
+/// colour `color` (three grids of `d`'s dims, white = the grey picture), the
+/// emission–absorption render `nst3d volume --color` optimises.
+pub fn color_image(d: &Grid3, color: &[Grid3], cam: &Camera, gamma: f32) -> Result<Image> {
+    let (mut img, _) = nst3d_render::render_color_view(d, color, cam.view(d.dims)?, gamma)?;
+    img.data.iter_mut().for_each(|v| *v *= gamma);
+    Ok(img)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -2,7 +2,8 @@
 //! (`nst3d preview`): one front view, a turntable, an original | stylized
 //! sheet, or a whole sequence, all drawn by the transmittance renderer the
 //! optimiser sees (paper eq. 6), so what the artist judges is what the
-//! style loss judged.
+//! style loss judged; with `color`, by the emission–absorption renderer in
+//! each file's colour grid (issue 29).
 //!
 //! Everything shown together shares one dense box (the union of the active
 //! boxes), one camera set and one absorption γ: a compared file or a later
@@ -20,7 +21,7 @@ use nst3d_sequence::{expand_pattern, FrameSpec};
 
 use crate::cameras::{front_camera, turntable};
 use crate::dense::{in_box, union_box};
-use crate::look::{auto_absorption, transmittance_image, PREVIEW_HEIGHT};
+use crate::look::{auto_absorption, color_image, transmittance_image, PREVIEW_HEIGHT};
 use crate::settings::UpAxis;
 
 /// Field of view of the preview cameras: the `nst3d volume` default, so a
@@ -65,6 +66,9 @@ pub struct PreviewSettings {
     pub absorption: Option<f32>,
     /// Picture height in pixels (a compare sheet is two pictures wide).
     pub height: usize,
+    /// Draw each file in its colour grid (`Cd` or `color`, white where it has
+    /// none), as `nst3d volume --color` renders it.
+    pub color: bool,
 }
 
 impl PreviewSettings {
@@ -82,6 +86,7 @@ impl PreviewSettings {
             up: UpAxis::Z,
             absorption: None,
             height: PREVIEW_HEIGHT,
+            color: false,
         }
     }
 }
@@ -169,13 +174,21 @@ pub fn preview(args: &PreviewSettings) -> Result<PreviewReport> {
                 .map(|path| Ok(in_box(load(path, &args.grid, sequence)?, &bx)))
                 .collect::<Result<Vec<_>>>()?,
         };
+        let colors: Option<Vec<Vec<Grid3>>> = match args.color {
+            true => Some(shot.sources.iter().map(|path| load_color(path, &bx)).collect::<Result<_>>()?),
+            false => None,
+        };
         for (c, cam) in cameras.iter().enumerate() {
             let pictures: Vec<Image> = d
                 .iter()
+                .enumerate()
                 .zip(&shot.sources)
-                .map(|(d, path)| {
-                    let img = transmittance_image(d, cam, gamma).with_context(|| path.display().to_string())?;
-                    Ok(layout.fit(&img, c))
+                .map(|((k, d), path)| {
+                    let img = match &colors {
+                        Some(colors) => color_image(d, &colors[k], cam, gamma),
+                        None => transmittance_image(d, cam, gamma),
+                    };
+                    Ok(layout.fit(&img.with_context(|| path.display().to_string())?, c))
                 })
                 .collect::<Result<_>>()?;
             let sheet = sheet(&pictures);
@@ -255,6 +268,14 @@ fn load(path: &Path, grid: &str, allow_empty: bool) -> Result<Option<(DenseBox, 
         return Ok(None);
     }
     Ok(Some(g.to_dense()?))
+}
+
+/// The colour grid of the file at `path` in the box `bx`, white where it
+/// has none ([`crate::dense::color_in_box`]).
+fn load_color(path: &Path, bx: &DenseBox) -> Result<Vec<Grid3>> {
+    let file = read_vdb(path).map_err(|e| anyhow!("{e}"))?;
+    let color = crate::dense::color_grid(&file).with_context(|| path.display().to_string())?;
+    Ok(crate::dense::color_in_box(color.as_ref(), bx))
 }
 
 /// Largest column sum of density along the front camera's axis (y for a

@@ -62,9 +62,10 @@ pub struct PreviewArgs {
     /// compare/input per picture, and the median and worst).
     #[arg(long)]
     pub style: Option<PathBuf>,
-    /// For a groom: draw each groom in its own per-point colours (white where it has
-    /// none); with --style judge in colour (the painting's RGB Gram matrices) and
-    /// report the grey judge of the pictures' luminance beside it.
+    /// Draw in colour: a volume in its colour grid (`Cd` or `color`), a groom in its
+    /// per-point colours (white where there are none); for a groom with --style,
+    /// judge in colour (the painting's RGB Gram matrices) and report the grey
+    /// judge of the pictures' luminance beside it.
     #[arg(long)]
     pub color: bool,
 }
@@ -98,9 +99,9 @@ pub fn run(args: PreviewArgs) -> Result<()> {
         print_judgement(&r);
         return Ok(());
     }
-    if args.mesh.is_some() || args.style.is_some() || args.color {
+    if args.mesh.is_some() || args.style.is_some() {
         anyhow::bail!(
-            "--mesh, --style and --color apply to grooms; {} is a volume (nst3d judge --color judges volumes)",
+            "--mesh and --style apply to grooms; {} is a volume (nst3d judge judges volumes)",
             args.input.display()
         );
     }
@@ -116,6 +117,7 @@ pub fn run(args: PreviewArgs) -> Result<()> {
         up: args.up.unwrap_or(UpAxis::Z),
         absorption: args.absorption,
         height: args.height,
+        color: args.color,
     };
     let r = nst3d_volume::preview(&settings)?;
     println!(
