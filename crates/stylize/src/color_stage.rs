@@ -81,7 +81,7 @@ pub struct ColorProgress {
     pub iteration: usize,
     /// Iterations in the stage.
     pub iterations: usize,
-    /// Colour loss of this iteration's view (before the step).
+    /// The stage's loss (colour plus guard) of this iteration's view, before the step.
     pub loss: f32,
 }
 
@@ -91,17 +91,19 @@ pub struct ColorResult {
     /// The colour, one grid per RGB channel of the density's dims, each
     /// value in [`COLOR_RANGE`].
     pub color: Vec<Grid3>,
-    /// Colour loss summed over the first sweep: as many iterations as there
-    /// are views, starting from white smoke (the grey result's colour loss).
+    /// The stage's loss (colour plus guard) summed over the first sweep: as
+    /// many iterations as there are views, starting from white smoke.
     pub loss_first_sweep: f32,
     /// The same sum over the last as many iterations.
     pub loss_last_sweep: f32,
 }
 
 /// Optimises the colour of the fixed density `d` against `loss` (built with
-/// the colour painting) from `views`, one view per iteration in turn, for
-/// `params.iterations` iterations (with fewer than there are views, each
-/// sum covers all of them).
+/// the colour painting) plus `params.grey_guard` times `grey` (built with
+/// the painting's luminance) of the colour render's luminance, from
+/// `views`, one view per iteration in turn, for `params.iterations`
+/// iterations (with fewer than there are views, each sum covers all of
+/// them).
 ///
 /// # Panics
 /// If `views` is empty.
