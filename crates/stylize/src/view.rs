@@ -136,18 +136,14 @@ impl<'a> ViewLoss<'a> {
 impl ViewLoss<'_> {
     /// Colour style loss of one view, without gradient.
     pub fn loss_color(&self, d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result<f32, ViewError> {
-        let (rgb, _) = rgb(d, color, view)?;
-        let fwd = self.vgg.forward(&render::upsample2x(&rgb), &self.layers, false);
-        Ok(nst3d_loss::style_loss(&fwd.features(), &self.target)?.0)
+        self.picture_loss(&rgb(d, color, view)?.0, None)
     }
 
     /// Grey style loss of the colour render's luminance (the grey look a
     /// coloured file shows; with white colour it is [`ViewLoss::loss`]'s
     /// picture). `self` is built with the painting's luminance.
     pub fn loss_color_luminance(&self, d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result<f32, ViewError> {
-        let (rgb, _) = rgb(d, color, view)?;
-        let fwd = self.vgg.forward(&render::upsample2x(&rgb.luminance3()), &self.layers, false);
-        Ok(nst3d_loss::style_loss(&fwd.features(), &self.target)?.0)
+        self.picture_loss(&rgb(d, color, view)?.0.luminance3(), None)
     }
 
     /// [`ViewLoss::loss_color`] over the smoke only (issue 29's judge): each
@@ -161,9 +157,16 @@ impl ViewLoss<'_> {
         if !smoke.contains(&true) {
             return Ok(None);
         }
-        let up = render::upsample2x(&rgb(d, color, view)?.0);
+        Ok(Some(self.picture_loss(&rgb(d, color, view)?.0, Some(&smoke))?))
+    }
+
+    /// Style loss of a rendered picture (before the 2x upsampling every view
+    /// gets), without gradient, over the cells `smoke` marks or the whole
+    /// picture.
+    fn picture_loss(&self, picture: &Image, smoke: Option<&[bool]>) -> Result<f32, ViewError> {
+        let up = render::upsample2x(picture);
         let fwd = self.vgg.forward(&up, &self.layers, false);
-        Ok(Some(self.gram_loss(&fwd.features(), Some(&smoke), (up.height, up.width))?.0))
+        Ok(self.gram_loss(&fwd.features(), smoke, (up.height, up.width))?.0)
     }
 
     /// Colour style loss of one view plus `guard.1` times the grey loss
