@@ -50,9 +50,6 @@ pub struct GroomReport {
     pub held_out: HeldOut,
     /// Lengths and collisions of what was written.
     pub checks: Checks,
-    /// With colour: the brightness step the colour took to keep the grey
-    /// look (`nst3d_strands::pipeline::BRIGHTNESS_STEPS`).
-    pub color_brightness: Option<f32>,
     /// The written file.
     pub out: PathBuf,
 }
@@ -183,7 +180,6 @@ pub fn stylize_groom(
         eval_after_rematched: result.eval_after_rematched,
         held_out: result.held_out.clone(),
         checks,
-        color_brightness: result.color_brightness,
         out: s.out.clone(),
     };
     Ok(StylizedGroom { strands: written, colors, report })

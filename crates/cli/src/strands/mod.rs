@@ -267,7 +267,7 @@ pub fn run(args: StrandsArgs) -> Result<()> {
     println!(
         "{}: {} strands ({} control points, as in the input) stylized ({}, {} proxies, {} iterations at {}px); \
          NNST loss {:.4e} -> {:.4e} ({:+.1}%; re-matched on the result {:.4e}); \
-         {}; max length change {:.3}% vs input ({:.4}% vs rest); {}{}; wrote {}",
+         {}; max length change {:.3}% vs input ({:.4}% vs rest); {}; wrote {}",
         r.groom.display(),
         r.strands,
         r.points,
@@ -283,7 +283,6 @@ pub fn run(args: StrandsArgs) -> Result<()> {
         100.0 * r.checks.vs_input,
         100.0 * r.checks.vs_rest,
         inside_line(s.mesh.is_some(), r.checks.inside),
-        brightness_line(r.color_brightness),
         r.out.display()
     );
     Ok(())
@@ -302,14 +301,6 @@ fn held_out_line(h: &nst3d_strands::pipeline::HeldOut) -> String {
         -100.0 * h.drop(),
         h.after_rematched
     )
-}
-
-/// The colour's brightness step of the summary line (empty without colour).
-fn brightness_line(step: Option<f32>) -> String {
-    match step {
-        Some(b) => format!("; colour brightness step {b:+.2} (grey look kept)"),
-        None => String::new(),
-    }
 }
 
 /// The collision check of the summary line.

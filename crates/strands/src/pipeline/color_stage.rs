@@ -34,7 +34,6 @@
 //! loss, and back; each link has its own finite-difference check, and
 //! `tests/chain_gradient.rs` checks the whole of [`color_view_loss`].
 
-use nst3d_core::image::LUMA;
 use nst3d_core::{FeatureView, Image};
 use nst3d_features::{Vgg19, VggLayer};
 use nst3d_io::image::resize_to_height;
@@ -80,23 +79,6 @@ pub const COLOR_PASSES: u32 = 4;
 /// Weight 1 is the one that takes every painting 40 % nearer on the hair;
 /// no weight measured keeps Starry Night's grey judge at 1.
 pub const GREY_GUARD: f32 = 1.0;
-
-/// Brightness steps `β` the stage tries once its iterations are done, in
-/// this order (see [`rebrighten`]): the first whose pictures' grey loss,
-/// summed over the colour cameras, is no worse than the grey result's is
-/// written; when none is, the one with the lowest grey loss.
-///
-/// Why. Free in brightness, the colour moves the hair's light and dark as
-/// well as its hue, and the grey guard is a weight, not a bound: with
-/// Starry Night on monkey_curly the grey judge rose 3 % (1.032) at every
-/// guard weight that kept the colour's 40 %. Brightening the colour found
-/// afterwards, `c · L(c)^-β`, lowered both the grey and the colour judge
-/// there (β 0.1: 1.006 and 0.531 on the hair against 1.032 and 0.543),
-/// while Woman with a Hat and Shipwreck want the opposite (β 1: grey 1.24
-/// and 1.49): which way and how far is the painting's, so it is measured
-/// per groom on the stage's own cameras, smallest change first
-/// (docs/STRANDS.md, "The grey bar as a constraint").
-pub const BRIGHTNESS_STEPS: [f32; 11] = [0.0, 0.05, -0.05, 0.1, -0.1, 0.2, -0.2, 0.3, -0.3, 0.5, -0.5];
 
 /// `(elevation, azimuth)` in degrees of each colour camera; the azimuths are
 /// offset half a step from the front so no camera sits on the turntable
@@ -234,76 +216,6 @@ pub fn color_view_loss(
     Ok((loss, scene.color_layer.backward(delta, &grad_colors)))
 }
 
-/// The colours `colors` brightened by `β` against the colours they started
-/// from, `start` (one per point each): `c · (L(c⁰) / L(c))^β` with `L` the
-/// pictures' luminance ([`LUMA`]), clamped to `[0, 1]`. `β` 0 leaves them;
-/// 1 gives each point back its starting luminance (as far as the clamp
-/// allows) and keeps its hue; a negative `β` darkens further.
-pub fn rebrighten(colors: &[[f32; 3]], start: &[[f32; 3]], beta: f32) -> Vec<[f32; 3]> {
-    assert_eq!(colors.len(), start.len(), "a starting colour per point");
-    let lum = |c: &[f32; 3]| (0..3).map(|k| LUMA[k] * c[k]).sum::<f32>().max(1e-3);
-    colors
-        .iter()
-        .zip(start)
-        .map(|(c, c0)| {
-            let gain = (lum(c0) / lum(c)).powf(beta);
-            c.map(|v| (v * gain).clamp(0.0, 1.0))
-        })
-        .collect()
-}
-
-/// The grey guard's loss (the luminance Gram loss of the whole picture,
-/// [`ColorTargets::grey`]) of `strands` drawn in `colors` (one per point),
-/// summed over `views`; no gradient.
-fn grey_loss(
-    scene: &StrandScene,
-    vgg: &Vgg19,
-    targets: &ColorTargets,
-    strands: &FlatStrands,
-    views: &[ColorView],
-    colors: &[[f32; 3]],
-) -> Result<f32, PipelineError> {
-    let s = written(scene, strands, Some(colors));
-    let mut sum = 0.0f64;
-    for view in views {
-        let img = render(&s, &view.camera, &scene.style)?.0.luminance3();
-        let fwd = vgg.forward(&img, &COLOR_LAYERS, false);
-        let taps: Vec<FeatureView<'_>> = fwd.taps().iter().map(FeatureView::from).collect();
-        sum += style_loss(&taps, &targets.grey)?.0 as f64;
-    }
-    Ok(sum as f32)
-}
-
-/// The first of [`BRIGHTNESS_STEPS`] whose grey loss over `views` is no
-/// more than the starting colours' (else the step of the lowest), and the
-/// colours it gives.
-fn grey_bar(
-    scene: &StrandScene,
-    vgg: &Vgg19,
-    targets: &ColorTargets,
-    strands: &FlatStrands,
-    views: &[ColorView],
-    colors: &[[f32; 3]],
-    progress: &mut dyn FnMut(f32) -> Result<(), PipelineError>,
-) -> Result<(f32, Vec<[f32; 3]>), PipelineError> {
-    let start = scene.color_layer.forward(&scene.color_layer.start());
-    let bar = grey_loss(scene, vgg, targets, strands, views, &start)?;
-    let mut best: Option<(f32, f32, Vec<[f32; 3]>)> = None;
-    for beta in BRIGHTNESS_STEPS {
-        let c = rebrighten(colors, &start, beta);
-        let l = grey_loss(scene, vgg, targets, strands, views, &c)?;
-        progress(l / views.len() as f32)?;
-        if l <= bar {
-            return Ok((beta, c));
-        }
-        if best.as_ref().is_none_or(|b| l < b.1) {
-            best = Some((beta, l, c));
-        }
-    }
-    let (beta, _, c) = best.expect("at least one brightness step");
-    Ok((beta, c))
-}
-
 /// What [`stylize_color`] reached.
 #[derive(Clone, Debug)]
 pub struct ColorStageResult {
@@ -315,8 +227,6 @@ pub struct ColorStageResult {
     pub loss_first_pass: f32,
     /// The same in the last pass.
     pub loss_last_pass: f32,
-    /// The brightness step of [`BRIGHTNESS_STEPS`] `colors` took.
-    pub brightness: f32,
 }
 
 /// Iterations of the colour stage: [`COLOR_PASSES`] passes over the views.
@@ -348,13 +258,7 @@ pub fn stylize_color(
     if views.is_empty() {
         // No hair in sight from anywhere: the input's colours stand.
         let colors = scene.color_layer.forward(&unflatten(&raw));
-        return Ok(ColorStageResult {
-            delta: unflatten(&raw),
-            colors,
-            loss_first_pass: 0.0,
-            loss_last_pass: 0.0,
-            brightness: 0.0,
-        });
+        return Ok(ColorStageResult { delta: unflatten(&raw), colors, loss_first_pass: 0.0, loss_last_pass: 0.0 });
     }
     let mut adam = Adam::new(raw.len(), COLOR_LEARNING_RATE);
     let iterations = color_iterations();
@@ -375,48 +279,6 @@ pub fn stylize_color(
         progress(i + 1, loss)?;
     }
     let delta = unflatten(&raw);
-    // The grey bar, as a constraint: brighten or darken the colour found
-    // until the stage's cameras see a grey look no worse than the grey
-    // result's. Progress repeats the last iteration while it measures.
-    let (brightness, colors) =
-        grey_bar(scene, vgg, &targets, strands, &views, &scene.color_layer.forward(&delta), &mut |l| {
-            progress(iterations, l)
-        })?;
-    Ok(ColorStageResult { delta, colors, loss_first_pass: first as f32, loss_last_pass: last as f32, brightness })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn lum(c: [f32; 3]) -> f32 {
-        (0..3).map(|k| LUMA[k] * c[k]).sum()
-    }
-
-    #[test]
-    fn rebrighten_keeps_hue_and_moves_luminance_towards_the_start() {
-        let start = vec![[0.5; 3], [0.8, 0.6, 0.4], [1.0; 3]];
-        let colors = vec![[0.2, 0.3, 0.6], [0.4, 0.3, 0.2], [0.9, 0.1, 0.05]];
-        // β 0: unchanged.
-        assert_eq!(rebrighten(&colors, &start, 0.0), colors);
-        // β 1, no clamp reached: each point's starting luminance, same hue.
-        let b = rebrighten(&colors[..2], &start[..2], 1.0);
-        for ((c, c0), r) in colors.iter().zip(&start).zip(&b) {
-            assert!((lum(*r) - lum(*c0)).abs() < 1e-5, "{r:?}");
-            let k = r[0] / c[0];
-            assert!(r.iter().zip(c).all(|(a, b)| (a / b - k).abs() < 1e-5), "hue kept: {r:?} vs {c:?}");
-        }
-        // Brighter the larger β, darker below 0; always inside [0, 1].
-        let l = |beta: f32| rebrighten(&colors, &start, beta).iter().map(|c| lum(*c)).sum::<f32>();
-        assert!(l(-0.5) < l(0.0) && l(0.0) < l(0.3) && l(0.3) < l(1.0));
-        for beta in BRIGHTNESS_STEPS.into_iter().chain([1.0, 3.0]) {
-            assert!(rebrighten(&colors, &start, beta).iter().flatten().all(|v| (0.0..=1.0).contains(v)));
-        }
-    }
-
-    #[test]
-    fn brightness_steps_try_the_smallest_change_first() {
-        assert_eq!(BRIGHTNESS_STEPS[0], 0.0);
-        assert!(BRIGHTNESS_STEPS.windows(2).all(|w| w[0].abs() <= w[1].abs()));
-    }
+    let colors = scene.color_layer.forward(&delta);
+    Ok(ColorStageResult { delta, colors, loss_first_pass: first as f32, loss_last_pass: last as f32 })
 }

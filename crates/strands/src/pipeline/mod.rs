@@ -107,8 +107,8 @@ pub use nst3d_optim::Adam;
 pub use nst3d_splat::SplatCamera;
 
 pub use color_stage::{
-    color_iterations, color_view_angles, color_view_loss, rebrighten, stylize_color, ColorStageResult, ColorTargets,
-    ColorView, BRIGHTNESS_STEPS, COLOR_ELEVATIONS, COLOR_LAYERS, COLOR_PASSES, COLOR_VIEWS, GREY_GUARD,
+    color_iterations, color_view_angles, color_view_loss, stylize_color, ColorStageResult, ColorTargets, ColorView,
+    COLOR_ELEVATIONS, COLOR_LAYERS, COLOR_PASSES, COLOR_VIEWS, GREY_GUARD,
 };
 pub use multiscale::{
     hair_columns, hair_pixels, held_out_loss, scale_learning_rate, stylize, stylize_with, FrameHooks, HeldOut,

@@ -51,9 +51,6 @@ pub struct StylizeResult {
     /// With [`StylizeParams::color`]: the stylized colour of every point of
     /// [`StylizeResult::strands`] (guides, then proxies).
     pub colors: Option<Vec<[f32; 3]>>,
-    /// With [`StylizeParams::color`]: the brightness step the colour took
-    /// to keep the grey look ([`super::color_stage::BRIGHTNESS_STEPS`]).
-    pub color_brightness: Option<f32>,
     /// Loss of every iteration, in order.
     pub loss_history: Vec<f32>,
     /// Mean NNST loss of the rest groom over the evaluation views.
@@ -331,13 +328,9 @@ pub fn stylize_with(
             progress(&IterationReport { scale: 2, iteration: i, iterations, loss, inside: 0, color: true });
             Ok(nst3d_core::stop::check()?)
         })?;
-        Some(stage)
+        Some(stage.colors)
     } else {
         None
-    };
-    let (colors, color_brightness) = match colors {
-        Some(stage) => (Some(stage.colors), Some(stage.brightness)),
-        None => (None, None),
     };
     let g = scene.guide_count;
     let split = strands.offsets[g];
@@ -352,7 +345,6 @@ pub fn stylize_with(
         strands,
         velocities: unflatten(&v),
         colors,
-        color_brightness,
         loss_history: history,
         eval_before: (before / k) as f32,
         eval_after: (after / k) as f32,
