@@ -17,7 +17,7 @@ pub mod field;
 pub mod frame;
 pub mod view;
 
-pub use color_stage::{stylize_color, ColorProgress, ColorResult, ColorStageParams, COLOR_VIEWS};
+pub use color_stage::{stylize_color, ColorProgress, ColorResult, ColorStageParams, JointDensity, COLOR_VIEWS};
 pub use field::{Field, Limits, Mode, Tape};
 pub use frame::{stylize_frame, stylize_frame_views, FrameParams, FrameResult, Progress};
 pub use view::{color_view_image, view_image, StyleSpec, ViewError, ViewLoss, ViewSpec};

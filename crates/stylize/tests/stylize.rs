@@ -7,8 +7,8 @@ use nst3d_core::{Grid3, Image};
 use nst3d_features::{Vgg19, VggFlavor, VggLayer};
 use nst3d_render::{Camera, Projection};
 use nst3d_stylize::{
-    bench::synthetic_smoke, stylize_color, stylize_frame, ColorStageParams, Field, FrameParams, Limits, Mode,
-    StyleSpec, ViewLoss, ViewSpec,
+    bench::synthetic_smoke, stylize_color, stylize_frame, ColorStageParams, Field, FrameParams, JointDensity, Limits,
+    Mode, StyleSpec, ViewLoss, ViewSpec,
 };
 
 fn style(n: usize) -> Image {
@@ -250,8 +250,12 @@ fn color_stage_lowers_the_rgb_loss_of_every_view() {
         .collect();
     let white = vec![Grid3::from_vec(d.dims, vec![1.0; d.len()]); 3];
     let run = |grey_guard: f32| {
-        let params =
-            ColorStageParams { iterations: 30, learning_rate: nst3d_stylize::color::LEARNING_RATE, grey_guard };
+        let params = ColorStageParams {
+            iterations: 30,
+            learning_rate: nst3d_stylize::color::LEARNING_RATE,
+            grey_guard,
+            density: None,
+        };
         let mut seen = 0;
         stylize_color(&g.density, &loss, &grey_loss, &views, &params, &mut |p| {
             seen += 1;
@@ -286,6 +290,49 @@ fn color_stage_lowers_the_rgb_loss_of_every_view() {
         "grey loss: grey result {grey_before}, colour unguarded {unguarded}, guarded {guarded}"
     );
     assert!(c.loss_last_sweep < 0.8 * c.loss_first_sweep, "{} -> {}", c.loss_first_sweep, c.loss_last_sweep);
+}
+
+/// Issue 29, the density moving with the colour
+/// ([`nst3d_stylize::JointDensity`]): the stage returns a density that is the
+/// given one scaled within the limits, moved by the stage, and the stage's
+/// loss falls over the run; without it the density comes back unchanged.
+/// (The scale's gradient is the density gradient of
+/// `color_view_gradient_matches_finite_differences` through density mode's
+/// `Field::Scale` backward, both checked against finite differences.)
+#[test]
+fn color_stage_moves_the_density_within_its_limits() {
+    let vgg = Vgg19::random(VggFlavor::Torchvision, 2);
+    let grey_loss = ViewLoss::new(&vgg, &color_style(16).luminance3(), &StyleSpec::default()).unwrap();
+    let loss = ViewLoss::new(&vgg, &color_style(16), &StyleSpec::default()).unwrap();
+    let d = synthetic_smoke(16, 9);
+    let views: Vec<ViewSpec> = [0.0, 180.0]
+        .iter()
+        .map(|az| ViewSpec {
+            camera: Some(Camera::orbit(d.dims, *az, 15.0)),
+            gamma: 0.2,
+            exposure: 0.2,
+            equalize: false,
+        })
+        .collect();
+    let run = |density: Option<JointDensity>| {
+        let params = ColorStageParams { iterations: 8, learning_rate: 0.05, grey_guard: 1.0, density };
+        stylize_color(&d, &loss, &grey_loss, &views, &params, &mut |_| {}).unwrap()
+    };
+    assert_eq!(run(None).density.data, d.data, "without the joint density the density is the one given");
+    let (smin, smax) = (0.5, 1.5);
+    let r = run(Some(JointDensity { learning_rate: 0.05, smin, smax }));
+    let mut moved = 0f32;
+    for (after, before) in r.density.data.iter().zip(&d.data) {
+        assert!(
+            *after >= smin * before - 1e-6 && *after <= smax * before + 1e-6,
+            "density {after} outside [{smin}, {smax}] x {before}"
+        );
+        if *before > 0.05 {
+            moved = moved.max((after / before - 1.0).abs());
+        }
+    }
+    assert!(moved > 0.1, "the density did not move (largest scale change {moved})");
+    assert!(r.loss_last_sweep < r.loss_first_sweep, "{} -> {}", r.loss_first_sweep, r.loss_last_sweep);
 }
 
 /// d(RGB loss)/d(density, colour) through render, upsampling, VGG and the

@@ -5,7 +5,8 @@
 //! same index space with the same transform; a grid too small for strokes
 //! is refined first and written `k` times finer ([`crate::upsample`]). With
 //! `color`, the colour stage ([`nst3d_stylize::stylize_color`]) then colours
-//! the stylized density from [`nst3d_stylize::COLOR_VIEWS`] omniview cameras.
+//! the stylized density from [`nst3d_stylize::COLOR_VIEWS`] omniview cameras,
+//! scaling it with the colour, and the file gets that density.
 //! A before | after | painting preview is rendered from the first camera.
 
 use std::path::PathBuf;
@@ -15,7 +16,7 @@ use nst3d_core::Grid3;
 use nst3d_core::Reporter;
 use nst3d_io::image::{resize_to_height, side_by_side, write_png};
 use nst3d_io::vdb::{read_vdb, Transform};
-use nst3d_stylize::{stylize_color, stylize_frame_views, ColorStageParams, Mode, ViewLoss, COLOR_VIEWS};
+use nst3d_stylize::{stylize_color, stylize_frame_views, ColorStageParams, JointDensity, Mode, ViewLoss, COLOR_VIEWS};
 
 use crate::cameras::{CameraSet, Cameras, Lens};
 use crate::dense::pad;
@@ -203,6 +204,13 @@ pub fn stylize_grid(
         iterations: COLOR_VIEWS * s.iterations(),
         learning_rate: nst3d_stylize::color::LEARNING_RATE,
         grey_guard: nst3d_stylize::color_stage::GREY_GUARD,
+        // The density moves with the colour within the job's own scale
+        // limits (its --smin/--smax and strength), whatever the mode.
+        density: Some(JointDensity {
+            learning_rate: nst3d_stylize::color_stage::JOINT_DENSITY_RATE,
+            smin: params.limits.smin,
+            smax: params.limits.smax,
+        }),
     };
     // The colour views see the smoke at the job's absorption, as its own
     // views do. (The smallest absorption over them instead, so the colour is
@@ -237,13 +245,15 @@ pub fn stylize_grid(
     if result.density.data.iter().any(|v| !v.is_finite()) {
         bail!("stylization produced non-finite densities (try a smaller --lr)");
     }
-    let color = match &color_loss {
-        None => None,
+    // The colour stage may move the density with the colour
+    // ([`ColorStageParams::density`]); the file gets the density it returns.
+    let (density, color) = match &color_loss {
+        None => (result.density, None),
         Some(cl) => {
             let c = stylize_color(&result.density, cl, &loss, &color_views, &color_params, &mut |p| {
                 reporter.step(&format!("colour iteration {}/{} loss {:.4e}", p.iteration, p.iterations, p.loss))
             })?;
-            Some(c.color)
+            (c.density, Some(c.color))
         }
     };
     reporter.end();
@@ -253,8 +263,8 @@ pub fn stylize_grid(
         let h = PREVIEW_HEIGHT;
         let before = resize_to_height(&display(&loss, &padded, &view)?, h);
         let after = match &color {
-            None => display(&loss, &result.density, &view)?,
-            Some(c) => nst3d_render::upsample2x(&nst3d_stylize::color_view_image(&result.density, c, &view)?),
+            None => display(&loss, &density, &view)?,
+            Some(c) => nst3d_render::upsample2x(&nst3d_stylize::color_view_image(&density, c, &view)?),
         };
         let after = resize_to_height(&after, h);
         let painting = resize_to_height(&style, h);
@@ -263,15 +273,15 @@ pub fn stylize_grid(
     let held_out = match held_out.is_empty() {
         true => None,
         false => Some(match (&color, &color_loss) {
-            (Some(c), Some(cl)) => HeldOut::measure_color(cl, &padded, &result.density, c, &held_out)?,
-            _ => HeldOut::measure(&loss, &padded, &result.density, &held_out)?,
+            (Some(c), Some(cl)) => HeldOut::measure_color(cl, &padded, &density, c, &held_out)?,
+            _ => HeldOut::measure(&loss, &padded, &density, &held_out)?,
         }),
     };
     Ok(StylizedGrid {
         cameras: views.len(),
         loss_before: result.loss_before,
         loss_after: result.loss_after,
-        density: result.density,
+        density,
         color,
         margin,
         upsample: k,

@@ -58,7 +58,8 @@ pub struct VolumeSettings {
     /// over the smoke's voxels. A single frame colours in a stage after the
     /// density ([`nst3d_stylize::color_stage`]), from
     /// [`nst3d_stylize::COLOR_VIEWS`] omniview cameras for as many sweeps as
-    /// [`VolumeSettings::iterations`]; a sequence colours in its sweeps.
+    /// [`VolumeSettings::iterations`], scaling the density with the colour
+    /// within the density limits; a sequence colours in its sweeps.
     /// Optimisation only for now.
     pub color: bool,
     /// Name of the written colour grid; `None`: by the input's grid names,

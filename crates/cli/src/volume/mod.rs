@@ -103,8 +103,9 @@ pub struct VolumeArgs {
     /// painting's colours) and write it as a vec3 grid beside the density, in
     /// every frame of a sequence. A single frame is coloured after its smoke,
     /// from 16 cameras around it, free in brightness with its grey look
-    /// guarded (docs/VOLUME_LOOK.md); a sequence colours
-    /// with the smoke in its sweeps. Optimisation only for now.
+    /// guarded, the smoke's density scaled with the colour within
+    /// --smin/--smax (docs/VOLUME_LOOK.md); a sequence colours with the
+    /// smoke in its sweeps. Optimisation only for now.
     #[arg(long, conflicts_with = "model")]
     pub color: bool,
     /// Name of the written colour grid (default: the input's colour grid, else
