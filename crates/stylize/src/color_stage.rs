@@ -180,14 +180,8 @@ pub fn stylize_color(
     let (mut first, mut last) = (0.0, 0.0);
     let guard = (guard_w > 0.0).then_some((grey, guard_w));
     for it in 0..iterations {
-        let (scaled, tape) = match &joint {
-            Some((field, _, _)) => {
-                let (dd, tape) = field.forward(d);
-                (Some(dd), Some(tape))
-            }
-            None => (None, None),
-        };
-        let density = scaled.as_ref().unwrap_or(d);
+        let scaled = joint.as_ref().map(|(field, _, _)| field.forward(d));
+        let density = scaled.as_ref().map_or(d, |(dd, _)| dd);
         let (l, l_grey, grad_d, grad) = loss.loss_and_grad_color_guarded(density, &color, &views[it % n], guard)?;
         let l = l + guard_w * l_grey;
         if it < n {
@@ -200,7 +194,7 @@ pub fn stylize_color(
             a.step(&mut c.data, &g.data);
             c.data.iter_mut().for_each(|x| *x = x.clamp(lo, hi));
         }
-        if let (Some((field, adam_s, limits)), Some(tape)) = (&mut joint, &tape) {
+        if let (Some((field, adam_s, limits)), Some((_, tape))) = (&mut joint, &scaled) {
             let g = field.backward(d, tape, &grad_d.data);
             let step = field.descent(g, d.dims);
             adam_s.step(field.params_mut(), &step);
