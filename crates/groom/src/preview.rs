@@ -79,8 +79,8 @@ pub struct GroomPreviewReport {
     pub input_grey_loss: Vec<f32>,
     /// That of `compare`.
     pub compare_grey_loss: Vec<f32>,
-    /// With colour and a painting: per picture, the colour Gram loss over
-    /// the hair only ([`GramJudge::hair_loss`]) of `input`.
+    /// With a painting: per picture, the Gram loss over the hair only
+    /// ([`GramJudge::hair_loss`]) of `input` (in colour with `color`).
     pub input_hair_loss: Vec<f32>,
     /// That of `compare`.
     pub compare_hair_loss: Vec<f32>,
@@ -93,7 +93,7 @@ impl GroomPreviewReport {
         self.compare_loss.iter().zip(&self.input_loss).map(|(c, i)| c / i).collect()
     }
 
-    /// With colour: [`GroomPreviewReport::ratios`] of the hair-only losses.
+    /// [`GroomPreviewReport::ratios`] of the hair-only losses.
     pub fn hair_ratios(&self) -> Vec<f32> {
         self.compare_hair_loss.iter().zip(&self.input_hair_loss).map(|(c, i)| c / i).collect()
     }
@@ -171,7 +171,7 @@ pub fn preview_groom(s: &GroomPreviewSettings) -> Result<GroomPreviewReport> {
                 report.compare_loss.push(j.loss(p)?);
             }
         }
-        if let (Some(j), true) = (&judge, s.color) {
+        if let Some(j) = &judge {
             let nan = |v: Option<f32>| v.unwrap_or(f32::NAN);
             report.input_hair_loss.push(nan(j.hair_loss(&pictures[0])?));
             if let Some(p) = pictures.get(1) {

@@ -59,7 +59,8 @@ pub struct PreviewArgs {
     pub height: usize,
     /// For a groom: judge every picture against this painting (VGG-19 Gram style
     /// loss of the picture to the painting's luminance; with --compare the ratio
-    /// compare/input per picture, and the median and worst).
+    /// compare/input per picture, and the median and worst, over the whole picture
+    /// and over the hair only).
     #[arg(long)]
     pub style: Option<PathBuf>,
     /// Draw in colour: a volume in its colour grid (`Cd` or `color`), a groom in its
@@ -160,5 +161,6 @@ fn print_judgement(r: &nst3d_groom::GroomPreviewReport) {
         line("grey: ", r.grey_ratios());
     } else {
         line("", r.ratios());
+        line("hair only: ", r.hair_ratios());
     }
 }
