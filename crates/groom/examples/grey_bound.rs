@@ -23,6 +23,7 @@
 use std::path::Path;
 
 use anyhow::Result;
+use nst3d_core::image::LUMA;
 use nst3d_core::{FeatureView, Image};
 use nst3d_features::{Vgg19, VggLayer};
 use nst3d_io::image::{load_style, luminance_rgb, resize_to_height};
@@ -91,7 +92,7 @@ fn main() -> Result<()> {
         for y in 0..h {
             for x in 0..w {
                 let i = y * sheet.width + x0 + x;
-                v[y * w + x] = 0.299 * sheet.data[i] + 0.587 * sheet.data[p + i] + 0.114 * sheet.data[2 * p + i];
+                v[y * w + x] = (0..3).map(|c| LUMA[c] * sheet.data[c * p + i]).sum();
             }
         }
         v

@@ -45,12 +45,7 @@ impl GramJudge {
 
     /// The Gram style loss of a picture (RGB or grey) to the painting.
     pub fn loss(&self, picture: &Image) -> Result<f32> {
-        let rgb = if picture.channels == 1 {
-            Image::from_vec(3, picture.height, picture.width, [picture.data.as_slice(); 3].concat())
-        } else {
-            picture.clone()
-        };
-        let fwd = self.vgg.forward(&rgb, &LAYERS, false);
+        let fwd = self.vgg.forward(&as_rgb(picture), &LAYERS, false);
         Ok(style_loss(&fwd.features(), &self.target)?.0)
     }
 
@@ -62,20 +57,32 @@ impl GramJudge {
     /// whole-picture loss (issue 29's colour judge reports both). `None`
     /// when the picture shows no hair.
     pub fn hair_loss(&self, picture: &Image) -> Result<Option<f32>> {
-        let rgb = if picture.channels == 1 {
-            Image::from_vec(3, picture.height, picture.width, [picture.data.as_slice(); 3].concat())
-        } else {
-            picture.clone()
-        };
-        let hair = nst3d_strands::pipeline::hair_pixels(&rgb, [0.0; 3]);
+        Ok(self.scores(picture)?.1)
+    }
+
+    /// [`GramJudge::loss`] and [`GramJudge::hair_loss`] of one picture from
+    /// one VGG-19 forward.
+    pub fn scores(&self, picture: &Image) -> Result<(f32, Option<f32>)> {
+        let rgb = as_rgb(picture);
         let fwd = self.vgg.forward(&rgb, &LAYERS, false);
+        let whole = style_loss(&fwd.features(), &self.target)?.0;
+        let hair = nst3d_strands::pipeline::hair_pixels(&rgb, [0.0; 3]);
         let masks: Vec<Vec<bool>> =
             fwd.taps().iter().map(|t| cell_mask(&hair, rgb.height, rgb.width, t.height, t.width)).collect();
         if masks.iter().any(|m| !m.contains(&true)) {
-            return Ok(None);
+            return Ok((whole, None));
         }
         let views: Vec<FeatureView<'_>> = fwd.taps().iter().map(FeatureView::from).collect();
-        Ok(Some(style_loss_masked(&views, &masks, &self.target)?.0))
+        Ok((whole, Some(style_loss_masked(&views, &masks, &self.target)?.0)))
+    }
+}
+
+/// A grey picture as three equal channels; an RGB one as it is.
+fn as_rgb(picture: &Image) -> Image {
+    if picture.channels == 1 {
+        Image::from_vec(3, picture.height, picture.width, [picture.data.as_slice(); 3].concat())
+    } else {
+        picture.clone()
     }
 }
 

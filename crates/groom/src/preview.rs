@@ -166,16 +166,14 @@ pub fn preview_groom(s: &GroomPreviewSettings) -> Result<GroomPreviewReport> {
             pictures.push(view.render_colored(c, compare_colors.as_deref(), s.elevation, azimuth, s.height)?);
         }
         if let Some(j) = &judge {
-            report.input_loss.push(j.loss(&pictures[0])?);
+            // Whole picture and hair only from one forward per picture.
+            let (whole, hair) = j.scores(&pictures[0])?;
+            report.input_loss.push(whole);
+            report.input_hair_loss.push(hair.unwrap_or(f32::NAN));
             if let Some(p) = pictures.get(1) {
-                report.compare_loss.push(j.loss(p)?);
-            }
-        }
-        if let Some(j) = &judge {
-            let nan = |v: Option<f32>| v.unwrap_or(f32::NAN);
-            report.input_hair_loss.push(nan(j.hair_loss(&pictures[0])?));
-            if let Some(p) = pictures.get(1) {
-                report.compare_hair_loss.push(nan(j.hair_loss(p)?));
+                let (whole, hair) = j.scores(p)?;
+                report.compare_loss.push(whole);
+                report.compare_hair_loss.push(hair.unwrap_or(f32::NAN));
             }
         }
         if let Some(j) = &grey_judge {
