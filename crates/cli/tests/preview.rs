@@ -316,6 +316,10 @@ fn a_groom_is_judged_against_a_painting_from_every_picture() {
     let y = args(&hair, &hy, &[]);
     assert!(y.contains("compare/input per picture 1.000 1.000 1.000 1.000; median 1.000, worst 1.000"), "{y}");
     assert!(y.contains("hair only: compare/input per picture 1.000 1.000 1.000 1.000; median 1.000"), "{y}");
+    assert!(
+        y.contains("hair only, tone matched: compare/input per picture 1.000 1.000 1.000 1.000; median 1.000"),
+        "{y}"
+    );
 
     let to_z = |p: [f32; 3]| nst3d_core::UpAxis::Z.from_y_up(p);
     let mut g = nst3d_io::groom::read_groom(&hair).unwrap();

@@ -12,6 +12,7 @@
 //! `nst3d strands` can reach on the judge. A second bound frees every
 //! pixel (the silhouette too) for comparison, and a third pastes the
 //! painting itself into the hair pixels (no optimisation).
+//! With `BOUND.png`, the free grey picture over the hair is written there.
 //!
 //!     cargo run --release -p nst3d-groom --example grey_bound -- STYLE.jpg SHEET.png [ITERS]
 //!
@@ -58,6 +59,7 @@ fn optimise(
     h: usize,
     w: usize,
     iters: usize,
+    save: Option<&Path>,
 ) -> Result<f32> {
     let mut x = start.to_vec();
     let mut adam = Adam::new(x.len(), 0.02);
@@ -75,13 +77,16 @@ fn optimise(
             *xi = if f { xi.clamp(0.0, 1.0) } else { 0.0 };
         }
     }
+    if let Some(path) = save {
+        nst3d_io::image::write_png(path, &Image::from_vec(1, h, w, x.clone()))?;
+    }
     Ok(best.min(loss(vgg, target, &x, h, w, false)?.0))
 }
 
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     if args.len() < 2 {
-        anyhow::bail!("usage: grey_bound STYLE.jpg SHEET.png [ITERS]");
+        anyhow::bail!("usage: grey_bound STYLE.jpg SHEET.png [ITERS [BOUND.png]]");
     }
     let iters: usize = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(150);
     let sheet = load_style(Path::new(&args[1]), 1.0)?;
@@ -119,8 +124,8 @@ fn main() -> Result<()> {
         })
         .collect();
     let paste = loss(&vgg, &target, &pasted, h, w, false)?.0;
-    let masked = optimise(&vgg, &target, &input, &hair, h, w, iters)?;
-    let everywhere = optimise(&vgg, &target, &input, &vec![true; h * w], h, w, iters)?;
+    let masked = optimise(&vgg, &target, &input, &hair, h, w, iters, args.get(3).map(Path::new))?;
+    let everywhere = optimise(&vgg, &target, &input, &vec![true; h * w], h, w, iters, None)?;
     println!(
         "{}: hair {:.3} of the picture; ratio to the input: result {:.3}, painting pasted on the hair {:.3}, \
          free grey on the hair {:.3}, free grey everywhere {:.3}",
@@ -131,5 +136,6 @@ fn main() -> Result<()> {
         masked / base,
         everywhere / base
     );
+
     Ok(())
 }

@@ -84,6 +84,11 @@ pub struct GroomPreviewReport {
     pub input_hair_loss: Vec<f32>,
     /// That of `compare`.
     pub compare_hair_loss: Vec<f32>,
+    /// Grey only, with a painting: per picture, the hair-only loss with the
+    /// hair at the painting's tone ([`GramJudge::toned_hair_loss`]) of `input`.
+    pub input_toned_loss: Vec<f32>,
+    /// That of `compare`.
+    pub compare_toned_loss: Vec<f32>,
 }
 
 impl GroomPreviewReport {
@@ -96,6 +101,12 @@ impl GroomPreviewReport {
     /// [`GroomPreviewReport::ratios`] of the hair-only losses.
     pub fn hair_ratios(&self) -> Vec<f32> {
         self.compare_hair_loss.iter().zip(&self.input_hair_loss).map(|(c, i)| c / i).collect()
+    }
+
+    /// [`GroomPreviewReport::ratios`] of the tone-matched hair-only losses
+    /// (grey pictures only; empty in colour).
+    pub fn toned_ratios(&self) -> Vec<f32> {
+        self.compare_toned_loss.iter().zip(&self.input_toned_loss).map(|(c, i)| c / i).collect()
     }
 
     /// With colour: [`GroomPreviewReport::ratios`] of the grey losses.
@@ -174,6 +185,14 @@ pub fn preview_groom(s: &GroomPreviewSettings) -> Result<GroomPreviewReport> {
                 let (whole, hair) = j.scores(p)?;
                 report.compare_loss.push(whole);
                 report.compare_hair_loss.push(hair.unwrap_or(f32::NAN));
+            }
+            // In grey the tone is the shading's, which no shape changes:
+            // the tone-matched score is the one about structure.
+            if !s.color {
+                report.input_toned_loss.push(j.toned_hair_loss(&pictures[0])?.unwrap_or(f32::NAN));
+                if let Some(p) = pictures.get(1) {
+                    report.compare_toned_loss.push(j.toned_hair_loss(p)?.unwrap_or(f32::NAN));
+                }
             }
         }
         if let Some(j) = &grey_judge {

@@ -162,5 +162,6 @@ fn print_judgement(r: &nst3d_groom::GroomPreviewReport) {
     } else {
         line("", r.ratios());
         line("hair only: ", r.hair_ratios());
+        line("hair only, tone matched: ", r.toned_ratios());
     }
 }

@@ -1,0 +1,124 @@
+//! Does the groom judge follow the look, or can it be fooled? (issue 27)
+//!
+//! `nst3d preview --style` scores a picture of a groom two ways: the
+//! VGG-19 Gram loss of the whole picture to the painting, and the same
+//! loss over the cells that hold hair only (`GramJudge::scores`). This
+//! example scores pictures that are *not* stylizations, with the judge's
+//! own code, as ratios to the input's picture:
+//! - the input's picture times a gain (the groom unchanged, only darker or
+//!   brighter, clamped to 1): a judge of the look should not call these
+//!   nearer the painting;
+//! - the painting itself pasted into the input's hair pixels (tiled from
+//!   the top-left, the background kept black): the nearest a picture with
+//!   the input's silhouette can look like the painting, so a judge should
+//!   rank it above any groom;
+//! - the input at the result's tone (one gain that gives its hair the
+//!   result's mean luminance): what the result's change of brightness
+//!   alone would score;
+//! - the result (the sheet's right half), for comparison.
+//!
+//!     cargo run --release -p nst3d-groom --example judge_sanity -- STYLE.jpg SHEET.png [--color] [--tone]
+//!
+//! `SHEET.png` is an `input | result` sheet as `nst3d preview --input GROOM
+//! --compare RESULT --turntable 8 --height 512` writes it (with `--color`,
+//! in colour: then the colour judge scores it against the painting in
+//! colour).
+
+use std::path::Path;
+
+use anyhow::Result;
+use nst3d_core::Image;
+use nst3d_groom::judge::GramJudge;
+use nst3d_io::image::{load_style, resize_to_height};
+
+fn main() -> Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let color = args.iter().any(|a| a == "--color");
+    let tone = args.iter().any(|a| a == "--tone");
+    let files: Vec<&String> = args.iter().filter(|a| !a.starts_with("--")).collect();
+    if files.len() != 2 {
+        anyhow::bail!("usage: judge_sanity STYLE.jpg SHEET.png [--color] [--tone]");
+    }
+    let sheet = load_style(Path::new(files[1]), 1.0)?;
+    let (h, w) = (sheet.height, sheet.width / 2);
+    let p = h * sheet.width;
+    // One half of the sheet, three channels.
+    let half = |x0: usize| -> Image {
+        let mut out = Image::zeros(3, h, w);
+        for c in 0..3 {
+            for y in 0..h {
+                for x in 0..w {
+                    out.data[c * h * w + y * w + x] = sheet.data[c * p + y * sheet.width + x0 + x];
+                }
+            }
+        }
+        out
+    };
+    let input = half(0);
+    let result = half(sheet.width - w);
+    let judge = GramJudge::with_color(Path::new(files[0]), h, None, color)?;
+    let painting = load_style(Path::new(files[0]), 1.0)?;
+    let painting = resize_to_height(&painting, h);
+    let luma = |img: &Image, i: usize| -> f32 {
+        let n = img.height * img.width;
+        (0..3).map(|c| nst3d_core::image::LUMA[c] * img.data[c * n + i]).sum()
+    };
+    let target_mean = (0..painting.height * painting.width).map(|i| luma(&painting, i)).sum::<f32>()
+        / (painting.height * painting.width) as f32;
+    // With --tone, every picture's hair (pixels off black) is scaled so its
+    // mean luminance is the painting's: what is left to score is structure.
+    let toned = |img: &Image| -> Image {
+        if !tone {
+            return img.clone();
+        }
+        let n = img.height * img.width;
+        let hair: Vec<f32> = (0..n).map(|i| luma(img, i)).filter(|&v| v > 0.02).collect();
+        let mean = hair.iter().sum::<f32>() / hair.len().max(1) as f32;
+        let mut out = img.clone();
+        out.data.iter_mut().for_each(|v| *v = (*v * target_mean / mean.max(1e-6)).min(1.0));
+        out
+    };
+    if tone {
+        println!("(hair toned to the painting's mean luminance {target_mean:.3})");
+    }
+    let (whole0, hair0) = judge.scores(&toned(&input))?;
+    let hair0 = hair0.ok_or_else(|| anyhow::anyhow!("the input's picture shows no hair"))?;
+    let score = |name: &str, img: &Image| -> Result<()> {
+        let (whole, hair) = judge.scores(&toned(img))?;
+        println!("{name:<36} whole {:.3}   hair only {:.3}", whole / whole0, hair.map_or(f32::NAN, |v| v / hair0));
+        Ok(())
+    };
+
+    score("the result", &result)?;
+    // The painting (grey for the grey judge), tiled into the hair pixels.
+    let n = h * w;
+    let is_hair = |i: usize| (0..3).any(|c| input.data[c * n + i] > 0.02);
+    let mut pasted = Image::zeros(3, h, w);
+    for i in (0..n).filter(|&i| is_hair(i)) {
+        let (y, x) = (i / w, i % w);
+        let j = (y % painting.height) * painting.width + x % painting.width;
+        let pn = painting.height * painting.width;
+        let rgb: [f32; 3] = std::array::from_fn(|c| painting.data[c * pn + j]);
+        let grey: f32 = (0..3).map(|c| nst3d_core::image::LUMA[c] * rgb[c]).sum();
+        for c in 0..3 {
+            pasted.data[c * n + i] = if color { rgb[c] } else { grey };
+        }
+    }
+    score("the painting pasted on the hair", &pasted)?;
+    // The input at the result's tone: what brightness alone would score.
+    let hair_mean = |img: &Image| {
+        let n = img.height * img.width;
+        let v: Vec<f32> = (0..n).map(|i| luma(img, i)).filter(|&v| v > 0.02).collect();
+        v.iter().sum::<f32>() / v.len().max(1) as f32
+    };
+    let gain = hair_mean(&result) / hair_mean(&input);
+    let mut at_tone = input.clone();
+    at_tone.data.iter_mut().for_each(|v| *v = (*v * gain).min(1.0));
+    score(&format!("the input at the result's tone (x {gain:.3})"), &at_tone)?;
+    for gain in [0.5f32, 0.75, 1.5, 2.0] {
+        let mut lit = input.clone();
+        lit.data.iter_mut().for_each(|v| *v = (*v * gain).min(1.0));
+        score(&format!("the input x {gain}"), &lit)?;
+    }
+    Ok(())
+}
