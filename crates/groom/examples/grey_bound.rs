@@ -136,6 +136,5 @@ fn main() -> Result<()> {
         masked / base,
         everywhere / base
     );
-
     Ok(())
 }

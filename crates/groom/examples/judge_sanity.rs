@@ -17,7 +17,10 @@
 //!   alone would score;
 //! - the result (the sheet's right half), for comparison.
 //!
-//!     cargo run --release -p nst3d-groom --example judge_sanity -- STYLE.jpg SHEET.png [--color] [--tone]
+//! In grey each line also gives the product's tone-matched hair-only score
+//! (`GramJudge::toned_hair_loss`).
+//!
+//!     cargo run --release -p nst3d-groom --example judge_sanity -- STYLE.jpg SHEET.png [--color]
 //!
 //! `SHEET.png` is an `input | result` sheet as `nst3d preview --input GROOM
 //! --compare RESULT --turntable 8 --height 512` writes it (with `--color`,
@@ -34,10 +37,9 @@ use nst3d_io::image::{load_style, resize_to_height};
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let color = args.iter().any(|a| a == "--color");
-    let tone = args.iter().any(|a| a == "--tone");
     let files: Vec<&String> = args.iter().filter(|a| !a.starts_with("--")).collect();
     if files.len() != 2 {
-        anyhow::bail!("usage: judge_sanity STYLE.jpg SHEET.png [--color] [--tone]");
+        anyhow::bail!("usage: judge_sanity STYLE.jpg SHEET.png [--color]");
     }
     let sheet = load_style(Path::new(files[1]), 1.0)?;
     let (h, w) = (sheet.height, sheet.width / 2);
@@ -57,35 +59,24 @@ fn main() -> Result<()> {
     let input = half(0);
     let result = half(sheet.width - w);
     let judge = GramJudge::with_color(Path::new(files[0]), h, None, color)?;
-    let painting = load_style(Path::new(files[0]), 1.0)?;
-    let painting = resize_to_height(&painting, h);
+    let painting = resize_to_height(&load_style(Path::new(files[0]), 1.0)?, h);
     let luma = |img: &Image, i: usize| -> f32 {
         let n = img.height * img.width;
         (0..3).map(|c| nst3d_core::image::LUMA[c] * img.data[c * n + i]).sum()
     };
-    let target_mean = (0..painting.height * painting.width).map(|i| luma(&painting, i)).sum::<f32>()
-        / (painting.height * painting.width) as f32;
-    // With --tone, every picture's hair (pixels off black) is scaled so its
-    // mean luminance is the painting's: what is left to score is structure.
-    let toned = |img: &Image| -> Image {
-        if !tone {
-            return img.clone();
-        }
-        let n = img.height * img.width;
-        let hair: Vec<f32> = (0..n).map(|i| luma(img, i)).filter(|&v| v > 0.02).collect();
-        let mean = hair.iter().sum::<f32>() / hair.len().max(1) as f32;
-        let mut out = img.clone();
-        out.data.iter_mut().for_each(|v| *v = (*v * target_mean / mean.max(1e-6)).min(1.0));
-        out
-    };
-    if tone {
-        println!("(hair toned to the painting's mean luminance {target_mean:.3})");
-    }
-    let (whole0, hair0) = judge.scores(&toned(&input))?;
+    let (whole0, hair0) = judge.scores(&input)?;
     let hair0 = hair0.ok_or_else(|| anyhow::anyhow!("the input's picture shows no hair"))?;
+    // The product's tone-matched score (grey only: in colour tone is part of the palette).
+    let toned0 = if color { None } else { judge.toned_hair_loss(&input)? };
     let score = |name: &str, img: &Image| -> Result<()> {
-        let (whole, hair) = judge.scores(&toned(img))?;
-        println!("{name:<36} whole {:.3}   hair only {:.3}", whole / whole0, hair.map_or(f32::NAN, |v| v / hair0));
+        let (whole, hair) = judge.scores(img)?;
+        let mut line =
+            format!("{name:<36} whole {:.3}   hair only {:.3}", whole / whole0, hair.map_or(f32::NAN, |v| v / hair0));
+        if let Some(t0) = toned0 {
+            let t = judge.toned_hair_loss(img)?.map_or(f32::NAN, |v| v / t0);
+            line += &format!("   hair only, tone matched {t:.3}");
+        }
+        println!("{line}");
         Ok(())
     };
 
@@ -99,9 +90,9 @@ fn main() -> Result<()> {
         let j = (y % painting.height) * painting.width + x % painting.width;
         let pn = painting.height * painting.width;
         let rgb: [f32; 3] = std::array::from_fn(|c| painting.data[c * pn + j]);
-        let grey: f32 = (0..3).map(|c| nst3d_core::image::LUMA[c] * rgb[c]).sum();
-        for c in 0..3 {
-            pasted.data[c * n + i] = if color { rgb[c] } else { grey };
+        let grey = luma(&painting, j);
+        for (c, &v) in rgb.iter().enumerate() {
+            pasted.data[c * n + i] = if color { v } else { grey };
         }
     }
     score("the painting pasted on the hair", &pasted)?;

@@ -79,9 +79,7 @@ impl GramJudge {
         let views: Vec<FeatureView<'_>> = fwd.taps().iter().map(FeatureView::from).collect();
         Ok((whole, Some(style_loss_masked(&views, &masks, &self.target)?.0)))
     }
-}
 
-impl GramJudge {
     /// [`GramJudge::hair_loss`] of the picture with its hair brightened or
     /// darkened (one gain, clamped to 1) to the painting's mean luminance.
     ///
@@ -91,13 +89,15 @@ impl GramJudge {
     /// scores 0.34–0.38 of the input's with Starry Night and 0.16–0.17
     /// with Shipwreck and Woman with a Hat (docs/STRANDS.md, "Judging the
     /// judge"). With every picture's hair at the painting's tone, a darker
-    /// or brighter copy of the input scores about 1 (exactly 1 where
-    /// nothing clamps) and what is left is the hair's structure.
+    /// or brighter copy of the input scores near 1 (0.85–0.98 on a real
+    /// picture, where faint pixels leave the hair mask and bright ones clip;
+    /// exactly 1 where neither happens) and what is left is mostly the
+    /// hair's structure.
     pub fn toned_hair_loss(&self, picture: &Image) -> Result<Option<f32>> {
         let rgb = as_rgb(picture);
         let hair = nst3d_strands::pipeline::hair_pixels(&rgb, [0.0; 3]);
         let mean = mean_luma(&rgb, |i| hair[i]);
-        if !(mean > 0.0) {
+        if mean <= 0.0 {
             return Ok(None);
         }
         let gain = self.tone / mean;
