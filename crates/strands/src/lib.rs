@@ -44,6 +44,7 @@ mod preset;
 pub mod sequence;
 mod strands;
 mod temporal;
+mod winding;
 
 pub use bvh::{closest_point_on_triangle, ClosestHit, Feature, MeshBvh};
 pub use color::{initial_colors, StrandColorLayer, COLOR_LEARNING_RATE, COLOR_NEIGHBORS, COLOR_SITES};
@@ -65,6 +66,7 @@ pub use temporal::{
     ema_blend, ema_blend_factor, smoothing_factor, transport_velocities, DerivativeSmoothing, OneEuroFilter,
     OneEuroHistory, OneEuroParams,
 };
+pub use winding::WindingNumber;
 
 /// The generator of the strand stages' samplers (densification roots,
 /// procedural grooms, camera angles): SplitMix64 started at `seed` xor a
