@@ -28,9 +28,9 @@ struct Cli {
     /// Worker threads (default: all cores).
     #[arg(long, global = true)]
     threads: Option<usize>,
-    /// Arithmetic of the heavy products: auto (bf16 where the CPU has a bf16
-    /// unit, AMX or AVX512-BF16; fp32 otherwise), bf16 (emulated where there
-    /// is none) or fp32 (the reference). Default: $NST3D_PRECISION, else auto.
+    /// Arithmetic of the heavy products: auto (bf16 where the CPU has AMX
+    /// tiles, fp32 otherwise), bf16 (on AMX, AVX512-BF16 or emulated) or
+    /// fp32 (the reference). Default: $NST3D_PRECISION, else auto.
     #[arg(long, global = true, value_name = "auto|bf16|fp32", value_parser = parse_precision)]
     precision: Option<nst3d_core::precision::Precision>,
     #[command(subcommand)]

@@ -7,7 +7,11 @@
 //! data (`arch_prctl`), AVX512-BF16 dot products where only those exist,
 //! and a portable emulation (same roundings, scalar loops) elsewhere —
 //! slow, but it lets a blade without either run and test the bf16 numerics.
-//! `auto` is bf16 where the hardware has a bf16 unit and fp32 otherwise.
+//! `auto` is bf16 where the CPU has AMX and fp32 otherwise: on a CPU with
+//! AVX512-BF16 but no AMX the bf16 path was measured 1.3–2.7x *slower*
+//! than fp32 (the fp32 convolutions are Winograd, `vdpbf16ps` only doubles
+//! the FMA's width; docs/PERFORMANCE.md, "bf16 on AVX512-BF16"), so there
+//! `bf16` must be asked for.
 //! `fp32` is the reference every finite-difference check runs on.
 //!
 //! The setting is process-wide (a job runs one precision); a thread may
@@ -26,7 +30,8 @@ use std::sync::OnceLock;
 /// The user's choice.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Precision {
-    /// bf16 where the CPU has a bf16 unit (AMX-BF16 or AVX512-BF16), fp32 otherwise.
+    /// bf16 where the CPU has AMX-BF16 tiles, fp32 otherwise (AVX512-BF16
+    /// alone is slower than fp32 here).
     #[default]
     Auto,
     /// bf16 operands, fp32 accumulation, on whatever path the CPU has
@@ -62,7 +67,10 @@ impl Precision {
         let hw = hardware();
         match self {
             Precision::Fp32 => Path::Fp32,
-            Precision::Auto => hw.unwrap_or(Path::Fp32),
+            Precision::Auto => match hw {
+                Some(Path::Bf16Amx) => Path::Bf16Amx,
+                _ => Path::Fp32,
+            },
             Precision::Bf16 => hw.unwrap_or(Path::Bf16Portable),
         }
     }
@@ -255,7 +263,7 @@ mod tests {
     fn fp32_is_always_fp32_and_bf16_always_bf16() {
         assert_eq!(Precision::Fp32.resolve(), Path::Fp32);
         assert!(Precision::Bf16.resolve().is_bf16());
-        assert_eq!(Precision::Auto.resolve().is_bf16(), hardware().is_some());
+        assert_eq!(Precision::Auto.resolve().is_bf16(), hardware() == Some(Path::Bf16Amx));
     }
 
     #[test]

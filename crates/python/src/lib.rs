@@ -414,7 +414,7 @@ fn threads() -> usize {
 }
 
 /// Arithmetic of the heavy products for every later job, as the command
-/// line's `--precision`: "auto" (bf16 where the CPU has a bf16 unit, fp32
+/// line's `--precision`: "auto" (bf16 where the CPU has AMX tiles, fp32
 /// otherwise), "bf16" or "fp32". Returns what it runs on this machine.
 #[pyfunction]
 fn set_precision(name: &str) -> PyResult<String> {

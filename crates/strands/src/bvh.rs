@@ -93,6 +93,11 @@ pub struct MeshBvh {
     /// The winding number, kept only when some triangle is buried or
     /// straddles a seam.
     winding: Option<WindingNumber>,
+    /// Per triangle, with `winding`: a lower bound on its distance to the
+    /// nearest triangle that is not clean. An inside point whose nearest
+    /// triangle is clean and farther than the push from every seam leaves
+    /// by it without a winding-number check.
+    seam_dist: Vec<f32>,
     /// Built on the first [`MeshBvh::closest_point_within`].
     gate: OnceLock<DistanceGate>,
 }
@@ -365,6 +370,7 @@ impl MeshBvh {
             edge_n,
             side,
             winding,
+            seam_dist: Vec::new(),
             gate: OnceLock::new(),
         };
         let centroids: Vec<V3> = bvh
@@ -376,7 +382,36 @@ impl MeshBvh {
             .collect();
         let n = bvh.order.len();
         bvh.build(&centroids, 0, n);
+        if bvh.winding.is_some() {
+            bvh.seam_dist = bvh.distances_to_seams();
+        }
         Ok(bvh)
+    }
+
+    /// [`MeshBvh::seam_dist`]: for each clean triangle the least distance
+    /// from its corners and centroid to a straddling triangle, less half its
+    /// longest edge (every point of the triangle is that close to one of
+    /// them). Buried triangles are walled in by straddling ones, which
+    /// touch them.
+    fn distances_to_seams(&self) -> Vec<f32> {
+        let seam = |f: u32| self.side[f as usize] == Side::Straddles;
+        (0..self.tris.len())
+            .into_par_iter()
+            .with_min_len(64)
+            .map(|f| {
+                if self.side[f] != Side::Clean {
+                    return 0.0;
+                }
+                let p = self.tri(f as u32);
+                let g = scale(add(add(p[0], p[1]), p[2]), 1.0 / 3.0);
+                let edge = (0..3).map(|k| norm(sub(p[(k + 1) % 3], p[k]))).fold(0.0, f32::max);
+                let near = [p[0], p[1], p[2], g]
+                    .iter()
+                    .map(|&x| self.nearest(x, seam).map_or(f32::INFINITY, |h| norm(sub(x, h.point))))
+                    .fold(f32::INFINITY, f32::min);
+                (near - 0.5 * edge).max(0.0)
+            })
+            .collect()
     }
 
     /// How many triangles are buried inside another part of the mesh (left
@@ -447,6 +482,10 @@ impl MeshBvh {
             if self.side[hit.triangle] == Side::Straddles { w.at(p) >= 0.5 } else { hit.signed_distance < 0.0 };
         if !inside {
             return ClosestHit { signed_distance: hit.signed_distance.abs(), ..hit };
+        }
+        let eps = SAMPLE_OFFSET * norm(sub(self.nodes[0].hi, self.nodes[0].lo));
+        if self.side[hit.triangle] == Side::Clean && self.seam_dist[hit.triangle] > reach.max(eps) {
+            return hit;
         }
         self.exit(p, hit, w, reach)
     }

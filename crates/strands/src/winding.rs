@@ -47,6 +47,47 @@ fn norm(a: D3) -> f64 {
 /// (Van Oosterom & Strackee 1983): positive when `p` is behind the face
 /// whose normal is `(b − a) × (c − a)`.
 pub(crate) fn triangle_winding(p: D3, a: D3, b: D3, c: D3) -> f64 {
+    solid_angle_by(p, a, b, c, f64::atan2)
+}
+
+/// [`triangle_winding`] with a polynomial arctangent (within 2e-6 rad):
+/// `libm`'s `atan2` was 43 % of the collision projection's time on the
+/// monkey.
+fn triangle_winding_fast(p: D3, a: D3, b: D3, c: D3) -> f64 {
+    solid_angle_by(p, a, b, c, fast_atan2)
+}
+
+/// `atan2(y, x)` to within 2e-6 rad: an 11th-order odd polynomial for
+/// `atan` on [0, 1] folded to every octant.
+fn fast_atan2(y: f64, x: f64) -> f64 {
+    use std::f64::consts::{FRAC_PI_2, PI};
+    let (ax, ay) = (x.abs(), y.abs());
+    let (lo, hi) = (ax.min(ay), ax.max(ay));
+    if hi == 0.0 {
+        return 0.0;
+    }
+    let a = lo / hi;
+    let s = a * a;
+    // Least-squares odd polynomial for atan on [0, 1] (max error 1.8e-6).
+    let mut r = a
+        * (0.999_979_831_590_576_9
+            + s * (-0.332_655_419_451_317_66
+                + s * (0.193_669_888_280_036_98
+                    + s * (-0.116_649_978_772_942_74 + s * (0.052_822_194_889_601_13 - s * 0.011_769_974_089_825_9)))));
+    if ay > ax {
+        r = FRAC_PI_2 - r;
+    }
+    if x < 0.0 {
+        r = PI - r;
+    }
+    if y < 0.0 {
+        -r
+    } else {
+        r
+    }
+}
+
+fn solid_angle_by(p: D3, a: D3, b: D3, c: D3, atan2: impl Fn(f64, f64) -> f64) -> f64 {
     let (a, b, c) = (sub(a, p), sub(b, p), sub(c, p));
     let (la, lb, lc) = (norm(a), norm(b), norm(c));
     let num = dot(a, cross(b, c));
@@ -56,7 +97,7 @@ pub(crate) fn triangle_winding(p: D3, a: D3, b: D3, c: D3) -> f64 {
         // taken as the plane's own value.
         return 0.0;
     }
-    num.atan2(den) / (2.0 * std::f64::consts::PI)
+    atan2(num, den) / (2.0 * std::f64::consts::PI)
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -162,7 +203,7 @@ impl WindingNumber {
             } else if n.leaf {
                 for &f in &self.order[n.start as usize..n.end as usize] {
                     let [a, b, c] = self.tris[f as usize];
-                    w += triangle_winding(p, a, b, c);
+                    w += triangle_winding_fast(p, a, b, c);
                 }
             } else {
                 stack.push(n.start);
@@ -199,6 +240,18 @@ mod tests {
             .chunks(3)
             .map(|c| std::array::from_fn(|a| lo[a] + (0.5 + 0.6 * c[a]) * (hi[a] - lo[a])))
             .collect()
+    }
+
+    #[test]
+    fn fast_arctangent_is_within_2e_6() {
+        let r = pseudo_random(2 * 20_000, 4);
+        for c in r.chunks(2) {
+            let (y, x) = (c[0] as f64 * 3.0, c[1] as f64 * 2.0);
+            assert!((fast_atan2(y, x) - y.atan2(x)).abs() < 2e-6, "{y} {x}");
+        }
+        for (y, x) in [(0.0, 1.0), (1.0, 0.0), (0.0, -1.0), (-1.0, 0.0), (1.0, 1.0), (-1.0, -1.0)] {
+            assert!((fast_atan2(y, x) - f64::atan2(y, x)).abs() < 2e-6, "{y} {x}");
+        }
     }
 
     /// One triangle's solid angle: a quarter of the sphere seen from the
