@@ -15,7 +15,7 @@
 //! than `β` times the node's radius. Near the surface, where the answer
 //! matters, the nodes open down to exact triangles.
 
-use nst3d_core::math::V3;
+use nst3d_core::math::{cross, dot, norm, sub, V3};
 
 /// Triangles per leaf.
 const LEAF: usize = 8;
@@ -29,18 +29,6 @@ type D3 = [f64; 3];
 
 fn d3(v: V3) -> D3 {
     v.map(f64::from)
-}
-fn sub(a: D3, b: D3) -> D3 {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn dot(a: D3, b: D3) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: D3, b: D3) -> D3 {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-fn norm(a: D3) -> f64 {
-    dot(a, a).sqrt()
 }
 
 /// The signed solid angle of triangle `abc` seen from `p`, over 4π
