@@ -736,12 +736,13 @@ pub fn closest_point_on_triangle(p: [f32; 3], a: [f32; 3], b: [f32; 3], c: [f32;
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use nst3d_core::gradcheck::pseudo_random;
     use std::path::Path;
 
-    fn data(rel: &str) -> TriMesh {
+    /// A mesh of the shared data, failing loudly when it is missing.
+    pub(crate) fn data(rel: &str) -> TriMesh {
         let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
         nst3d_io::mesh::read_mesh(&p)
             .unwrap_or_else(|e| panic!("test data missing or unreadable: {}: {e}", p.display()))
@@ -867,17 +868,12 @@ mod tests {
     }
 }
 
+/// Tests of the collider on meshes of overlapping parts.
 #[cfg(test)]
 mod overlap_tests {
+    use super::tests::data;
     use super::*;
     use nst3d_core::gradcheck::pseudo_random;
-    use std::path::Path;
-
-    fn data(rel: &str) -> TriMesh {
-        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
-        nst3d_io::mesh::read_mesh(&p)
-            .unwrap_or_else(|e| panic!("test data missing or unreadable: {}: {e}", p.display()))
-    }
 
     /// Inside or outside as the exact winding number says (`w ≥ ½`), at
     /// 20,000 points over the mesh's box, leaving out the few within 10⁻⁴

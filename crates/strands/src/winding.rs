@@ -212,15 +212,9 @@ impl WindingNumber {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bvh::tests::data;
     use nst3d_core::gradcheck::pseudo_random;
     use nst3d_core::mesh::TriMesh;
-    use std::path::Path;
-
-    fn data(rel: &str) -> TriMesh {
-        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data").join(rel);
-        nst3d_io::mesh::read_mesh(&p)
-            .unwrap_or_else(|e| panic!("test data missing or unreadable: {}: {e}", p.display()))
-    }
 
     fn box_points(mesh: &TriMesh, n: usize, seed: u64) -> Vec<V3> {
         let (lo, hi) = mesh.bbox().unwrap();
