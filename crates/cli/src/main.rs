@@ -19,6 +19,14 @@ mod volume;
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+/// Keeps freed pages for [`nst3d_core::memory::ALLOCATOR_PURGE_DELAY_MS`]
+/// instead of mimalloc's default second (see there).
+fn keep_freed_pages() {
+    use nst3d_core::memory::{ALLOCATOR_PURGE_DELAY_MS, MIMALLOC_OPTION_PURGE_DELAY};
+    // SAFETY: sets one integer option; mimalloc allows it at any time.
+    unsafe { libmimalloc_sys::mi_option_set(MIMALLOC_OPTION_PURGE_DELAY, ALLOCATOR_PURGE_DELAY_MS as _) }
+}
+
 use clap::{Parser, Subcommand};
 
 /// Neural style transfer for smoke volumes (OpenVDB) on the CPU.
@@ -81,6 +89,7 @@ fn main() {
         let at = info.location().map(|l| format!(" at {}:{}", l.file(), l.line())).unwrap_or_default();
         eprintln!("nst3d: internal error: {msg}{at} (please report this)");
     }));
+    keep_freed_pages();
     let cli = Cli::parse();
     // The docs test (crates/cli/tests/docs.rs) checks that every command
     // line the docs show still parses, without running any of them.
@@ -120,5 +129,24 @@ fn main() {
     if let Err(e) = result {
         eprintln!("nst3d: error: {}", nst3d_core::report::one_line(e.as_ref()));
         std::process::exit(1);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nst3d_core::memory::{ALLOCATOR_PURGE_DELAY_MS, MIMALLOC_OPTION_PURGE_DELAY};
+
+    /// The raw option index names mimalloc's purge delay: it starts at that
+    /// option's documented default (1000 ms in v3) and reads back what
+    /// [`super::keep_freed_pages`] sets.
+    #[test]
+    fn the_purge_delay_option_is_the_one_we_set() {
+        assert!(std::env::var_os("MIMALLOC_PURGE_DELAY").is_none(), "unset MIMALLOC_PURGE_DELAY to run this test");
+        // SAFETY: reads and sets one integer option.
+        let before = unsafe { libmimalloc_sys::mi_option_get(MIMALLOC_OPTION_PURGE_DELAY) };
+        assert_eq!(before, 1000, "option {MIMALLOC_OPTION_PURGE_DELAY} is not mimalloc's purge delay");
+        super::keep_freed_pages();
+        let after = unsafe { libmimalloc_sys::mi_option_get(MIMALLOC_OPTION_PURGE_DELAY) };
+        assert_eq!(after as i64, ALLOCATOR_PURGE_DELAY_MS);
     }
 }

@@ -2,6 +2,23 @@
 //! would not fit says so before it starts instead of being killed by the
 //! kernel half-way through.
 
+/// How long the allocator (mimalloc, the binary's and the Python module's)
+/// keeps freed memory before handing it back to the kernel, in
+/// milliseconds. Its default, one second, is shorter than one strand
+/// iteration at Short Hair size (~2.3 s): every iteration's feature maps went
+/// back and were faulted in and zeroed again, ~20 % of the iteration's CPU
+/// time in the kernel's page clearing (docs/PERFORMANCE.md, "Short Hair
+/// frame"). Ten seconds covers any iteration and still returns the memory of
+/// a finished job soon after.
+pub const ALLOCATOR_PURGE_DELAY_MS: i64 = 10_000;
+
+/// mimalloc's index of its `purge_delay` option (`mi_option_purge_delay`
+/// in the v3 `mimalloc.h` that `libmimalloc-sys` 0.1.49 builds; the crate
+/// names the options on either side of it, 14 and 16, but not this one).
+/// The CLI's tests check that the option at this index starts at
+/// mimalloc's documented default of 1000 ms.
+pub const MIMALLOC_OPTION_PURGE_DELAY: i32 = 15;
+
 /// Bytes available to this process: the kernel's `MemAvailable`, lowered to
 /// what is left under a cgroup v2 `memory.max` (a container or a Slurm job
 /// limit) when there is one, and to `NST3D_MEMORY_LIMIT` when set (bytes,

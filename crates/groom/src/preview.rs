@@ -28,7 +28,13 @@ pub fn write_preview(
 ) -> Result<()> {
     let h = PREVIEW_HEIGHT;
     let cam = scene.front_camera(h)?;
-    let start = colors.map(|_| scene.color_layer.forward(&scene.color_layer.start()));
+    let start = match colors {
+        Some(_) => {
+            let layer = scene.color_layer()?;
+            Some(layer.forward(&layer.start()))
+        }
+        None => None,
+    };
     let before = scene.render_colored(&scene.undeformed, start.as_deref(), &cam)?;
     let after = scene.render_colored(after, colors, &cam)?;
     let paint = resize_to_height(&if colors.is_some() { painting.clone() } else { luminance_rgb(painting) }, h);

@@ -152,7 +152,15 @@ pub fn stylize_groom(
             format!("colour iteration {}/{} loss {:.4e}", r.iteration, r.iterations, r.loss)
         } else {
             format!("scale {}/3 iteration {}/{} loss {:.4e}", r.scale + 1, r.iteration, r.iterations, r.loss)
-        })
+        });
+        if !r.color && r.scale == 2 && r.iteration == r.iterations {
+            // The report's losses come next: a minute at Short Hair size
+            // with nothing else on the bar.
+            reporter.status(&format!(
+                "measuring the result: NNST loss from the optimised views and {} held-out views",
+                params.held_out_views
+            ));
+        }
     })?;
     reporter.end();
 

@@ -29,6 +29,13 @@ use crate::reporter::run_job;
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+/// Keeps freed pages as the binary does (`nst3d_core::memory::ALLOCATOR_PURGE_DELAY_MS`).
+fn keep_freed_pages() {
+    use nst3d_core::memory::{ALLOCATOR_PURGE_DELAY_MS, MIMALLOC_OPTION_PURGE_DELAY};
+    // SAFETY: sets one integer option; mimalloc allows it at any time.
+    unsafe { libmimalloc_sys::mi_option_set(MIMALLOC_OPTION_PURGE_DELAY, ALLOCATOR_PURGE_DELAY_MS as _) }
+}
+
 pyo3::create_exception!(
     _nst3d,
     Nst3dError,
@@ -431,6 +438,7 @@ fn precision() -> String {
 
 #[pymodule]
 fn _nst3d(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    keep_freed_pages();
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("Nst3dError", m.py().get_type::<Nst3dError>())?;
     m.add_function(wrap_pyfunction!(stylize_volume, m)?)?;

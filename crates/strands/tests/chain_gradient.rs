@@ -167,7 +167,8 @@ fn colour_stage_gradient_matches_finite_differences() {
         // Bangs is white, where a positive offset only leaves [0, 1]; offsets
         // of -0.5 ± 0.3 keep the channels inside, and a clamped channel's
         // zero gradient is what the loss does too.
-        let raw: Vec<f32> = pseudo_random(3 * scene.color_layer.sites(), 5).iter().map(|x| -0.5 + 0.3 * x).collect();
+        let raw: Vec<f32> =
+            pseudo_random(3 * scene.color_layer().unwrap().sites(), 5).iter().map(|x| -0.5 + 0.3 * x).collect();
         let unflat = |x: &[f32]| x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
         let loss =
             |x: &[f32]| color_view_loss(&scene, &vgg, &target, &scene.undeformed, &view, &unflat(x)).unwrap().0 as f64;
@@ -237,7 +238,8 @@ fn colour_stage_lowers_its_loss_from_every_side() {
         assert_eq!(steps, color_iterations());
         println!("colour stage: first pass {:.4e}, last pass {:.4e}", r.loss_first_pass, r.loss_last_pass);
         assert!(r.loss_last_pass < 0.9 * r.loss_first_pass, "{} -> {}", r.loss_first_pass, r.loss_last_pass);
-        let start = scene.color_layer.forward(&scene.color_layer.start());
+        let layer = scene.color_layer().unwrap();
+        let start = layer.forward(&layer.start());
         let moved = start
             .iter()
             .zip(&r.colors)

@@ -196,7 +196,8 @@ pub fn color_view_loss(
     view: &ColorView,
     delta: &[[f32; 3]],
 ) -> Result<(f32, Vec<[f32; 3]>), PipelineError> {
-    let colors = scene.color_layer.forward(delta);
+    let layer = scene.color_layer()?;
+    let colors = layer.forward(delta);
     let s = written(scene, strands, Some(&colors));
     let (img, cache) = render(&s, &view.camera, &scene.style)?;
     // The hair's colour, and the grey guard over the whole picture.
@@ -213,7 +214,7 @@ pub fn color_view_loss(
     // The proxies are not drawn: their colours get no gradient.
     let mut grad_colors = render_backward_all(&s, &view.camera, &scene.style, &cache, &grad_img)?.colors;
     grad_colors.resize(colors.len(), [0.0; 3]);
-    Ok((loss, scene.color_layer.backward(delta, &grad_colors)))
+    Ok((loss, layer.backward(delta, &grad_colors)))
 }
 
 /// What [`stylize_color`] reached.
@@ -254,10 +255,11 @@ pub fn stylize_color(
             views.push(v);
         }
     }
-    let mut raw = flatten(&scene.color_layer.start());
+    let layer = scene.color_layer()?;
+    let mut raw = flatten(&layer.start());
     if views.is_empty() {
         // No hair in sight from anywhere: the input's colours stand.
-        let colors = scene.color_layer.forward(&unflatten(&raw));
+        let colors = layer.forward(&unflatten(&raw));
         return Ok(ColorStageResult { delta: unflatten(&raw), colors, loss_first_pass: 0.0, loss_last_pass: 0.0 });
     }
     let mut adam = Adam::new(raw.len(), COLOR_LEARNING_RATE);
@@ -279,6 +281,6 @@ pub fn stylize_color(
         progress(i + 1, loss)?;
     }
     let delta = unflatten(&raw);
-    let colors = scene.color_layer.forward(&delta);
+    let colors = layer.forward(&delta);
     Ok(ColorStageResult { delta, colors, loss_first_pass: first as f32, loss_last_pass: last as f32 })
 }

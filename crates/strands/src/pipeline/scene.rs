@@ -3,6 +3,8 @@
 //! drives: transport by the velocities, then the constraints of Sec. 3.4,
 //! each with its backward.
 
+use std::sync::OnceLock;
+
 use nst3d_core::groom::{Groom, StrandSpline};
 use nst3d_core::math::{add, cross, dot, norm, normalize, scale, sub, V3};
 use nst3d_core::mesh::TriMesh;
@@ -14,7 +16,7 @@ use crate::color::{initial_colors, StrandColorLayer};
 use crate::constraints::{
     strand_length_error, CollisionParams, CollisionStats, ConstraintTape, Constraints, EnforceParams,
 };
-use crate::densify::{densify_weighted, DensifyParams};
+use crate::densify::{densify_weighted, DensifyParams, ProxyBlend};
 use crate::field::DeformationField;
 use crate::strands::FlatStrands;
 use crate::StrandError;
@@ -59,8 +61,12 @@ pub struct StrandScene {
     /// (`10⁻⁴` of the mesh diagonal; see [`resolve_rest`]).
     pub lift_margin: f32,
     /// The colours of the rendered points from the colour offsets (issue 29),
-    /// starting at the input's colours.
-    pub color_layer: StrandColorLayer,
+    /// starting at the input's colours; built on first use
+    /// ([`StrandScene::color_layer`]).
+    color_layer: OnceLock<StrandColorLayer>,
+    /// What the colour layer is built from: each proxy's guide blend and the
+    /// guides' starting colours.
+    color_inputs: (Vec<ProxyBlend>, Vec<[f32; 3]>),
 }
 
 impl StrandScene {
@@ -142,9 +148,9 @@ impl StrandScene {
 
         let (distance, fov_deg, style) = shell(&frame, params);
         let guide_colors = initial_colors(groom, &vec![n; guide_count]);
-        let color_layer = StrandColorLayer::new(&rest, guide_count, &blends, &guide_colors)?;
         let mut scene = StrandScene {
-            color_layer,
+            color_layer: OnceLock::new(),
+            color_inputs: (blends, guide_colors),
             undeformed: rest.clone(),
             rest,
             guide_count,
@@ -209,6 +215,19 @@ impl StrandScene {
         tape: &mut ConstraintTape,
     ) -> Result<CollisionStats, PipelineError> {
         enforce(s, &self.constraints, CONSTRAINT_PASSES, tape)
+    }
+
+    /// The colour layer (issue 29). Built on the first call: its RBF
+    /// weights cost as much as the deformation field's (a k-nearest search
+    /// for every control point, ~5 s of a Short Hair set-up), and a groom
+    /// stylized without `--color` never needs them.
+    pub fn color_layer(&self) -> Result<&StrandColorLayer, PipelineError> {
+        if let Some(layer) = self.color_layer.get() {
+            return Ok(layer);
+        }
+        let (blends, guide_colors) = &self.color_inputs;
+        let layer = StrandColorLayer::new(&self.rest, self.guide_count, blends, guide_colors)?;
+        Ok(self.color_layer.get_or_init(|| layer))
     }
 
     /// `s` for the renderer, in `colors` (one per point; white without).
