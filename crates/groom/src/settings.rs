@@ -90,7 +90,8 @@ pub struct StrandSettings {
     pub style_scale: f32,
     /// Cameras per scale whose matches are cached (0: a new camera every iteration).
     pub views_per_scale: usize,
-    /// Evaluation views with `views_per_scale` 0.
+    /// Evaluation views: the first this many of the finest scale's cameras
+    /// (with `views_per_scale` 0, as many drawn afresh).
     pub eval_views: usize,
     /// Iterations of the three scales (overrides `iters`).
     pub scale_iters: Option<[u32; 3]>,

@@ -108,7 +108,7 @@ pub struct StrandsArgs {
     /// Cameras per scale whose matches are cached (0: a new camera every iteration).
     #[arg(long, default_value_t = 8)]
     views_per_scale: usize,
-    /// Evaluation views with --views-per-scale 0 (otherwise the finest scale's views).
+    /// Evaluation views: the first N of the finest scale's cameras (with --views-per-scale 0, N drawn afresh).
     #[arg(long, default_value_t = 4)]
     eval_views: usize,
     /// Iterations of the three scales, e.g. 0,0,30 (overrides --iters).

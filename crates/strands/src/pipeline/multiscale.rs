@@ -298,10 +298,13 @@ pub fn stylize_with(
     if strands.points.iter().any(|p| p.iter().any(|c| !c.is_finite())) {
         return Err(PipelineError::Diverged("non-finite control points".into()));
     }
-    // The finest scale's cached views are the optimized views; with a fresh
-    // camera per iteration, a fixed set drawn from the same distribution.
+    // The first `eval_views` of the finest scale's cached views (the
+    // optimized views; each costs two matches, a tenth of a Short Hair
+    // frame for all eight); with a fresh camera per iteration, a fixed set
+    // drawn from the same distribution.
     let eval_angles = if params.views_per_scale > 0 && params.iterations[2] > 0 {
-        angles[angles.len() - per_scale[2]..].to_vec()
+        let finest = &angles[angles.len() - per_scale[2]..];
+        finest[..params.eval_views.min(finest.len())].to_vec()
     } else {
         poisson_view_angles(&scene.frame, p.polar_deg, p.azimuth_deg, params.eval_views, params.seed ^ 0xE7A1)
     };

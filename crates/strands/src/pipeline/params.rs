@@ -32,8 +32,8 @@ pub struct StylizeParams {
     /// Cameras (cached matches) per scale; 0 draws a new camera for every
     /// iteration as the paper does (see the module notes).
     pub views_per_scale: usize,
-    /// Evaluation cameras when `views_per_scale` is 0 (otherwise the finest
-    /// scale's views are the evaluation views).
+    /// Evaluation cameras: the first this many of the finest scale's views,
+    /// or with `views_per_scale` 0 as many drawn from the same ranges.
     pub eval_views: usize,
     /// Views the optimizer never uses, from which the result's
     /// [`HeldOut`](super::HeldOut) hair-only loss is measured (0: not measured).

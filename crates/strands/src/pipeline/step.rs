@@ -8,7 +8,7 @@ use nst3d_core::{FeatureView, Image};
 use nst3d_features::Vgg19;
 use nst3d_loss::nnst::{nnst_loss_matched, NnstMatch};
 use nst3d_optim::Adam;
-use nst3d_splat::{render, render_backward_all, SplatCamera};
+use nst3d_splat::{render, render_backward, SplatCamera};
 
 use crate::constraints::{CollisionStats, ConstraintTape};
 
@@ -126,9 +126,9 @@ pub fn loss_and_gradient(
     // splat backward is not charged with them.
     let mut timed_by_view_loss = Duration::ZERO;
     lap(&mut timed_by_view_loss);
-    let grads = render_backward_all(&s, cam, &scene.style, &cache, &grad_img)?;
+    let grad_points = render_backward(&s, cam, &scene.style, &cache, &grad_img)?;
     lap(&mut times.splat_backward);
-    let grad_points = tape.backward(&scene.constraints.rest, &grads.points)?;
+    let grad_points = tape.backward(&scene.constraints.rest, &grad_points)?;
     lap(&mut times.constraints_backward);
     let grad = flatten(&scene.transport_backward(grad_points)?);
     lap(&mut times.field_backward);
