@@ -6,10 +6,10 @@
 /// keeps freed memory before handing it back to the kernel, in
 /// milliseconds. Its default, one second, is shorter than one strand
 /// iteration at Short Hair size (~2.3 s): every iteration's feature maps went
-/// back and were faulted in and zeroed again, ~20 % of the iteration's CPU
-/// time in the kernel's page clearing (docs/PERFORMANCE.md, "Short Hair
-/// frame"). Ten seconds covers any iteration and still returns the memory of
-/// a finished job soon after.
+/// back and were faulted in and zeroed again: 13 % of a Short Hair frame's
+/// CPU time in the kernel's page clearing (docs/PERFORMANCE.md, "The Short
+/// Hair frame, profiled"). Ten seconds covers any iteration and still
+/// returns the memory of a finished job soon after.
 pub const ALLOCATOR_PURGE_DELAY_MS: i64 = 10_000;
 
 /// mimalloc's index of its `purge_delay` option (`mi_option_purge_delay`
