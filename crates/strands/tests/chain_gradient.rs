@@ -144,7 +144,7 @@ fn loss_and_gradient_matches_finite_differences_through_the_collision_projection
 }
 
 /// The colour stage's chain (issue 29): colour offsets → layer (clamp) →
-/// splat render in colour → VGG-19 → Gram loss over the hair only, plus the
+/// carry to the written points → splat render in colour → VGG-19 → Gram loss over the hair only, plus the
 /// grey guard (render → luminance → VGG-19 → Gram loss),
 /// differentiated by [`color_view_loss`] and checked against central
 /// differences along the gradient and on its largest entries, from one of
@@ -161,7 +161,8 @@ fn colour_stage_gradient_matches_finite_differences() {
         vgg.prepare(VggLayer::Relu4_1);
         let target = ColorTargets::new(&vgg, &painting(64), 64).unwrap();
         let (elevation, azimuth) = color_view_angles()[1];
-        let view = ColorView::new(&scene, &vgg, &scene.undeformed, scene.camera(elevation, azimuth).unwrap())
+        let written = WrittenGroom::new(&scene, &scene.undeformed).unwrap();
+        let view = ColorView::new(&scene, &vgg, &written, scene.camera(elevation, azimuth).unwrap())
             .unwrap()
             .expect("hair in sight");
         // Bangs is white, where a positive offset only leaves [0, 1]; offsets
@@ -170,9 +171,8 @@ fn colour_stage_gradient_matches_finite_differences() {
         let raw: Vec<f32> =
             pseudo_random(3 * scene.color_layer().unwrap().sites(), 5).iter().map(|x| -0.5 + 0.3 * x).collect();
         let unflat = |x: &[f32]| x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
-        let loss =
-            |x: &[f32]| color_view_loss(&scene, &vgg, &target, &scene.undeformed, &view, &unflat(x)).unwrap().0 as f64;
-        let (_, grad) = color_view_loss(&scene, &vgg, &target, &scene.undeformed, &view, &unflat(&raw)).unwrap();
+        let loss = |x: &[f32]| color_view_loss(&scene, &vgg, &target, &written, &view, &unflat(x)).unwrap().0 as f64;
+        let (_, grad) = color_view_loss(&scene, &vgg, &target, &written, &view, &unflat(&raw)).unwrap();
         let grad: Vec<f32> = grad.iter().flatten().copied().collect();
         assert!(grad.iter().all(|g| g.is_finite()));
         let norm = grad.iter().map(|g| (*g as f64).powi(2)).sum::<f64>().sqrt();
@@ -248,4 +248,34 @@ fn colour_stage_lowers_its_loss_from_every_side() {
         assert!(moved > 0.05, "the colours did not move ({moved})");
         assert!(r.colors.iter().flatten().all(|c| (0.0..=1.0).contains(c)));
     })
+}
+
+/// The colour carry from the re-sampled guides to the written points (the
+/// colour stage draws the file's own points): its backward is its
+/// transpose (⟨F x, y⟩ = ⟨x, Fᵀ y⟩), a constant colour carries as itself,
+/// and the written colours are the carry's.
+#[test]
+fn colour_carry_backward_is_its_transpose() {
+    let groom = nst3d_io::groom::read_groom(&data("Bangs_100.hair")).expect("read Bangs_100.hair");
+    let mut params = StylizeParams::from_preset(Preset::ShortHair.params(), groom.strand_count());
+    params.proxies = 150;
+    params.render_size = 64;
+    let scene = StrandScene::new(&groom, None, &params).unwrap();
+    let carry = ColorCarry::new(&scene, &scene.input).unwrap();
+    let (ng, ni) = (scene.raw_guides.points.len(), scene.input.points.len());
+    assert_ne!(ng, ni, "the test needs the re-sampled layout to differ from the file's");
+    let tri = |v: Vec<f32>| v.chunks(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<[f32; 3]>>();
+    let x = tri(pseudo_random(3 * ng, 11));
+    let y = tri(pseudo_random(3 * ni, 12));
+    let dot = |a: &[[f32; 3]], b: &[[f32; 3]]| -> f64 {
+        a.iter().zip(b).map(|(p, q)| (0..3).map(|c| p[c] as f64 * q[c] as f64).sum::<f64>()).sum()
+    };
+    let (fx, fty) = (carry.forward(&x), carry.backward(&y));
+    assert_eq!((fx.len(), fty.len()), (ni, ng));
+    let (l, r) = (dot(&fx, &y), dot(&x, &fty));
+    assert!((l - r).abs() <= 1e-5 * l.abs().max(1.0), "<Fx, y> {l} vs <x, F'y> {r}");
+    let c = vec![[0.25f32, 0.5, 0.75]; ng];
+    assert!(carry.forward(&c).iter().all(|v| (0..3).all(|k| (v[k] - c[0][k]).abs() < 1e-6)));
+    let per_strand = scene.colors_to_input_topology(&scene.input, &x).unwrap();
+    assert_eq!(per_strand.concat(), fx);
 }

@@ -21,8 +21,8 @@
 //!   another hue;
 //! - the painting at the render's height times [`StylizeParams::style_scale`]
 //!   (a palette taken from the whole canvas, as the canvas fills its frame);
-//! - drawing the guides only, the strands the written file holds (see
-//!   `written` below for what drawing the proxies cost);
+//! - drawing the strands as the written file holds them ([`WrittenGroom`]:
+//!   the groom's own points, neither the proxies nor the re-sampled guides);
 //! - with Adam at [`COLOR_LEARNING_RATE`] for [`COLOR_PASSES`] passes;
 //! - with a grey guard ([`GREY_GUARD`]): the colour may change the hair's
 //!   brightness, so the loss adds the Gram loss of the picture's luminance
@@ -43,7 +43,7 @@ use nst3d_splat::{render, render_backward_all, SplatCamera, Strands};
 
 use super::multiscale::hair_pixels;
 use super::step::{flatten, unflatten};
-use super::{PipelineError, StrandScene, StylizeParams};
+use super::{ColorCarry, PipelineError, StrandScene, StylizeParams};
 use crate::color::COLOR_LEARNING_RATE;
 use crate::strands::FlatStrands;
 
@@ -128,10 +128,10 @@ impl ColorView {
     pub fn new(
         scene: &StrandScene,
         vgg: &Vgg19,
-        strands: &FlatStrands,
+        groom: &WrittenGroom,
         camera: SplatCamera,
     ) -> Result<Option<Self>, PipelineError> {
-        let white = render(&written(scene, strands, None), &camera, &scene.style)?.0;
+        let white = render(&groom.drawn(scene, None), &camera, &scene.style)?.0;
         let pixels = hair_pixels(&white, scene.style.background);
         if !pixels.iter().any(|&p| p) {
             return Ok(None);
@@ -165,22 +165,46 @@ fn gram_loss(
     Ok((loss, vgg.backward(&fwd, &grads)))
 }
 
-/// What the colour stage draws of `strands` (layout of
-/// [`StrandScene::rest`]), in `colors` (one per point of `strands`): the
-/// guides only, the strands the written file holds. The proxies are the
-/// optimisation's densification and are not written; drawn, they made the
-/// hair denser than any picture of the file, and the colour fitted to the
-/// dense hair scored worse on pictures of the file (monkey_curly, Woman
-/// with a Hat: hair-only judge 0.921 of the grey result's with proxies,
-/// 0.818 without; docs/STRANDS.md).
-fn written<'a>(scene: &'a StrandScene, strands: &'a FlatStrands, colors: Option<&'a [[f32; 3]]>) -> Strands<'a> {
-    let g = scene.guide_count;
-    let points = strands.offsets[g];
-    Strands {
-        points: &strands.points[..points],
-        offsets: &strands.offsets[..=g],
-        colors: colors.map(|c| &c[..points]),
-        root_normals: scene.root_normals.as_deref().map(|n| &n[..g]),
+/// What the colour stage draws: the strands as the written file holds them
+/// (the groom's own control points, the stylized shape carried to them as
+/// the output is), coloured through the [`ColorCarry`] from the guides'
+/// points. The re-sampled guides (100 points a strand at Short Hair) draw
+/// brighter than the file's own points (17 on monkey_curly), and the grey
+/// guard fitted on them did not see the grey look the file shows: with
+/// them, monkey_curly × Starry Night at the defaults scored 1.240 of the
+/// grey result's grey loss, drawing the written points 1.078
+/// (docs/STRANDS.md, "At full size"); the proxies
+/// are the optimisation's densification and are not written (drawn, the
+/// hair was denser than any picture of the file: hair-only judge 0.921 of
+/// the grey result's with proxies, 0.818 without).
+pub struct WrittenGroom {
+    /// The written control points (layout of [`StrandScene::input`]).
+    pub strands: FlatStrands,
+    /// Guide colours to the written points.
+    pub carry: ColorCarry,
+}
+
+impl WrittenGroom {
+    /// The file `strands` (layout of [`StrandScene::rest`]) would be
+    /// written as.
+    pub fn new(scene: &StrandScene, strands: &FlatStrands) -> Result<Self, PipelineError> {
+        let g = scene.guide_count;
+        let split = strands.offsets[g];
+        let guides = FlatStrands { points: strands.points[..split].to_vec(), offsets: strands.offsets[..=g].to_vec() };
+        Ok(Self {
+            strands: scene.to_input_topology(&scene.input, &guides)?,
+            carry: ColorCarry::new(scene, &scene.input)?,
+        })
+    }
+
+    /// The written strands for the renderer, in `colors` (one per written point).
+    fn drawn<'a>(&'a self, scene: &'a StrandScene, colors: Option<&'a [[f32; 3]]>) -> Strands<'a> {
+        Strands {
+            points: &self.strands.points,
+            offsets: &self.strands.offsets,
+            colors,
+            root_normals: scene.root_normals.as_deref().map(|n| &n[..scene.guide_count]),
+        }
     }
 }
 
@@ -192,13 +216,14 @@ pub fn color_view_loss(
     scene: &StrandScene,
     vgg: &Vgg19,
     targets: &ColorTargets,
-    strands: &FlatStrands,
+    groom: &WrittenGroom,
     view: &ColorView,
     delta: &[[f32; 3]],
 ) -> Result<(f32, Vec<[f32; 3]>), PipelineError> {
     let layer = scene.color_layer()?;
     let colors = layer.forward(delta);
-    let s = written(scene, strands, Some(&colors));
+    let carried = groom.carry.forward(&colors[..scene.raw_guides.points.len()]);
+    let s = groom.drawn(scene, Some(&carried));
     let (img, cache) = render(&s, &view.camera, &scene.style)?;
     // The hair's colour, and the grey guard over the whole picture.
     let (color_loss, mut grad_img) = gram_loss(vgg, &img, &targets.color, Some(&view.masks))?;
@@ -211,8 +236,10 @@ pub fn color_view_loss(
     if !loss.is_finite() {
         return Err(PipelineError::Diverged(format!("colour loss is {loss}")));
     }
-    // The proxies are not drawn: their colours get no gradient.
-    let mut grad_colors = render_backward_all(&s, &view.camera, &scene.style, &cache, &grad_img)?.colors;
+    // Back through the carry to the guides' points; the proxies are not
+    // drawn, so their colours get no gradient.
+    let grad_written = render_backward_all(&s, &view.camera, &scene.style, &cache, &grad_img)?.colors;
+    let mut grad_colors = groom.carry.backward(&grad_written);
     grad_colors.resize(colors.len(), [0.0; 3]);
     Ok((loss, layer.backward(delta, &grad_colors)))
 }
@@ -249,9 +276,10 @@ pub fn stylize_color(
 ) -> Result<ColorStageResult, PipelineError> {
     let height = (params.style_scale * params.render_size as f32).round() as usize;
     let targets = ColorTargets::new(vgg, style, height)?;
+    let groom = WrittenGroom::new(scene, strands)?;
     let mut views = Vec::with_capacity(COLOR_VIEWS);
     for (elevation, azimuth) in color_view_angles() {
-        if let Some(v) = ColorView::new(scene, vgg, strands, scene.camera(elevation, azimuth)?)? {
+        if let Some(v) = ColorView::new(scene, vgg, &groom, scene.camera(elevation, azimuth)?)? {
             views.push(v);
         }
     }
@@ -268,7 +296,7 @@ pub fn stylize_color(
     let (mut first, mut last, mut pass) = (0.0f64, 0.0f64, 0.0f64);
     for i in 0..iterations {
         let view = &views[(i % n) as usize];
-        let (loss, grad) = color_view_loss(scene, vgg, &targets, strands, view, &unflatten(&raw))?;
+        let (loss, grad) = color_view_loss(scene, vgg, &targets, &groom, view, &unflatten(&raw))?;
         adam.step(&mut raw, &flatten(&grad));
         pass += loss as f64;
         if (i + 1) % n == 0 {

@@ -108,7 +108,7 @@ pub use nst3d_splat::SplatCamera;
 
 pub use color_stage::{
     color_iterations, color_view_angles, color_view_loss, stylize_color, ColorStageResult, ColorTargets, ColorView,
-    COLOR_ELEVATIONS, COLOR_LAYERS, COLOR_PASSES, COLOR_VIEWS, GREY_GUARD,
+    WrittenGroom, COLOR_ELEVATIONS, COLOR_LAYERS, COLOR_PASSES, COLOR_VIEWS, GREY_GUARD,
 };
 pub use multiscale::{
     hair_columns, hair_pixels, held_out_loss, scale_learning_rate, stylize, stylize_with, FrameHooks, HeldOut,
@@ -116,7 +116,8 @@ pub use multiscale::{
 };
 pub use params::StylizeParams;
 pub use scene::{
-    max_length_change, polyline_length, GroomView, StrandScene, CONSTRAINT_PASSES, HARD_TAU_FRACTION, SEGMENT_TOLERANCE,
+    max_length_change, polyline_length, ColorCarry, GroomView, StrandScene, CONSTRAINT_PASSES, HARD_TAU_FRACTION,
+    SEGMENT_TOLERANCE,
 };
 pub use step::{iteration, loss_and_gradient, StageTimes, StepReport};
 pub use views::{match_view, match_view_on, poisson_view_angles, style_target, ViewFrame};

@@ -40,6 +40,9 @@ pub struct StrandScene {
     /// fitted them outside the mesh: the output is the input plus the
     /// displacement from these ([`StrandScene::to_input_topology`]).
     pub raw_guides: FlatStrands,
+    /// The groom's own control points (its topology, before re-sampling):
+    /// what the written file holds ([`StrandScene::to_input_topology`]).
+    pub input: FlatStrands,
     /// The field of eq. 5 on the guides, acting on every rest point.
     pub field: DeformationField,
     /// Length preservation and collision against the head.
@@ -155,6 +158,7 @@ impl StrandScene {
             rest,
             guide_count,
             raw_guides: guides,
+            input: FlatStrands::from_groom(groom)?,
             field,
             constraints,
             root_normals,
@@ -487,30 +491,80 @@ impl StrandScene {
         input: &FlatStrands,
         guide_colors: &[[f32; 3]],
     ) -> Result<Vec<Vec<[f32; 3]>>, PipelineError> {
-        let g = self.guide_count;
-        if input.strand_count() != g || guide_colors.len() != self.raw_guides.points.len() {
+        if guide_colors.len() != self.raw_guides.points.len() {
             return Err(PipelineError::Parameter(format!(
-                "colour topology: {} input strands and {} guide colours for a scene of {g} guides, {} points",
-                input.strand_count(),
+                "colour topology: {} guide colours for a scene of {} guide points",
                 guide_colors.len(),
                 self.raw_guides.points.len()
             )));
         }
-        Ok((0..g)
-            .map(|k| {
-                let (raw, r) = (self.raw_guides.strand(k), self.raw_guides.range(k));
-                let c = &guide_colors[r];
-                input
-                    .strand(k)
-                    .iter()
-                    .map(|&q| {
-                        let (seg, t) = closest_on_polyline(raw, q);
-                        let j = (seg + 1).min(raw.len() - 1);
-                        std::array::from_fn(|ch| c[seg][ch] + (c[j][ch] - c[seg][ch]) * t)
-                    })
-                    .collect()
+        let carried = ColorCarry::new(self, input)?.forward(guide_colors);
+        Ok((0..input.strand_count()).map(|k| carried[input.range(k)].to_vec()).collect())
+    }
+}
+
+/// The linear map that carries colours from the re-sampled guides' points
+/// to the groom's own control points (layout of the input): each input
+/// point takes the colour of its place on its rest guide polyline,
+/// interpolated along the segment, as [`StrandScene::to_input_topology`]
+/// carries the shapes. Its [`ColorCarry::backward`] is the transpose, so
+/// the colour stage can draw the strands as written and take the
+/// gradient back to the guides.
+#[derive(Clone, Debug)]
+pub struct ColorCarry {
+    /// Per input point: the two guide points (indices into the guides'
+    /// points) and the weight `t` of the second.
+    pairs: Vec<(u32, u32, f32)>,
+    /// Points of the guides.
+    guide_points: usize,
+}
+
+impl ColorCarry {
+    /// The carry from `scene`'s guides to `input` (the groom's own points,
+    /// one strand per guide).
+    pub fn new(scene: &StrandScene, input: &FlatStrands) -> Result<Self, PipelineError> {
+        let g = scene.guide_count;
+        if input.strand_count() != g {
+            return Err(PipelineError::Parameter(format!(
+                "colour topology: {} input strands for a scene of {g} guides",
+                input.strand_count()
+            )));
+        }
+        let mut pairs = Vec::with_capacity(input.points.len());
+        for k in 0..g {
+            let (raw, r) = (scene.raw_guides.strand(k), scene.raw_guides.range(k));
+            for &q in input.strand(k) {
+                let (seg, t) = closest_on_polyline(raw, q);
+                let j = (seg + 1).min(raw.len() - 1);
+                pairs.push(((r.start + seg) as u32, (r.start + j) as u32, t));
+            }
+        }
+        Ok(Self { pairs, guide_points: scene.raw_guides.points.len() })
+    }
+
+    /// Colours of the input's points from the guides' `colors` (one per
+    /// guide point).
+    pub fn forward(&self, colors: &[[f32; 3]]) -> Vec<[f32; 3]> {
+        self.pairs
+            .iter()
+            .map(|&(a, b, t)| {
+                let (ca, cb) = (colors[a as usize], colors[b as usize]);
+                std::array::from_fn(|ch| ca[ch] + (cb[ch] - ca[ch]) * t)
             })
-            .collect())
+            .collect()
+    }
+
+    /// The transpose of [`ColorCarry::forward`]: a gradient w.r.t. the
+    /// input's point colours carried back to the guides' points.
+    pub fn backward(&self, grad: &[[f32; 3]]) -> Vec<[f32; 3]> {
+        let mut out = vec![[0.0f32; 3]; self.guide_points];
+        for (&(a, b, t), gr) in self.pairs.iter().zip(grad) {
+            for ch in 0..3 {
+                out[a as usize][ch] += (1.0 - t) * gr[ch];
+                out[b as usize][ch] += t * gr[ch];
+            }
+        }
+        out
     }
 }
 
