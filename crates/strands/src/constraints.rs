@@ -730,9 +730,7 @@ mod tests {
     /// a second none.
     #[test]
     fn collisions_leave_overlapping_parts_by_the_outside() {
-        let p =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/grooms/monkey_curly_mesh.obj");
-        let mesh = nst3d_io::mesh::read_mesh(&p).unwrap_or_else(|e| panic!("test data missing: {}: {e}", p.display()));
+        let mesh = crate::bvh::tests::data("grooms/monkey_curly_mesh.obj");
         let bvh = MeshBvh::new(&mesh).unwrap();
         let wn = crate::winding::WindingNumber::new(&mesh.vertices, &mesh.triangles);
         let (lo, hi) = mesh.bbox().unwrap();

@@ -745,9 +745,7 @@ mod tests {
     /// it so.
     #[test]
     fn a_root_in_a_seam_of_overlapping_parts_is_lifted_out() {
-        let p =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/grooms/monkey_curly_mesh.obj");
-        let mesh = nst3d_io::mesh::read_mesh(&p).unwrap_or_else(|e| panic!("test data missing: {}: {e}", p.display()));
+        let mesh = crate::bvh::tests::data("grooms/monkey_curly_mesh.obj");
         let bvh = MeshBvh::new(&mesh).unwrap();
         let root = [-0.18110968, -0.65078723, 0.4164371];
         assert!(bvh.closest_point(root).signed_distance < -0.05 && bvh.inside_by_ray_parity(root));
