@@ -41,6 +41,14 @@ pub struct JudgeArgs {
     /// [default: relu1_1,relu2_1,relu3_1,relu4_1].
     #[arg(long, value_delimiter = ',')]
     layers: Vec<nst3d_features::VggLayer>,
+    /// The painting's scale, as `nst3d volume --style-scale` [default: the
+    /// volume job's, 0.5]: judge at the scale the results were made at.
+    #[arg(long)]
+    style_scale: Option<f32>,
+    /// Absorption γ of every picture [default: the smallest automatic one
+    /// over the baseline's views].
+    #[arg(long)]
+    absorption: Option<f32>,
 }
 
 fn line(r: &Ratios) -> String {
@@ -56,6 +64,8 @@ pub fn run(args: JudgeArgs) -> Result<()> {
     s.up = args.up.unwrap_or(s.up);
     s.color = args.color;
     s.weights = args.weights;
+    s.style_scale = args.style_scale.unwrap_or(s.style_scale);
+    s.absorption = args.absorption;
     if !args.layers.is_empty() {
         s.spec = nst3d_stylize::StyleSpec { layer_weights: vec![1.0; args.layers.len()], layers: args.layers };
     }

@@ -107,7 +107,33 @@ fn color_adds_a_vec3_grid_python_openvdb_reads() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let o = nst3d(&["judge", "--style", s(&style), "--baseline", s(&input), "--cameras", "ring:3:30", s(&fine)]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(String::from_utf8_lossy(&o.stdout).contains(" grey worst "));
+    let at_job_scale = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(at_job_scale.contains(" grey worst "));
+    // The painting is read at the volume job's --style-scale unless told
+    // otherwise: at another scale the same files score otherwise.
+    let o = nst3d(&[
+        "judge",
+        "--style",
+        s(&style),
+        "--baseline",
+        s(&input),
+        "--cameras",
+        "ring:3:30",
+        "--style-scale",
+        "1",
+        s(&fine),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let grey_line = |t: &str| t.lines().find(|l| l.contains(" grey worst ")).map(|l| l.to_string());
+    assert_ne!(
+        grey_line(&at_job_scale),
+        grey_line(&String::from_utf8_lossy(&o.stdout)),
+        "--style-scale changed nothing"
+    );
+    let o = nst3d(&["judge", "--style", s(&style), "--baseline", s(&input), "--absorption", "0", s(&fine)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("--absorption must be a positive number") && err.lines().count() == 1, "{err}");
     // Voxels need not be cubes: smoke_000003's are 0.1326 x 0.1329 x 0.1317.
     let boxy = shared("volumes/smoke_000003.vdb");
     let o = nst3d(&["judge", "--style", s(&style), "--baseline", s(&boxy), "--cameras", "ring:2:30", s(&boxy)]);

@@ -169,20 +169,28 @@ impl ViewLoss<'_> {
         Ok(self.gram_loss(&fwd.features(), smoke, (up.height, up.width))?.0)
     }
 
-    /// Colour style loss of one view plus `guard.1` times the grey loss
-    /// `guard.0` (built with the painting's luminance) of the same render's
-    /// luminance, and the sum's gradients w.r.t. `d` and each colour channel.
-    /// Returns the colour loss, the guard's loss (0 without one) and the
-    /// gradients.
+    /// Colour style loss of one view plus `smoke` times the same loss over
+    /// the smoke only ([`ViewLoss::loss_color_on_smoke`], from the same VGG-19
+    /// pass), plus `guard.1` times the grey loss `guard.0` (built with the
+    /// painting's luminance) of the same render's luminance, and the sum's
+    /// gradients w.r.t. `d` and each colour channel. The smoke's pixels are
+    /// those of `d`'s grey picture, held fixed in the backward (a pixel
+    /// crossing [`SMOKE_PIXEL`] is a step the gradient does not see). Returns
+    /// the colour loss (whole picture plus the weighted smoke term), the
+    /// guard's loss (0 without one) and the gradients.
     pub fn loss_and_grad_color_guarded(
         &self,
         d: &Grid3,
         color: &[Grid3],
         view: &ViewSpec,
+        smoke: f32,
         guard: Option<(&ViewLoss, f32)>,
     ) -> Result<(f32, f32, Grid3, Vec<Grid3>), ViewError> {
         let (rgb, cache) = rgb(d, color, view)?;
-        let (loss, mut grad) = self.loss_and_grad_image(&rgb)?;
+        let (loss, mut grad) = match smoke > 0.0 {
+            true => self.loss_and_grad_image_with_smoke(&rgb, &smoke_pixels(d, view)?, smoke)?,
+            false => self.loss_and_grad_image(&rgb)?,
+        };
         let mut guard_loss = 0.0;
         if let Some((g, w)) = guard {
             let (l, grad_lum) = g.loss_and_grad_image(&rgb.luminance3())?;
@@ -208,7 +216,7 @@ impl ViewLoss<'_> {
         color: &[Grid3],
         view: &ViewSpec,
     ) -> Result<(f32, Grid3, Vec<Grid3>), ViewError> {
-        let (loss, _, grad_d, grad_c) = self.loss_and_grad_color_guarded(d, color, view, None)?;
+        let (loss, _, grad_d, grad_c) = self.loss_and_grad_color_guarded(d, color, view, 0.0, None)?;
         Ok((loss, grad_d, grad_c))
     }
 }
@@ -223,6 +231,26 @@ impl ViewLoss<'_> {
         let fwd = self.vgg.forward(&up, &self.layers, true);
         let feats = fwd.features();
         let (loss, tap_grads) = self.gram_loss(&feats, None, (up.height, up.width))?;
+        let grads: Vec<FeatureView> =
+            feats.iter().zip(&tap_grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
+        Ok((loss, render::upsample2x_backward(&self.vgg.backward(&fwd, &grads))))
+    }
+
+    /// [`ViewLoss::loss_and_grad_image`] plus `w` times the same loss over
+    /// the cells the pixel mask `smoke` marks (of the picture VGG sees, the
+    /// render upsampled 2x), both from one VGG-19 forward and one backward.
+    fn loss_and_grad_image_with_smoke(&self, rgb: &Image, smoke: &[bool], w: f32) -> Result<(f32, Image), ViewError> {
+        let up = render::upsample2x(rgb);
+        let fwd = self.vgg.forward(&up, &self.layers, true);
+        let feats = fwd.features();
+        let (mut loss, mut tap_grads) = self.gram_loss(&feats, None, (up.height, up.width))?;
+        if smoke.contains(&true) {
+            let (l, g) = self.gram_loss(&feats, Some(smoke), (up.height, up.width))?;
+            loss += w * l;
+            for (a, b) in tap_grads.iter_mut().zip(&g) {
+                a.iter_mut().zip(b).for_each(|(x, y)| *x += w * y);
+            }
+        }
         let grads: Vec<FeatureView> =
             feats.iter().zip(&tap_grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
         Ok((loss, render::upsample2x_backward(&self.vgg.backward(&fwd, &grads))))

@@ -254,6 +254,7 @@ fn color_stage_lowers_the_rgb_loss_of_every_view() {
             iterations: 30,
             learning_rate: nst3d_stylize::color::LEARNING_RATE,
             grey_guard,
+            smoke_term: 0.0,
             density: None,
         };
         let mut seen = 0;
@@ -315,7 +316,7 @@ fn color_stage_moves_the_density_within_its_limits() {
         })
         .collect();
     let run = |density: Option<JointDensity>| {
-        let params = ColorStageParams { iterations: 8, learning_rate: 0.05, grey_guard: 1.0, density };
+        let params = ColorStageParams { iterations: 8, learning_rate: 0.05, grey_guard: 1.0, smoke_term: 0.5, density };
         stylize_color(&d, &loss, &grey_loss, &views, &params, &mut |_| {}).unwrap()
     };
     assert_eq!(run(None).density.data, d.data, "without the joint density the density is the one given");
@@ -336,10 +337,13 @@ fn color_stage_moves_the_density_within_its_limits() {
 }
 
 /// d(RGB loss)/d(density, colour) through render, upsampling, VGG and the
-/// Gram loss against finite differences, alone and with the colour stage's
+/// Gram loss against finite differences, alone, with the colour stage's
 /// grey guard added (the render's luminance → VGG → Gram loss to a grey
-/// target) (same tolerance rule as the grey chain above: most probed entries
-/// agree within 5 %).
+/// target), and with the smoke term too (the same Gram loss over the cells
+/// that show smoke; which pixels show smoke is held fixed, so a probe that
+/// moves a pixel across the threshold is one the rule below tolerates)
+/// (same tolerance rule as the grey chain above: most probed entries agree
+/// within 5 %).
 #[test]
 fn color_view_gradient_matches_finite_differences() {
     nst3d_core::precision::fp32(|| {
@@ -354,15 +358,16 @@ fn color_view_gradient_matches_finite_differences() {
             .collect();
         let view =
             ViewSpec { camera: Some(Camera::orbit(dims, 20.0, 10.0)), gamma: 0.3, exposure: 0.3, equalize: false };
-        for guard in [None, Some((&grey, 2.0f32))] {
-            let (_, _, gd, gc) = loss.loss_and_grad_color_guarded(&d, &color, &view, guard).unwrap();
+        for (smoke, guard) in [(0.0, None), (0.0, Some((&grey, 2.0f32))), (0.5, Some((&grey, 2.0f32)))] {
+            let (_, _, gd, gc) = loss.loss_and_grad_color_guarded(&d, &color, &view, smoke, guard).unwrap();
             let x0: Vec<f32> = [d.data.clone(), color.iter().flat_map(|c| c.data.clone()).collect()].concat();
             let analytic: Vec<f32> = [gd.data, gc.into_iter().flat_map(|c| c.data).collect()].concat();
             let f = |x: &[f32]| {
                 let d = Grid3::from_vec(dims, x[..n].to_vec());
                 let c: Vec<Grid3> = (0..3).map(|ch| Grid3::from_vec(dims, x[n + ch * n..][..n].to_vec())).collect();
                 let g = guard.map_or(0.0, |(g, w)| w * g.loss_color_luminance(&d, &c, &view).unwrap());
-                (loss.loss_color(&d, &c, &view).unwrap() + g) as f64
+                let on_smoke = smoke * loss.loss_color_on_smoke(&d, &c, &view).unwrap().unwrap_or(0.0);
+                (loss.loss_color(&d, &c, &view).unwrap() + on_smoke + g) as f64
             };
             let big = analytic.iter().fold(0f32, |m, v| m.max(v.abs()));
             let (mut agree, mut probed) = (0, 0);
@@ -382,7 +387,11 @@ fn color_view_gradient_matches_finite_differences() {
                     agree += 1;
                 }
             }
-            let with = if guard.is_some() { "with the guard" } else { "alone" };
+            let with = match (smoke > 0.0, guard.is_some()) {
+                (true, _) => "with the smoke term and the guard",
+                (false, true) => "with the guard",
+                (false, false) => "alone",
+            };
             assert!(probed >= 20, "{with}: only {probed} large entries probed");
             assert!(agree as f64 >= 0.7 * probed as f64, "{with}: {agree} of {probed} agree within 5%");
         }

@@ -196,6 +196,7 @@ fn main() -> Result<()> {
             iterations: iters * tcams.len(),
             learning_rate: env("LR").unwrap_or(nst3d_stylize::color::LEARNING_RATE),
             grey_guard: env("GUARD").unwrap_or(nst3d_stylize::color_stage::GREY_GUARD),
+            smoke_term: env("SMOKE").unwrap_or(nst3d_stylize::color_stage::SMOKE_TERM),
             density: None,
         };
         let grey = ViewLoss::new(&vgg, &painting.luminance3(), &StyleSpec::default())?;

@@ -204,6 +204,7 @@ pub fn stylize_grid(
         iterations: COLOR_VIEWS * s.iterations(),
         learning_rate: nst3d_stylize::color::LEARNING_RATE,
         grey_guard: nst3d_stylize::color_stage::GREY_GUARD,
+        smoke_term: nst3d_stylize::color_stage::SMOKE_TERM,
         // The density moves with the colour within the job's own scale
         // limits (its --smin/--smax and strength), whatever the mode.
         density: Some(JointDensity {

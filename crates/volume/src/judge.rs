@@ -56,6 +56,17 @@ pub struct JudgeSettings {
     /// equal). One layer alone shows where a change acts: colour moves the
     /// shallow layers most.
     pub spec: StyleSpec,
+    /// The painting's scale, as `nst3d volume --style-scale` takes it
+    /// (default: the volume job's own default). A Gram matrix depends on the
+    /// painting's size in pixels against the picture's: judged at another
+    /// scale than the job painted at, a result is measured against strokes
+    /// of another size than it was asked for (until session 30 the judge read
+    /// the painting at its full size while the job ran at 0.5;
+    /// docs/VOLUME_LOOK.md, "The judge's painting at the job's scale").
+    pub style_scale: f32,
+    /// Absorption γ of every picture (default: the smallest automatic one
+    /// over the baseline's views, so none saturates).
+    pub absorption: Option<f32>,
 }
 
 impl JudgeSettings {
@@ -71,6 +82,8 @@ impl JudgeSettings {
             color: false,
             weights: None,
             spec: StyleSpec::default(),
+            style_scale: crate::VolumeSettings::new("", "", "").style_scale,
+            absorption: None,
         }
     }
 }
@@ -186,7 +199,7 @@ pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdi
     };
 
     let vgg = Vgg19::load(s.weights.as_deref())?;
-    let painting = nst3d_io::image::load_style(&s.style, 1.0)?;
+    let painting = nst3d_io::image::load_style(&s.style, s.style_scale)?;
     let grey_loss = ViewLoss::new(&vgg, &painting.luminance3(), &s.spec)?;
     let rgb_loss = match s.color {
         true => Some(ViewLoss::new(&vgg, &painting, &s.spec)?),
@@ -196,7 +209,7 @@ pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdi
     // The volume job's lens (projection, field of view), around this up axis.
     let lens = Lens { up: s.up, ..Lens::of(&crate::VolumeSettings::new("", "", "")) };
     let cams = CameraSet::parse(&s.cameras)?.cameras(&lens, base.dims);
-    let gamma = absorption_for(None, cams.iter().map(|c| (&base, c)))?;
+    let gamma = absorption_for(s.absorption, cams.iter().map(|c| (&base, c)))?;
     let views = views_of(&cams, gamma, false);
 
     reporter.begin(files.len() as u64);
