@@ -227,18 +227,13 @@ impl ViewLoss<'_> {
     /// Style loss of an RGB picture (3 x H x W, before the 2x upsampling
     /// every view gets) and its gradient w.r.t. the picture.
     pub fn loss_and_grad_image(&self, rgb: &Image) -> Result<(f32, Image), ViewError> {
-        let up = render::upsample2x(rgb);
-        let fwd = self.vgg.forward(&up, &self.layers, true);
-        let feats = fwd.features();
-        let (loss, tap_grads) = self.gram_loss(&feats, None, (up.height, up.width))?;
-        let grads: Vec<FeatureView> =
-            feats.iter().zip(&tap_grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
-        Ok((loss, render::upsample2x_backward(&self.vgg.backward(&fwd, &grads))))
+        self.loss_and_grad_image_with_smoke(rgb, &[], 0.0)
     }
 
     /// [`ViewLoss::loss_and_grad_image`] plus `w` times the same loss over
     /// the cells the pixel mask `smoke` marks (of the picture VGG sees, the
-    /// render upsampled 2x), both from one VGG-19 forward and one backward.
+    /// render upsampled 2x), both from one VGG-19 forward and one backward;
+    /// an empty mask (or one with no smoke) adds nothing.
     fn loss_and_grad_image_with_smoke(&self, rgb: &Image, smoke: &[bool], w: f32) -> Result<(f32, Image), ViewError> {
         let up = render::upsample2x(rgb);
         let fwd = self.vgg.forward(&up, &self.layers, true);
