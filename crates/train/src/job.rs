@@ -306,7 +306,7 @@ fn write_outputs(
     info.insert("phi_deg".to_string(), s.phi_deg.to_string());
     info.insert("patch".to_string(), s.patch.to_string());
     info.insert("octaves".to_string(), s.octaves.to_string());
-    info.insert("mass".to_string(), "conserved".to_string());
+    info.insert("mass".to_string(), if s.velocity { "conserved" } else { "conserved, scale pinned" }.to_string());
     info.insert("steps".to_string(), t.steps().to_string());
     info.insert("nst3d_version".to_string(), env!("CARGO_PKG_VERSION").to_string());
     let bytes = Model { net: t.net.clone(), info }.to_bytes();
@@ -405,9 +405,10 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         // fewer training steps than its schedule has, as the clock says.
         for _ in before..trainer.position().floor() as u64 {
             reporter.step(&format!(
-                "step {}/{} loss {l:.4e}",
+                "step {}/{} loss {l:.4e} k {:.3}",
                 trainer.position().floor() as u64,
-                trainer.schedule.total_steps
+                trainer.schedule.total_steps,
+                trainer.last_mass_ratio()
             ));
         }
         if !l.is_finite() {

@@ -110,6 +110,32 @@ pub fn conserve_mass_backward(dstar: &Grid3, k: f32, grad: &[f32]) -> Vec<f32> {
     grad.iter().map(|g| k * g - shift).collect()
 }
 
+/// Weight `λ` of the density-mode scale pin ([`scale_pin`]).
+pub const SCALE_PIN: f32 = 100.0;
+
+/// The scale pin of density mode, `λ (ln k)²` with `k = Σ d / Σ d*` the
+/// [`conserve_mass`] ratio, and its gradient w.r.t. every voxel of the
+/// unscaled `dstar` (the same for all: `−2λ ln k / Σ d*`).
+///
+/// Why: conserving the mass makes the style loss blind to the level of
+/// `s = 1 + tanh o` — `s` and `c s` give the same `k d*` — so nothing held
+/// the networks' level, and the loss, which likes contrast, drove it into
+/// `tanh`'s floor: the two-hour density models came out with `k ≈ 10⁵`,
+/// `s ≈ 2e^{2o}` an unbounded exponential, and a frame unlike their
+/// training data had its faint haze lifted 10⁴-fold into a box-shaped
+/// cloud (docs/FEEDFORWARD.md, "The box haze"). With the pin `k` stays
+/// near 1, so `k s` keeps the optimiser's `[0, 2]` and no voxel can grow
+/// more than about twofold; the conservation still closes the "less smoke"
+/// route.
+pub fn scale_pin(dstar: &Grid3, k: f32, weight: f32) -> (f32, f32) {
+    let total: f64 = dstar.data.iter().map(|v| *v as f64).sum();
+    if total <= 0.0 || k <= 0.0 {
+        return (0.0, 0.0);
+    }
+    let ln_k = (k as f64).ln();
+    ((weight as f64 * ln_k * ln_k) as f32, (-2.0 * weight as f64 * ln_k / total) as f32)
+}
+
 /// The style loss of `d` summed over `octaves` scales and its gradient:
 /// octave `k` renders `d` box-filtered down `2^k` times through
 /// [`view_at`], the optimisation's own rule: absorption and exposure scaled
@@ -154,6 +180,8 @@ pub struct TrainStep {
     position: f64,
     /// Schedule steps advanced per training step (1 unless paced).
     pub pace: f64,
+    /// The last step's [`conserve_mass`] ratio `k`.
+    last_mass_ratio: f32,
 }
 
 impl TrainStep {
@@ -174,12 +202,19 @@ impl TrainStep {
             steps: 0,
             position: 0.0,
             pace: 1.0,
+            last_mass_ratio: 1.0,
         }
     }
 
     /// Steps taken.
     pub fn steps(&self) -> u64 {
         self.steps
+    }
+
+    /// The last step's mass ratio `k = Σ d / Σ d*` (near 1 while
+    /// [`scale_pin`] holds the network's level).
+    pub fn last_mass_ratio(&self) -> f32 {
+        self.last_mass_ratio
     }
 
     /// The learning rate of the last step.
@@ -225,7 +260,12 @@ impl TrainStep {
         let raw = apply(patch, &o, self.stylization);
         let (dstar, k) = conserve_mass(patch, &raw);
         let (l, grad_dstar) = octave_loss(&dstar, loss, view, self.octaves)?;
-        let grad_raw = conserve_mass_backward(&raw, k, &grad_dstar.data);
+        let mut grad_raw = conserve_mass_backward(&raw, k, &grad_dstar.data);
+        if self.stylization == Stylization::Density {
+            let (_, g) = scale_pin(&raw, k, SCALE_PIN);
+            grad_raw.iter_mut().for_each(|x| *x += g);
+        }
+        self.last_mass_ratio = k;
         let grad_o = apply_backward(patch, &o, self.stylization, &grad_raw);
         let mut grads = FeedForward::flat_grads(&self.net.backward(&tape, &grad_o));
         clip_grad_norm(&mut [&mut grads], self.clip);
@@ -351,5 +391,26 @@ mod tests {
             1e-2,
         );
         assert!(r.max_rel_err < 1e-2, "{r:?}");
+    }
+
+    #[test]
+    fn the_scale_pin_gradient_matches_finite_differences() {
+        let dims = [4, 5, 3];
+        let d = Grid3::from_vec(dims, pseudo_random(60, 7).iter().map(|v| v.abs()).collect());
+        let pin = |x: &[f32]| {
+            let raw = Grid3::from_vec(dims, x.to_vec());
+            let (_, k) = conserve_mass(&d, &raw);
+            scale_pin(&raw, k, 3.0)
+        };
+        // Below, at and above the input's level.
+        for level in [0.1f32, 0.5, 2.0] {
+            let raw: Vec<f32> = pseudo_random(60, 8).iter().map(|v| level * (0.2 + v.abs())).collect();
+            let (p, g) = pin(&raw);
+            assert!(p >= 0.0);
+            let r = check_gradient(&raw, &vec![g; 60], |x| pin(x).0 as f64, 1e-2 * level, 60, 1e-2);
+            assert!(r.max_rel_err < 1e-2, "level {level}: {r:?}");
+        }
+        // At the input's own total the pin is zero and flat.
+        assert_eq!(pin(&d.data), (0.0, 0.0));
     }
 }
