@@ -306,7 +306,7 @@ fn write_outputs(
     info.insert("phi_deg".to_string(), s.phi_deg.to_string());
     info.insert("patch".to_string(), s.patch.to_string());
     info.insert("octaves".to_string(), s.octaves.to_string());
-    info.insert("mass".to_string(), if s.velocity { "conserved" } else { "conserved, scale pinned" }.to_string());
+    info.insert("mass".to_string(), if s.velocity { "conserved" } else { crate::step::MASS_PINNED }.to_string());
     info.insert("steps".to_string(), t.steps().to_string());
     info.insert("nst3d_version".to_string(), env!("CARGO_PKG_VERSION").to_string());
     let bytes = Model { net: t.net.clone(), info }.to_bytes();

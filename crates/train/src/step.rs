@@ -110,6 +110,10 @@ pub fn conserve_mass_backward(dstar: &Grid3, k: f32, grad: &[f32]) -> Vec<f32> {
     grad.iter().map(|g| k * g - shift).collect()
 }
 
+/// The `mass` a density model trained with [`scale_pin`] declares in its
+/// metadata (velocity models and older density models say `conserved`).
+pub const MASS_PINNED: &str = "conserved, scale pinned";
+
 /// Weight `λ` of the density-mode scale pin ([`scale_pin`]).
 pub const SCALE_PIN: f32 = 100.0;
 

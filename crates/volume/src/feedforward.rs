@@ -257,6 +257,13 @@ fn one_frame(
 /// model `m`, each frame on its own.
 pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut dyn Reporter) -> Result<ModelReport> {
     let (model, mode, vmax) = load_model(m)?;
+    if mode == Mode::Density && model.info.get("mass").map(String::as_str) != Some(nst3d_train::step::MASS_PINNED) {
+        reporter.note(&format!(
+            "{} was trained before the density scale pin: on smoke unlike its training data it can lift faint \
+             haze many times over (docs/FEEDFORWARD.md, \"The box haze\"); retrain it to fix that",
+            m.path.display()
+        ));
+    }
     let input = s.input.to_string_lossy().to_string();
     let output = s.out.to_string_lossy().to_string();
     let jobs: Vec<(PathBuf, PathBuf, bool)> = match &s.sequence {
