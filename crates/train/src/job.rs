@@ -217,6 +217,21 @@ struct Checkpoint {
     rng: u64,
     losses: Vec<f32>,
     lrs: Vec<f32>,
+    /// Seconds of training before the checkpoint, over every call.
+    elapsed_s: f64,
+    /// Whether the schedule is paced by a `--minutes` budget.
+    paced: bool,
+}
+
+/// Where a run's clock stands, saved with each checkpoint: the budget
+/// counts the run's training time over every call, so a paced run that is
+/// killed and rerun with the same `--minutes` still ends with its budget.
+#[derive(Clone, Copy, Debug)]
+struct Clock {
+    /// Seconds of training so far, earlier calls included.
+    elapsed_s: f64,
+    /// Whether the schedule is paced by the budget.
+    paced: bool,
 }
 
 fn save_checkpoint(
@@ -225,6 +240,7 @@ fn save_checkpoint(
     t: &TrainStep,
     rng: &SplitMix64,
     (losses, lrs): (&[f32], &[f32]),
+    clock: Clock,
 ) -> Result<()> {
     let (m, v, adam_step) = t.adam_state();
     let mut meta = BTreeMap::new();
@@ -234,6 +250,8 @@ fn save_checkpoint(
     meta.insert("position".to_string(), t.position().to_string());
     meta.insert("adam_step".to_string(), adam_step.to_string());
     meta.insert("rng".to_string(), rng.state().to_string());
+    meta.insert("elapsed_s".to_string(), clock.elapsed_s.to_string());
+    meta.insert("paced".to_string(), clock.paced.to_string());
     let model = Model { net: t.net.clone(), info: meta };
     // The model's bytes then the optimiser's tensors, in one safetensors file.
     let bytes = nst3d_weights::safetensors_bytes(
@@ -283,6 +301,10 @@ fn load_checkpoint(path: &Path, s: &TrainSettings) -> Result<Option<Checkpoint>>
         rng: num("rng")?,
         losses: get("losses")?,
         lrs: get("lrs")?,
+        // Checkpoints written before the clock was saved: a budgeted run
+        // was paced, and its budget counts from this call.
+        elapsed_s: model.info.get("elapsed_s").and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0),
+        paced: model.info.get("paced").map_or(s.steps.is_none() && s.minutes.is_some(), |v| v == "true"),
     }))
 }
 
@@ -366,16 +388,34 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     let ckpt = checkpoint_path(&s.out);
     // Two blades training one model would interleave their checkpoints.
     let _lock = nst3d_sequence::WorkLock::acquire(&ckpt).map_err(anyhow::Error::msg)?;
+    // Training time of earlier calls; the budget is the run's, not the call's.
+    let mut elapsed_before = 0.0f64;
+    // Whether the schedule is paced by the clock (after sizing, or resumed so).
+    let mut paced = false;
     if let Some(c) = load_checkpoint(&ckpt, s)? {
         trainer.net = c.net;
         trainer.set_adam_state(&c.m, &c.v, c.step)?;
         trainer.set_position(c.position);
         rng = SplitMix64::new(c.rng);
         (losses, lrs) = (c.losses, c.lrs);
-        // A resumed run keeps the schedule it was planned with.
+        // A resumed run keeps the schedule it was planned with, and a
+        // paced one goes on being paced by what is left of its budget.
         trainer.schedule = OneCycle::new(1e-4, c.planned_steps, 20.0);
         sizing = false;
-        reporter.status(&format!("resuming at step {} of {} from {}", c.step + 1, c.planned_steps, ckpt.display()));
+        paced = c.paced && s.minutes.is_some();
+        elapsed_before = c.elapsed_s;
+        let left = match s.minutes {
+            Some(m) if c.elapsed_s > 0.0 => {
+                format!(", {:.1} of its {m} minutes left", (m - c.elapsed_s / 60.0).max(0.0))
+            }
+            _ => String::new(),
+        };
+        reporter.status(&format!(
+            "resuming at step {} of {} from {}{left}",
+            c.step + 1,
+            c.planned_steps,
+            ckpt.display()
+        ));
     }
     let resumed_at = trainer.steps();
     // γ = 8/P as the benchmark: the densest ray of a full patch gets optical
@@ -424,10 +464,10 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         let now = Instant::now();
         let dt = (now - last_step).as_secs_f64();
         last_step = now;
+        let budget_s = 60.0 * s.minutes.unwrap_or_default();
+        let elapsed = t0.elapsed().as_secs_f64();
+        let done = trainer.steps() - resumed_at;
         if sizing {
-            let budget_s = 60.0 * s.minutes.unwrap_or_default();
-            let elapsed = t0.elapsed().as_secs_f64();
-            let done = trainer.steps() - resumed_at;
             if done == CALIBRATION_STEPS {
                 let total = sized_steps(trainer.steps(), elapsed, budget_s);
                 trainer.schedule = OneCycle::new(1e-4, total, 20.0);
@@ -440,21 +480,24 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
                 reporter.end();
                 reporter.begin(total.saturating_sub(trainer.position().floor() as u64));
                 step_s = elapsed / done as f64;
-            } else if done > CALIBRATION_STEPS {
-                // The recent rate: a machine that got busier is seen within ~20 steps.
-                step_s = 0.9 * step_s + 0.1 * dt;
-                // 2 % kept back for the checkpoints and the final write, as in sizing.
-                let steps_left = ((0.98 * budget_s - elapsed) / step_s.max(1e-9)).max(1.0);
-                let left = trainer.schedule.total_steps as f64 - trainer.position();
-                trainer.pace = (left / steps_left).clamp(0.0, 8.0);
+                (sizing, paced) = (false, true);
             }
+        } else if paced {
+            // The recent rate: a machine that got busier is seen within ~20
+            // steps (a resumed run starts from its first step's time).
+            step_s = if step_s == 0.0 { dt } else { 0.9 * step_s + 0.1 * dt };
+            // 2 % kept back for the checkpoints and the final write, as in sizing.
+            let steps_left = ((0.98 * budget_s - elapsed_before - elapsed) / step_s.max(1e-9)).max(1.0);
+            let left = trainer.schedule.total_steps as f64 - trainer.position();
+            trainer.pace = (left / steps_left).clamp(0.0, 8.0);
         }
-        let out_of_time = s.minutes.is_some_and(|m| t0.elapsed().as_secs_f64() >= 60.0 * m);
+        let clock = Clock { elapsed_s: elapsed_before + t0.elapsed().as_secs_f64(), paced };
+        let out_of_time = s.minutes.is_some_and(|m| clock.elapsed_s >= 60.0 * m);
         // A stopped run checkpoints first, so rerunning it resumes at this step.
         let stop = nst3d_core::stop::requested();
         let last = trainer.schedule_done();
         if trainer.steps().is_multiple_of(s.checkpoint_every) || last || out_of_time || stop {
-            save_checkpoint(&ckpt, s, &trainer, &rng, (&losses, &lrs))?;
+            save_checkpoint(&ckpt, s, &trainer, &rng, (&losses, &lrs), clock)?;
             write_outputs(s, &trainer, (&losses, &lrs), &style_sha, [style_img.width, style_img.height])?;
         }
         nst3d_core::stop::check()?;
