@@ -402,6 +402,7 @@ def train(
     minutes: Optional[float] = None,
     theta: Optional[float] = None,
     phi: Optional[float] = None,
+    view_axes: Optional[str] = None,
     style_scale: Optional[float] = None,
     octaves: Optional[int] = None,
     seed: Optional[int] = None,
@@ -423,7 +424,7 @@ def train(
     frame_lists = [] if frames is None else [frames] if isinstance(frames, str) else list(frames)
     opts = _options(
         mode=mode, grid=grid, channels=channels, patch=patch, steps=steps, minutes=minutes,
-        theta=theta, phi=phi, style_scale=style_scale, octaves=octaves, seed=seed,
+        theta=theta, phi=phi, view_axes=view_axes, style_scale=style_scale, octaves=octaves, seed=seed,
         checkpoint_every=checkpoint_every, weights=weights,
     )
     return _nst3d.train(inputs, frame_lists, os.fspath(style), os.fspath(out), opts, progress, _to_log)

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 use nst3d_stylize::Mode;
-use nst3d_train::TrainSettings;
+use nst3d_train::{TrainSettings, ViewAxes};
 
 use crate::console::Console;
 
@@ -55,6 +55,12 @@ pub struct TrainArgs {
     /// Random rotation about y, ± degrees (the paper narrows it to 20 for some styles).
     #[arg(long, default_value_t = 90.0)]
     phi: f32,
+    /// Axes of the patch each step renders along: random (one of x, y, z per
+    /// step), all (three pictures per step, 3x the rendering work) or z (the
+    /// paper's peer and models before 2026-11-29, which learn to stretch
+    /// their strokes along z; docs/FEEDFORWARD.md).
+    #[arg(long, default_value = "random")]
+    view_axes: ViewAxes,
     /// Style image scale factor (smaller = larger patterns).
     #[arg(long, default_value_t = 0.5)]
     style_scale: f32,
@@ -90,6 +96,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
         minutes: args.minutes,
         theta_deg: args.theta,
         phi_deg: args.phi,
+        view_axes: args.view_axes,
         seed: args.seed,
         out: args.out,
         checkpoint_every: args.checkpoint_every,
@@ -133,5 +140,6 @@ mod tests {
             (d.grid, d.style_scale, d.channels, d.patch, d.octaves, d.steps, d.minutes, d.theta_deg, d.phi_deg, d.seed)
         );
         assert_eq!((a.checkpoint_every, matches!(a.mode, Mode::Velocity)), (d.checkpoint_every, d.velocity));
+        assert_eq!(a.view_axes, d.view_axes);
     }
 }

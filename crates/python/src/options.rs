@@ -238,6 +238,9 @@ pub fn apply_train(s: &mut nst3d_train::TrainSettings, mut o: Options<'_>) -> Py
     }
     set!(o.f32("theta") => s.theta_deg);
     set!(o.f32("phi") => s.phi_deg);
+    if let Some(v) = o.parsed("view_axes", |v| v.parse::<nst3d_train::ViewAxes>())? {
+        s.view_axes = v;
+    }
     set!(o.u64("seed") => s.seed);
     set!(o.u64("checkpoint_every") => s.checkpoint_every);
     o.finish("train")

@@ -18,6 +18,7 @@ use nst3d_optim::OneCycle;
 use nst3d_sequence::{expand_pattern, FrameSpec};
 use nst3d_stylize::{StyleSpec, ViewLoss, ViewSpec};
 
+use crate::axes::ViewAxes;
 use crate::patch::{rotated_patch, Rotation};
 use crate::step::{Stylization, TrainStep};
 
@@ -52,6 +53,8 @@ pub struct TrainSettings {
     pub theta_deg: f32,
     /// Rotation range about y, degrees (±).
     pub phi_deg: f32,
+    /// The patch axes each step renders along ([`crate::axes`]).
+    pub view_axes: ViewAxes,
     /// Seed of the patch sampling and the initial weights.
     pub seed: u64,
     /// The model file written at the end (and with every checkpoint).
@@ -78,6 +81,7 @@ impl TrainSettings {
             minutes: None,
             theta_deg: 180.0,
             phi_deg: 90.0,
+            view_axes: ViewAxes::Random,
             seed: 0,
             out: out.into(),
             checkpoint_every: 50,
@@ -328,6 +332,7 @@ fn write_outputs(
     info.insert("phi_deg".to_string(), s.phi_deg.to_string());
     info.insert("patch".to_string(), s.patch.to_string());
     info.insert("octaves".to_string(), s.octaves.to_string());
+    info.insert("view_axes".to_string(), s.view_axes.name().to_string());
     info.insert("mass".to_string(), if s.velocity { "conserved" } else { crate::step::MASS_PINNED }.to_string());
     info.insert("steps".to_string(), t.steps().to_string());
     info.insert("nst3d_version".to_string(), env!("CARGO_PKG_VERSION").to_string());
@@ -440,7 +445,8 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         };
         let patch = rotated_patch(d, origin, s.patch, &rot);
         let before = trainer.position().floor() as u64;
-        let l = trainer.step(&patch, &loss, &view)?;
+        let axes = s.view_axes.pick(|| rng.uniform_f32());
+        let l = trainer.step(&patch, &loss, &view, &axes)?;
         // The bar counts the schedule's steps: a paced run takes more or
         // fewer training steps than its schedule has, as the clock says.
         for _ in before..trainer.position().floor() as u64 {

@@ -9,12 +9,14 @@
 
 #![warn(missing_docs)]
 
+pub mod axes;
 pub mod bench;
 pub mod curve;
 pub mod job;
 pub mod patch;
 pub mod step;
 
+pub use axes::{Axis, ViewAxes};
 pub use job::{train, TrainReport, TrainSettings};
 pub use patch::{rotated_patch, Rotation};
 pub use step::{Stylization, TrainStep};

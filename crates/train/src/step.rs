@@ -3,6 +3,7 @@
 //! render + VGG-19 Gram loss, backward to the weights, gradient clipping,
 //! Adam under OneCycle.
 
+use crate::axes::{turn_to_z, turn_to_z_backward, Axis};
 use nst3d_core::Grid3;
 use nst3d_network::{FeedForward, Volume};
 use nst3d_optim::{clip_grad_norm, Adam, OneCycle};
@@ -256,15 +257,25 @@ impl TrainStep {
     }
 
     /// One step on `patch` (densities in `[0, 1]`, sides a multiple of 4)
-    /// seen from `view`; returns the style loss (summed over the octaves)
-    /// before the update.
-    pub fn step(&mut self, patch: &Grid3, loss: &ViewLoss, view: &ViewSpec) -> Result<f32, ViewError> {
+    /// seen from `view` along each of `axes` ([`crate::axes`]); returns the
+    /// style loss (summed over the octaves, the mean over the axes) before
+    /// the update.
+    pub fn step(&mut self, patch: &Grid3, loss: &ViewLoss, view: &ViewSpec, axes: &[Axis]) -> Result<f32, ViewError> {
+        assert!(!axes.is_empty(), "a step renders its patch along at least one axis");
         let x = Volume::from_grid(patch);
         let (o, tape) = self.net.forward(&x);
         let raw = apply(patch, &o, self.stylization);
         let (dstar, k) = conserve_mass(patch, &raw);
-        let (l, grad_dstar) = octave_loss(&dstar, loss, view, self.octaves)?;
-        let mut grad_raw = conserve_mass_backward(&raw, k, &grad_dstar.data);
+        let (mut l, mut grad_dstar) = (0.0f32, vec![0.0f32; dstar.len()]);
+        let share = 1.0 / axes.len() as f32;
+        for &axis in axes {
+            let (la, ga) = octave_loss(&turn_to_z(&dstar, axis), loss, view, self.octaves)?;
+            l += share * la;
+            for (g, a) in grad_dstar.iter_mut().zip(&turn_to_z_backward(&ga, axis).data) {
+                *g += share * a;
+            }
+        }
+        let mut grad_raw = conserve_mass_backward(&raw, k, &grad_dstar);
         if self.stylization == Stylization::Density {
             let (_, g) = scale_pin(&raw, k, SCALE_PIN);
             grad_raw.iter_mut().for_each(|x| *x += g);

@@ -29,6 +29,7 @@ fn settings(out: &Path) -> TrainSettings {
         minutes: None,
         theta_deg: 180.0,
         phi_deg: 90.0,
+        view_axes: nst3d_train::ViewAxes::Random,
         seed: 3,
         out: out.to_path_buf(),
         checkpoint_every: 2,
