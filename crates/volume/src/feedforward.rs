@@ -264,6 +264,14 @@ pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut 
             m.path.display()
         ));
     }
+    if !model.info.contains_key("view_axes") {
+        reporter.note(&format!(
+            "{} was trained on pictures along its patches' z axis only: its strokes are stretched into \
+             columns along the grid's z, streaks from the side (docs/FEEDFORWARD.md, \"The camera the network \
+             learned\"); retrain it to fix that",
+            m.path.display()
+        ));
+    }
     let input = s.input.to_string_lossy().to_string();
     let output = s.out.to_string_lossy().to_string();
     let jobs: Vec<(PathBuf, PathBuf, bool)> = match &s.sequence {
