@@ -138,7 +138,8 @@ pub struct TrainReport {
     pub resumed_at: u64,
     /// Length of the OneCycle schedule (given, default or sized to the budget).
     pub planned_steps: u64,
-    /// Whether the schedule was sized from the measured step time (and paced by the clock).
+    /// Whether the schedule was sized from the measured step time and paced
+    /// by the clock (in this call or, for a resumed run, the first).
     pub sized: bool,
     /// Whether the schedule ran to its end (not stopped by a budget or a signal).
     pub schedule_done: bool,
@@ -432,7 +433,6 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     let gamma = 8.0 / s.patch as f32;
     let view = ViewSpec { camera: None, gamma, exposure: gamma, equalize: false };
     let t0 = Instant::now();
-    let sized = sizing;
     let (mut last_step, mut step_s) = (Instant::now(), 0.0f64);
     reporter.begin(trainer.schedule.total_steps.saturating_sub(trainer.position().floor() as u64));
     while !trainer.schedule_done() {
@@ -519,7 +519,7 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         resumed_at,
         planned_steps: trainer.schedule.total_steps,
         schedule_done: trainer.schedule_done(),
-        sized,
+        sized: paced,
         loss_first: mean(&losses[..tenth.min(losses.len())]),
         loss_last: mean(&losses[losses.len().saturating_sub(tenth)..]),
         out: s.out.clone(),

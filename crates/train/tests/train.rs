@@ -129,7 +129,7 @@ fn a_stopped_paced_run_ends_with_its_budget() {
     let t0 = Instant::now();
     let r = nst3d_core::precision::fp32(|| train(&s, &mut Silent)).unwrap();
     let secs = t0.elapsed().as_secs_f64();
-    assert!(r.resumed_at > 8 && r.schedule_done, "{r:?}");
+    assert!(r.resumed_at > 8 && r.schedule_done && r.sized, "{r:?}");
     // About 5 of the 12 s were left (set-up not counted); a fresh budget
     // would have taken 12 s or more.
     assert!(secs > 2.0 && secs < 9.5, "the resumed call ran {secs:.1} s with about 5 s of its 12 s budget left");
