@@ -222,10 +222,7 @@ struct Checkpoint {
     rng: u64,
     losses: Vec<f32>,
     lrs: Vec<f32>,
-    /// Seconds of training before the checkpoint, over every call.
-    elapsed_s: f64,
-    /// Whether the schedule is paced by a `--minutes` budget.
-    paced: bool,
+    clock: Clock,
 }
 
 /// Where a run's clock stands, saved with each checkpoint: the budget
@@ -308,8 +305,10 @@ fn load_checkpoint(path: &Path, s: &TrainSettings) -> Result<Option<Checkpoint>>
         lrs: get("lrs")?,
         // Checkpoints written before the clock was saved: a budgeted run
         // was paced, and its budget counts from this call.
-        elapsed_s: model.info.get("elapsed_s").and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0),
-        paced: model.info.get("paced").map_or(s.steps.is_none() && s.minutes.is_some(), |v| v == "true"),
+        clock: Clock {
+            elapsed_s: model.info.get("elapsed_s").and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0),
+            paced: model.info.get("paced").map_or(s.steps.is_none() && s.minutes.is_some(), |v| v == "true"),
+        },
     }))
 }
 
@@ -408,11 +407,11 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         // paced one goes on being paced by what is left of its budget.
         trainer.schedule = OneCycle::new(1e-4, c.planned_steps, 20.0);
         sizing = false;
-        paced = c.paced && s.minutes.is_some();
-        elapsed_before = c.elapsed_s;
+        paced = c.clock.paced && s.minutes.is_some();
+        elapsed_before = c.clock.elapsed_s;
         let left = match s.minutes {
-            Some(m) if c.elapsed_s > 0.0 => {
-                format!(", {:.1} of its {m} minutes left", (m - c.elapsed_s / 60.0).max(0.0))
+            Some(m) if elapsed_before > 0.0 => {
+                format!(", {:.1} of its {m} minutes left", (m - elapsed_before / 60.0).max(0.0))
             }
             _ => String::new(),
         };

@@ -99,15 +99,20 @@ fn a_minutes_budget_sizes_the_schedule() {
     assert_eq!(m.info.get("steps").map(String::as_str), Some(r.steps.to_string().as_str()));
 }
 
-/// Asks the run to stop (as Ctrl-C does) once `after_s` seconds have passed.
-struct StopAfter {
-    t0: Instant,
-    after_s: f64,
+/// Times a run's training loop, from the progress bar's first `begin`
+/// (after the set-up: weights, painting, frames) to its return, and asks
+/// it to stop (as Ctrl-C does) once `stop_after_s` of that have passed.
+struct LoopClock {
+    began: Option<Instant>,
+    stop_after_s: f64,
 }
 
-impl Reporter for StopAfter {
+impl Reporter for LoopClock {
+    fn begin(&mut self, _: u64) {
+        self.began.get_or_insert_with(Instant::now);
+    }
     fn step(&mut self, _: &str) {
-        if self.t0.elapsed().as_secs_f64() > self.after_s {
+        if self.began.is_some_and(|t| t.elapsed().as_secs_f64() > self.stop_after_s) {
             nst3d_core::stop::request();
         }
     }
@@ -123,14 +128,16 @@ fn a_stopped_paced_run_ends_with_its_budget() {
     let mut s = settings(&out);
     (s.steps, s.minutes, s.checkpoint_every) = (None, Some(0.2), 1000);
     // fp32: the clock is tested here, not the arithmetic (see train.rs).
-    let first = nst3d_core::precision::fp32(|| train(&s, &mut StopAfter { t0: Instant::now(), after_s: 7.0 }));
-    assert!(first.is_err(), "the first call should have been stopped: {first:?}");
+    // Stopped after 7 of its 12 s of training (the 8 timed steps that size
+    // the schedule take well under a second).
+    let mut first = LoopClock { began: None, stop_after_s: 7.0 };
+    let r = nst3d_core::precision::fp32(|| train(&s, &mut first));
+    assert!(r.is_err(), "the first call should have been stopped: {r:?}");
     nst3d_core::stop::clear();
-    let t0 = Instant::now();
-    let r = nst3d_core::precision::fp32(|| train(&s, &mut Silent)).unwrap();
-    let secs = t0.elapsed().as_secs_f64();
+    let mut second = LoopClock { began: None, stop_after_s: f64::INFINITY };
+    let r = nst3d_core::precision::fp32(|| train(&s, &mut second)).unwrap();
+    let secs = second.began.expect("the resumed run trained").elapsed().as_secs_f64();
     assert!(r.resumed_at > 8 && r.schedule_done && r.sized, "{r:?}");
-    // About 5 of the 12 s were left (set-up not counted); a fresh budget
-    // would have taken 12 s or more.
-    assert!(secs > 2.0 && secs < 9.5, "the resumed call ran {secs:.1} s with about 5 s of its 12 s budget left");
+    // About 5 of the 12 s were left; a fresh budget would have taken 12 s.
+    assert!(secs > 2.0 && secs < 9.5, "the resumed call trained {secs:.1} s with about 5 s of its 12 s budget left");
 }
