@@ -445,11 +445,13 @@ class Model:
         tile: Optional[int] = None,
         tile_margin: Optional[int] = None,
         mode: Optional[str] = None,
+        strength: Union[str, float, None] = None,
     ) -> "Model":
         """Reads and checks ``path``; ``tile`` and ``tile_margin`` (voxels)
         bound the memory of one pass as ``nst3d volume --model`` does;
-        ``mode`` refuses a model of the other mode."""
-        opts = _options(tile=tile, tile_margin=tile_margin, mode=mode)
+        ``mode`` refuses a model of the other mode; ``strength`` takes the
+        network's stylization further or less far (``--strength``)."""
+        opts = _options(tile=tile, tile_margin=tile_margin, mode=mode, strength=strength)
         return cls(_nst3d.Model.load(os.fspath(path), opts))
 
     @property

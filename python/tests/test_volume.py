@@ -159,6 +159,17 @@ def test_model_trains_and_stylizes_like_the_command_line(tmp_path, data, style, 
     py = tmp_path / "py.vdb"
     nst3d.stylize_vdb(src, py, model=model)
     assert py.read_bytes() == cli.read_bytes()
+    # --strength reaches the network from both front ends: strong moves the
+    # smoke further than the trained network, subtle less far.
+    strong = nst3d.Model.load(model, strength="strong").stylize(a, origin=lo)
+    cli2 = tmp_path / "cli2.vdb"
+    run_cli(nst3d_bin, "volume", "--model", model, "--strength", "strong", "--input", src, "--out", cli2)
+    b = np.zeros_like(a)
+    vdb.read(str(cli2), "density").copyToArray(b, ijk=lo)
+    np.testing.assert_allclose(strong, b, rtol=0, atol=1e-6)
+    assert np.abs(strong - a).sum() > np.abs(out - a).sum()
+    weak = nst3d.Model.load(model, strength="subtle").stylize(a, origin=lo)
+    assert np.abs(weak - a).sum() < np.abs(out - a).sum()
 
 
 def test_the_benchmark_work_runs():

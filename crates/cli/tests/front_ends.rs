@@ -242,9 +242,9 @@ fn the_cli_and_the_python_package_offer_the_same_settings() {
             }
         }
     }
-    // Model.load takes the tile flags and --mode of `nst3d volume --model`.
+    // Model.load takes the tile flags, --mode and --strength of `nst3d volume --model`.
     let load = py_function(&py_src, "load");
-    assert_eq!(py_options(&load), set(&["tile", "tile_margin", "mode"]));
-    assert_eq!(rs_options(&rs_src, "apply_model"), set(&["tile", "tile_margin", "mode"]));
+    assert_eq!(py_options(&load), set(&["tile", "tile_margin", "mode", "strength"]));
+    assert_eq!(rs_options(&rs_src, "apply_model"), set(&["tile", "tile_margin", "mode", "strength"]));
     assert!(problems.is_empty(), "the front ends disagree:\n{}", problems.join("\n"));
 }

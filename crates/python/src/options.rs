@@ -55,6 +55,19 @@ impl<'py> Options<'py> {
         self.typed(name, "a number", |v| v.extract::<f32>())
     }
 
+    /// A strength as `--strength` reads it: subtle, default, strong or a number.
+    fn strength(&mut self, name: &str) -> PyResult<Option<f32>> {
+        let Some(v) = self.typed(name, "subtle, default, strong or a number", |v| {
+            v.extract::<String>().or_else(|_| v.extract::<f32>().map(|x| x.to_string()))
+        })?
+        else {
+            return Ok(None);
+        };
+        nst3d_volume::settings::parse_strength(&v)
+            .map(Some)
+            .map_err(|e| PyValueError::new_err(format!("option '{name}': {e}")))
+    }
+
     fn usize(&mut self, name: &str) -> PyResult<Option<usize>> {
         self.typed(name, "a whole number >= 0", |v| v.extract::<usize>())
     }
@@ -121,12 +134,7 @@ pub fn apply_volume(s: &mut VolumeSettings, mut o: Options<'_>) -> PyResult<()> 
     set!(o.f32("smin") => s.smin);
     set!(o.f32("smax") => s.smax);
     set!(o.f32("style_scale") => s.style_scale);
-    if let Some(v) = o.typed("strength", "subtle, default, strong or a number", |v| {
-        v.extract::<String>().or_else(|_| v.extract::<f32>().map(|x| x.to_string()))
-    })? {
-        s.strength = nst3d_volume::settings::parse_strength(&v)
-            .map_err(|e| PyValueError::new_err(format!("option 'strength': {e}")))?;
-    }
+    set!(o.strength("strength") => s.strength);
     set!(o.bool("style_color") => s.style_color);
     set!(o.bool("color") => s.color);
     set!(o.string("color_grid") => Some s.color_grid);
@@ -171,16 +179,18 @@ pub fn apply_volume(s: &mut VolumeSettings, mut o: Options<'_>) -> PyResult<()> 
         set!(o.usize("tile") => m.tile);
         set!(o.usize("tile_margin") => m.margin);
         m.mode = mode;
+        m.strength = s.strength;
         s.model = Some(m);
     }
     o.finish("stylize_vdb")
 }
 
-/// `nst3d volume --model`'s tile flags onto [`ModelSettings`].
+/// `nst3d volume --model`'s tile flags and `--strength` onto [`ModelSettings`].
 pub fn apply_model(m: &mut ModelSettings, mut o: Options<'_>) -> PyResult<()> {
     set!(o.usize("tile") => m.tile);
     set!(o.usize("tile_margin") => m.margin);
     set!(o.parsed("mode", |s| s.parse()) => Some m.mode);
+    set!(o.strength("strength") => m.strength);
     o.finish("Model.load")
 }
 

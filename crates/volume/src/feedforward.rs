@@ -15,7 +15,7 @@ use nst3d_network::tiled::infer_tiles;
 use nst3d_network::{Model, Volume};
 use nst3d_sequence::{expand_pattern, FrameSpec};
 use nst3d_stylize::Mode;
-use nst3d_train::step::{apply, mass_ratio, Stylization};
+use nst3d_train::step::{apply_with_strength, mass_ratio, Stylization};
 
 use crate::output::write_stylized_grid;
 use crate::settings::{ModelSettings, VolumeSettings};
@@ -157,7 +157,7 @@ fn stylize_sparse(
     // starting on a leaf corner: tiles (multiples of 8) then cover whole
     // leaves, and the network's stride lattice is fixed in index space, so a
     // frame's result does not depend on the tile size.
-    let room = if mode == Mode::Velocity { vmax.ceil() as i32 + 1 } else { 0 };
+    let room = if mode == Mode::Velocity { (vmax * m.strength.max(1.0)).ceil() as i32 + 1 } else { 0 };
     let origin: [i32; 3] = std::array::from_fn(|a| (lo[a] - room).div_euclid(LEAF_DIM) * LEAF_DIM);
     let dims: [usize; 3] = std::array::from_fn(|a| (hi[a] + room - origin[a] + 1) as usize);
     let at = |p: [usize; 3]| -> [i32; 3] { std::array::from_fn(|a| origin[a] + p[a] as i32) };
@@ -194,7 +194,7 @@ fn stylize_sparse(
     infer_tiles(&model.net, dims, tile, m.margin, read, |t, input, o| {
         // Applied on the whole region: a velocity reads density up to vmax
         // away, which the margin holds.
-        let styled = apply(&Grid3::from_vec(t.size, input.data.clone()), o, how);
+        let styled = apply_with_strength(&Grid3::from_vec(t.size, input.data.clone()), o, how, m.strength);
         let core: [usize; 3] = std::array::from_fn(|a| t.hi[a] - t.lo[a]);
         let mut values = Vec::with_capacity(core.iter().product());
         for z in t.lo[2]..t.hi[2] {
@@ -372,7 +372,7 @@ mod tests {
         for (mode, out_c, vmax) in [(Mode::Density, 1, 0.0), (Mode::Velocity, 3, 2.0)] {
             let model = Model { net: FeedForward::new(2, out_c, 4), info: BTreeMap::new() };
             let run = |tile: usize| {
-                let m = ModelSettings { path: PathBuf::new(), tile, margin: 32, mode: None };
+                let m = ModelSettings { tile, ..ModelSettings::new(PathBuf::new()) };
                 stylize_sparse(&model, mode, vmax, &g, bbox, &m, None).0
             };
             let (whole, tiled) = (run(256), run(8));

@@ -48,7 +48,8 @@ pub struct VolumeSettings {
     /// how far the stylization may move the smoke (`vmax`) and how far it may
     /// scale it from 1 (`[smin, smax]`) by this factor, keeping the shape;
     /// above 1 it runs this many times the iterations (docs/VOLUME_LOOK.md,
-    /// "Art-directable strength").
+    /// "Art-directable strength"). A trained model reads it from
+    /// [`ModelSettings::strength`].
     pub strength: f32,
     /// Match the painting's colour Grams too, not only its luminance's.
     pub style_color: bool,
@@ -350,6 +351,10 @@ pub struct ModelSettings {
     pub margin: usize,
     /// The mode the user asked for, if any: a model of the other mode is refused.
     pub mode: Option<Mode>,
+    /// How far the network's stylization is taken (`--strength`; 1 as
+    /// trained): the density scale `s` becomes `s^strength`, a velocity
+    /// `strength · v`, before the frame's total is restored.
+    pub strength: f32,
 }
 
 impl ModelSettings {
@@ -360,6 +365,6 @@ impl ModelSettings {
 
     /// The command line's defaults for the model file `path`.
     pub fn new(path: impl Into<PathBuf>) -> Self {
-        Self { path: path.into(), tile: Self::DEFAULT_TILE, margin: Self::DEFAULT_MARGIN, mode: None }
+        Self { path: path.into(), tile: Self::DEFAULT_TILE, margin: Self::DEFAULT_MARGIN, mode: None, strength: 1.0 }
     }
 }

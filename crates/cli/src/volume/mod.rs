@@ -93,6 +93,8 @@ pub struct VolumeArgs {
     /// a number. Below 1 it shrinks --vmax and the density range around 1 by
     /// that factor (the smoke keeps its shape); above 1 it runs that many
     /// times the iterations (docs/VOLUME_LOOK.md, "Art-directable strength").
+    /// With --model it raises the network's density scale to that power (a
+    /// velocity model moves the smoke that many times as far).
     #[arg(long, default_value = "default", value_parser = nst3d_volume::settings::parse_strength)]
     pub strength: f32,
     /// Match the painting's colour statistics too (by default only its
@@ -219,6 +221,7 @@ impl VolumeArgs {
                 tile: self.tile,
                 margin: self.tile_margin,
                 mode: self.mode,
+                strength: self.strength,
             }),
         }
     }
