@@ -415,12 +415,14 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
             }
             _ => String::new(),
         };
-        reporter.status(&format!(
-            "resuming at step {} of {} from {}{left}",
-            c.step + 1,
-            c.planned_steps,
-            ckpt.display()
-        ));
+        // A paced run's steps and its schedule's position part ways (the
+        // clock moves the schedule), so it says both.
+        let at = if paced {
+            format!("after {} steps, the schedule at {:.0} of {}", c.step, c.position, c.planned_steps)
+        } else {
+            format!("at step {} of {}", c.step + 1, c.planned_steps)
+        };
+        reporter.status(&format!("resuming {at} from {}{left}", ckpt.display()));
     }
     let resumed_at = trainer.steps();
     // γ = 8/P as the benchmark: the densest ray of a full patch gets optical

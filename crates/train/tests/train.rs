@@ -105,6 +105,7 @@ fn a_minutes_budget_sizes_the_schedule() {
 struct LoopClock {
     began: Option<Instant>,
     stop_after_s: f64,
+    said: Vec<String>,
 }
 
 impl Reporter for LoopClock {
@@ -115,6 +116,9 @@ impl Reporter for LoopClock {
         if self.began.is_some_and(|t| t.elapsed().as_secs_f64() > self.stop_after_s) {
             nst3d_core::stop::request();
         }
+    }
+    fn status(&mut self, line: &str) {
+        self.said.push(line.to_string());
     }
 }
 
@@ -130,14 +134,17 @@ fn a_stopped_paced_run_ends_with_its_budget() {
     // fp32: the clock is tested here, not the arithmetic (see train.rs).
     // Stopped after 7 of its 12 s of training (the 8 timed steps that size
     // the schedule take well under a second).
-    let mut first = LoopClock { began: None, stop_after_s: 7.0 };
+    let mut first = LoopClock { began: None, stop_after_s: 7.0, said: Vec::new() };
     let r = nst3d_core::precision::fp32(|| train(&s, &mut first));
     assert!(r.is_err(), "the first call should have been stopped: {r:?}");
     nst3d_core::stop::clear();
-    let mut second = LoopClock { began: None, stop_after_s: f64::INFINITY };
+    let mut second = LoopClock { began: None, stop_after_s: f64::INFINITY, said: Vec::new() };
     let r = nst3d_core::precision::fp32(|| train(&s, &mut second)).unwrap();
     let secs = second.began.expect("the resumed run trained").elapsed().as_secs_f64();
     assert!(r.resumed_at > 8 && r.schedule_done && r.sized, "{r:?}");
     // About 5 of the 12 s were left; a fresh budget would have taken 12 s.
     assert!(secs > 2.0 && secs < 9.5, "the resumed call trained {secs:.1} s with about 5 s of its 12 s budget left");
+    // Its steps and its schedule's position differ, and it says both.
+    let said = second.said.iter().find(|l| l.starts_with("resuming")).expect("the resumed run said so");
+    assert!(said.contains("resuming after ") && said.contains(" steps, the schedule at "), "{said}");
 }
