@@ -32,18 +32,28 @@ LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)
 
 
 def save(path, img):
-    Image.fromarray((np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)).save(path)
+    # Written under a temporary name and renamed: a stopped run leaves no half picture.
+    tmp = path + ".tmp.png"
+    Image.fromarray((np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)).save(tmp)
+    os.replace(tmp, path)
 
 
 def main(argv):
     if len(argv) < 3:
         sys.exit("usage: color_toward_white.py OUTDIR T SHEET.png [SHEET.png ...]")
-    out, t, sheets = argv[0], float(argv[1]), argv[2:]
+    out, sheets = argv[0], argv[2:]
+    try:
+        t = float(argv[1])
+    except ValueError:
+        sys.exit(f"T = {argv[1]!r} is not a number")
     if not 0.0 <= t <= 1.0:
         sys.exit(f"T = {t} is not in [0, 1]")
     os.makedirs(out, exist_ok=True)
     for path in sheets:
-        img = np.asarray(Image.open(path).convert("RGB"), dtype=np.float32) / 255.0
+        try:
+            img = np.asarray(Image.open(path).convert("RGB"), dtype=np.float32) / 255.0
+        except OSError as e:
+            sys.exit(f"{path}: cannot read the sheet ({e})")
         w = img.shape[1] // 2
         grey, colour = img[:, :w], img[:, img.shape[1] - w :]
         sheet = np.concatenate([grey, (1.0 - t) * colour + t * grey], axis=1)
