@@ -8,8 +8,9 @@
 # (8 turntable views at 15 degrees, 512 px; none an optimisation view).
 #
 #   bash tools/groom_cross_judge.sh OUTDIR GROOM MESH y|z [nst3d strands options...]
-#   e.g. bash tools/groom_cross_judge.sh /tmp/x ../shared/data/grooms/monkey_curly.ply \
-#          ../shared/data/grooms/monkey_curly_mesh.obj z --render-size 300 --iters 30
+#   e.g. (from the repository) bash tools/groom_cross_judge.sh /tmp/x \
+#          ../shared/data/grooms/monkey_curly.ply ../shared/data/grooms/monkey_curly_mesh.obj z \
+#          --render-size 300 --iters 30
 #
 # Prints one table per judge (whole picture, hair only, hair only tone
 # matched): rows are what the groom was stylized toward, columns the
@@ -20,7 +21,8 @@
 # rerun with the same OUTDIR resumes.
 set -euo pipefail
 [ $# -ge 4 ] || { echo "usage: $0 OUTDIR GROOM MESH y|z [nst3d strands options...]" >&2; exit 2; }
-OUT=$1; GROOM=$2; MESH=$3; UP=$4; shift 4
+# Paths as given, from the caller's directory (the script then runs from the repository).
+OUT=$(realpath -m "$1"); GROOM=$(realpath -m "$2"); MESH=$(realpath -m "$3"); UP=$4; shift 4
 cd "$(dirname "$0")/.."
 BIN=${NST3D_BIN:-./target/release/nst3d}
 PAINTINGS=(starry_night shipwreck woman_with_hat)
