@@ -4,8 +4,8 @@
 # docs/FARM.md chunk measurement and the 96-resolution one of
 # docs/PERFORMANCE.md "Sequence scaling":
 #
-#   bash tools/bake_plume.sh /work/data/plume120 48 120   # 32x32x48 domain, ~30 s
-#   bash tools/bake_plume.sh /work/data/plume96 96 40     # 64x64x96 domain, ~3 min
+#   bash tools/bake_plume.sh data/plume120 48 120   # 32x32x48 domain, ~30 s
+#   bash tools/bake_plume.sh data/plume96 96 40     # 64x64x96 domain, ~3 min
 #
 # Frames land in OUTDIR/data/fluid_data_####.vdb (grids density, temperature,
 # flame, shadow, velocity), so nst3d reads them with
@@ -18,8 +18,8 @@
 # tools/blender_bake_plume.py (same scene, with knobs; see its header), e.g.
 # the two plumes of docs/SEQUENCES.md "EMA 0 vs 0.7, measured":
 #
-#   bash tools/bake_plume.sh /work/data/plumeA 64 48 --offset 0.4 0.25 --vorticity 0.3
-#   bash tools/bake_plume.sh /work/data/plumeB 56 48 --offset -0.4 0 --radius 0.2 \
+#   bash tools/bake_plume.sh data/plumeA 64 48 --offset 0.4 0.25 --vorticity 0.3
+#   bash tools/bake_plume.sh data/plumeB 56 48 --offset -0.4 0 --radius 0.2 \
 #       --velocity 1.5 0 0 --alpha 2 --beta 3 --vorticity 0.15
 #
 # Options: --offset X Y, --radius R, --vorticity V, --velocity VX VY VZ,

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 25's table: each benchmark run by nst3d --precision fp32, nst3d
+# The precision table: each benchmark run by nst3d --precision fp32, nst3d
 # --precision bf16, the PyTorch peer in fp32 and the peer with --bf16
 # (torch.autocast bfloat16), interleaved round by round in the same minutes,
 # 2 threads each; prints every run, the medians and nst3d / best peer.

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """How much colour a groom can carry before its grey look gets worse
-(issue 29, docs/STRANDS.md "The grey half against white hair").
+(the grey half of the colour stage against white hair).
 
     python tools/color_toward_white.py OUTDIR T SHEET.png [SHEET.png ...]
 

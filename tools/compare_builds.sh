@@ -2,7 +2,7 @@
 # Shows that the working tree's nst3d writes byte-identical outputs, reports
 # and notes to those of an earlier revision on the shared examples:
 #
-#   bash tools/compare_builds.sh REV        # e.g. f39cc5c, the last commit before issue 9
+#   bash tools/compare_builds.sh REV        # e.g. a tag or a commit before a refactor
 #
 # REV is built in a temporary git worktree (its own target folder, so the
 # first run takes a full release build), both binaries run

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 25's measurements on a machine that has a bf16 unit but no Rust
+# The bf16 measurements on a machine that has a bf16 unit but no Rust
 # toolchain (a lent machine with no network): runs binaries built elsewhere.
 #
 #   bash tools/device_bf16.sh pack            # here: fills devbin/ (git-ignored)
@@ -10,7 +10,7 @@
 # `run` prints the CPU's bf16 flags, runs the bf16/precision tests of core,
 # features, loss and network on the dispatched path (AMX or AVX512-BF16 where
 # present, with each hardware kernel's self-check against the scalar one),
-# then the benchmarks of issue 25, 2 threads pinned to cores 0-1, nst3d fp32 /
+# then the precision benchmarks, 2 threads pinned to cores 0-1, nst3d fp32 /
 # nst3d auto / PyTorch fp32 / PyTorch bf16 interleaved round by round. Output
 # goes to stdout and to $OUT/bf16.log when $OUT is set.
 set -uo pipefail

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 26's held-out judge: how far a stylized file moved towards a
+# The feed-forward held-out judge: how far a stylized file moved towards a
 # painting, seen from 8 cameras all around that no optimisation or training
 # used (ring:8:30 — 8 azimuths at 30° elevation), with the real VGG-19 Gram
 # style loss. Per view: loss(result) / loss(input); the score is the worst

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 26's "--minutes" check: `nst3d train --minutes M` with no other
+# The "--minutes" check: `nst3d train --minutes M` with no other
 # budget (the schedule sized to fill M minutes) against the 2,000-step
 # default, same painting, frames, seed and thread count; both judged by
 # tools/ff_judge.sh on frames neither saw.

@@ -2,10 +2,10 @@
 # Grows a particle-hair groom on a mesh with ../shared/tools/blender_groom.py
 # (Blender's particle hair: COUNT guides with CHILDREN interpolated children
 # each, a kink, a seed), z up as Blender writes it — stylize it with --up z.
-# The second groom of issue 27 (straight hair on the monkey head, next to the
+# The second test groom (straight hair on the monkey head, next to the
 # shared curly one):
 #
-#   bash tools/grow_groom.sh /work/data/grooms monkey_straight monkey 500 8 NO 7
+#   bash tools/grow_groom.sh data/grooms monkey_straight monkey 500 8 NO 7
 #
 # writes OUTDIR/NAME.ply (4,500 strands x 17 points) and OUTDIR/NAME_mesh.obj
 # in a few seconds. Deterministic in the seed. Keep OUTDIR outside the

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs every nst3d pipeline on the shared examples with one binary and prints
 # the sha256 of each file it writes, so two builds can be compared byte for
-# byte (the library-first refactor promised no behaviour change, issue 9):
+# byte (the library-first refactor promised no behaviour change):
 #
 #   bash tools/same_outputs.sh BINARY OUTDIR > hashes.txt
 #   diff before.txt after.txt      # empty: the outputs are byte-identical

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Trains an example feed-forward model committed under models/ (issue 26's
-# recipe): Starry Night (or PAINTING) for 120 minutes of wall clock on one
+# Trains an example feed-forward model committed under models/ (the
+# recipe of docs/guide/feedforward.md): Starry Night (or PAINTING) for 120 minutes of wall clock on one
 # thread, 32³ patches, two octaves, the schedule sized to the budget, on
 # three simulations — the shared plume48 (frames 1–40) and two bakes with
 # other sizes and settings made here with Blender (plumeB: 56 voxels high,

@@ -52,7 +52,7 @@ s.style = STYLE
 s.frame_start = s.frame_end = FRAME
 s.iters = 15
 s.mode = "velocity"
-s.color = True  # issue 29: the colour grid, wired into the volume's material
+s.color = True  # the colour grid, wired into the volume's material
 s.output_dir = os.path.join(OUT, "styled")
 with bpy.context.temp_override(object=domain, active_object=domain, selected_objects=[domain]):
     check(bpy.ops.nst3d.stylize_smoke.poll(), "the operator is offered on the smoke domain")
@@ -192,7 +192,7 @@ def hair_points(obj):
 before_hair = hair_points(scalp)
 h = scalp.nst3d
 # A missing painting fails the operator and leaves no temporary Curves
-# object behind (issue 28: it used to leak one).
+# object behind (it used to leak one).
 h.style = os.path.join(OUT, "no_such_painting.jpg")
 with bpy.context.temp_override(object=scalp, active_object=scalp, selected_objects=[scalp]):
     try:
@@ -263,7 +263,7 @@ after_c = np.empty_like(before_c)
 d.attributes["position"].data.foreach_get("vector", after_c)
 move = np.abs(after_c - before_c).reshape(-1, 3).max(axis=1)
 check(move.mean() > 1e-4 and len(d.curves) == 200, f"the Curves object's strands are written back (mean move {move.mean():.4f})")
-# Colour (issue 29): a 'color' point attribute, read by the hair material.
+# Colour: a 'color' point attribute, read by the hair material.
 attr = d.attributes.get(nst3d_blender.HAIR_COLOR)
 check(attr is not None and attr.domain == "POINT", "the stylized colour is a point attribute of the Curves")
 rgba = np.empty(len(d.points) * 4, np.float32)
@@ -289,7 +289,7 @@ def hair_variety(px):
 
 # Measured on the saved pictures: 0.026 against the tan's 0.014 while the
 # colour kept the hair's brightness; 0.0218 against 0.0144 since it may
-# darken the hair (session 20: darker colours spread less in chromaticity
+# darken the hair (darker colours spread less in chromaticity
 # under Cycles' shading). Unstylized tan hair gives the same spread (1x).
 h0, h1 = hair_variety(hair_shots[0]), hair_variety(hair_shots[1])
 check(h1 > 1.3 * h0, f"Cycles shows the stylized hair in varied colour (chromaticity spread {h1:.4f}, the tan original's {h0:.4f})")

@@ -74,7 +74,7 @@ def test_bad_grooms_are_refused_with_a_message(style):
 
 
 def test_color_returns_stylized_colours_from_the_given_ones(data, style):
-    # Issue 29: with color=True the result is (points, colours); the colours
+    # With color=True the result is (points, colours); the colours
     # start from the ones given and move, stay in [0, 1], and the points are
     # stylized as well.
     points, counts = nst3d.read_groom(data / "grooms" / "Bangs_100.hair")

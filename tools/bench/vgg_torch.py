@@ -3,7 +3,7 @@
 relu4_1 (torchvision layout, random weights) forward, then backward to the
 input of d(sum of the four taps' squares), on a 3 x SIZE x SIZE image; and one
 3x3 128->128 convolution on a 128² image (the layer oneDNN's AMX kernel was
-timed on in issue 25). Prints medians in ms and the work in GFLOP/s (the
+was timed on). Prints medians in ms and the work in GFLOP/s (the
 convolutions' multiply-adds x 2; backward to the input only, as nst3d's).
 
   python3 tools/bench/vgg_torch.py [--size 256] [--runs 7] [--threads 2] [--bf16]

@@ -31,7 +31,7 @@ pub struct BenchArgs {
     /// infer, train-step: the network's width C (2C at the low resolution), as the peer's --channels.
     #[arg(long, default_value_t = 16)]
     channels: usize,
-    /// volume-iter: with colour (issue 29), the iteration `nst3d volume --color` runs.
+    /// volume-iter: with colour, the iteration `nst3d volume --color` runs.
     #[arg(long)]
     color: bool,
     #[command(flatten)]

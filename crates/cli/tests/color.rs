@@ -1,4 +1,4 @@
-//! `nst3d volume --color` (issue 29) end to end on a real Blender frame: the
+//! `nst3d volume --color` end to end on a real Blender frame: the
 //! written file keeps every input grid and gains a vec3 colour grid that
 //! python3-openvdb reads, over the smoke's voxels only, named as the DCC
 //! expects; combinations colour cannot do yet fail with one line.

@@ -1,4 +1,4 @@
-//! The docs cannot drift from the binary (issue 28):
+//! The docs cannot drift from the binary:
 //! - every `nst3d <command> ...` line in README.md and docs/*.md (code
 //!   blocks and inline code) parses with the current binary — run with
 //!   `NST3D_PARSE_ONLY=1`, which stops right after argument parsing;

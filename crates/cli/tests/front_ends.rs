@@ -1,5 +1,5 @@
 //! The command line and the Python package offer the same settings under
-//! the same names (issue 28). Three copies are compared, each read from
+//! the same names. Three copies are compared, each read from
 //! its source of truth:
 //! - the flags of `nst3d <command> --help` (clap, from the CLI's structs);
 //! - the keyword arguments of the matching functions in

@@ -294,7 +294,7 @@ fn a_groom_is_drawn_alone_beside_another_and_around() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("apply to volumes"));
 }
 
-/// Issue 27's judge: with `--style`, every picture's Gram loss to the
+/// The preview's judge: with `--style`, every picture's Gram loss to the
 /// painting, and with `--compare` the ratio per picture. The same groom
 /// scores 1 everywhere; a z-up copy drawn with `--up z` is the same
 /// pictures (the turntable circles the up axis), so the same losses.

@@ -1,4 +1,4 @@
-//! `nst3d strands` keeps the input's attributes (issue 12 item 4): the
+//! `nst3d strands` keeps the input's attributes: the
 //! stylized groom moves the points and writes back the input's per-point
 //! widths and colours and, in `.usda`, the input layer's other primvars,
 //! unchanged; a `.ply` output keeps uchar colours byte for byte and widths
@@ -128,7 +128,7 @@ fn ply_groom_keeps_colour_bytes_and_thickness() {
     assert!(max_move(&groom, &result) > 0.1, "the points did not move");
 }
 
-/// `--color` (issue 29): the written colours are the stylized ones — moved
+/// `--color`: the written colours are the stylized ones — moved
 /// from the input's towards the painting, in `[0, 1]`, smooth along each
 /// strand — while widths and the other primvars stay the input's; a `.ply`
 /// output carries them as `red/green/blue`; the preview judge scores them

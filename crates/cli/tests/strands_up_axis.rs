@@ -1,4 +1,4 @@
-//! The up axis of a groom (issue 27 item 1): the strand pipeline works
+//! The up axis of a groom: the strand pipeline works
 //! y-up, turns a z-up groom and mesh into that frame and the result back.
 //! Bangs (a y-up groom) turned z-up and written as `.ply` (`--up z`) and as
 //! a `.usda` that declares `upAxis = "Z"` stylize to the same points, and

@@ -71,7 +71,7 @@ impl Image {
 
 /// Rec. 601 luma weights of R, G and B (PIL's `convert("L")`): the one
 /// definition of "grey" for paintings, judges and the colour layer, whose
-/// luminance under these weights is held at 1 (issue 29).
+/// luminance under these weights is held at 1.
 pub const LUMA: [f32; 3] = [0.299, 0.587, 0.114];
 
 /// How the values of a `C x P` feature matrix lie in memory.

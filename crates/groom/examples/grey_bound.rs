@@ -1,4 +1,4 @@
-//! How far could any hair lower the groom judge's whole-picture score? (issue 27)
+//! How far could any hair lower the groom judge's whole-picture score?
 //!
 //! The judge (`nst3d preview --style`) scores a picture of the groom on a
 //! black background: the VGG-19 Gram loss of the whole picture to the

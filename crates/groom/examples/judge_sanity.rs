@@ -1,4 +1,4 @@
-//! Does the groom judge follow the look, or can it be fooled? (issue 27)
+//! Does the groom judge follow the look, or can it be fooled?
 //!
 //! `nst3d preview --style` scores a picture of a groom two ways: the
 //! VGG-19 Gram loss of the whole picture to the painting, and the same

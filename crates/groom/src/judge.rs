@@ -1,4 +1,4 @@
-//! A judge of how far a groom went towards a painting (issue 27), apart
+//! A judge of how far a groom went towards a painting, apart
 //! from the optimised loss: the real VGG-19 Gram style loss (relu1_1 …
 //! relu4_1, equal weights, as Gatys et al. and the volume pipeline's
 //! judge) of each picture `nst3d preview` draws, to the painting's
@@ -58,7 +58,7 @@ impl GramJudge {
     /// background by more than 0.02, as the pipeline's hair-only NNST loss
     /// counts) and divided by their count. The background, the same in
     /// every groom's picture, is where no colour can reach; it dilutes the
-    /// whole-picture loss (issue 29's colour judge reports both). `None`
+    /// whole-picture loss (the colour judge reports both). `None`
     /// when the picture shows no hair.
     pub fn hair_loss(&self, picture: &Image) -> Result<Option<f32>> {
         Ok(self.scores(picture)?.1)

@@ -103,7 +103,7 @@ pub struct StrandSettings {
     pub rematch: Option<bool>,
     /// VGG-19 weights file; `None`: `$NST3D_VGG19`, else the user cache.
     pub weights: Option<PathBuf>,
-    /// Stylize the strands' colour too (issue 29): after the shape (the
+    /// Stylize the strands' colour too: after the shape (the
     /// same as without colour), a colour stage starting from the input's
     /// colours (white without) matches the painting's colours from cameras
     /// all around the groom; written as the output's colours

@@ -1,5 +1,4 @@
-//! The groom judge's sanity (issue 27, docs/STRANDS.md "Judging the
-//! judge"), with the real VGG-19 and a shared painting: the tone-matched
+//! The groom judge's sanity, with the real VGG-19 and a shared painting: the tone-matched
 //! hair-only score does not call a darker or brighter copy of a picture
 //! nearer the painting, where the plain hair-only score does.
 

@@ -1,4 +1,4 @@
-//! Issue 12 item 4, "attributes kept": per-point colours and widths, and a
+//! Attributes kept: per-point colours and widths, and a
 //! USD layer's other primvars, survive a write and a read in every output
 //! format that can hold them: PLY colours byte for byte with widths as
 //! `thickness`, USD widths, `displayColor` and any `primvars:*` declaration

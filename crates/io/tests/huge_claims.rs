@@ -1,4 +1,4 @@
-//! Small files that claim huge sizes (issue 14, bounded allocation): every
+//! Small files that claim huge sizes (bounded allocation): every
 //! reader checks a claimed count against the bytes that are really there
 //! before it allocates, so a 14 KB file claiming billions of strands is a
 //! clear error in milliseconds, not an out-of-memory kill.

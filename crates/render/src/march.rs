@@ -80,7 +80,7 @@ pub fn march_backward(g: &Grid3, gamma: f32, grad_img: &Image) -> Grid3 {
     out
 }
 
-/// The colour march (issue 29): emission–absorption, `I_ch = Σ_k e_ch,k · τ_k`
+/// The colour march: emission–absorption, `I_ch = Σ_k e_ch,k · τ_k`
 /// for each channel `ch`, with the same transmittance
 /// `τ_k = exp(−γ · Σ_{j<k} d_j)` as [`march`]. The emission is premultiplied,
 /// `e = c · d` for a colour `c` per voxel, so it resamples linearly like the

@@ -139,7 +139,7 @@ pub struct ColorRenderCache {
     pub gamma: f32,
 }
 
-/// [`render_view`] with a colour per voxel (issue 29): the emission
+/// [`render_view`] with a colour per voxel: the emission
 /// `c · d` of each channel is formed on the grid, resampled on the camera
 /// lattice like the density, and marched by [`march_emission`] into a
 /// `channels x H x W` image; colour 1 everywhere renders the grey image.

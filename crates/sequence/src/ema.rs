@@ -76,7 +76,7 @@ pub struct FrameState {
     pub color: Option<ColorState>,
 }
 
-/// A frame's colour (issue 29): the three raw channels of
+/// A frame's colour: the three raw channels of
 /// [`nst3d_stylize::color`], carried and blended by the EMA exactly like
 /// the field, and their Adam moments (channel after channel).
 #[derive(Clone, Debug)]
@@ -182,7 +182,7 @@ pub struct SequenceParams {
     /// first sweep, which farm chunks need to meet a single run at their seams
     /// (docs/FARM.md, "Why the first sweep does not blend").
     pub settle_first_sweep: bool,
-    /// Stylise an RGB colour per voxel with the density (issue 29): the
+    /// Stylise an RGB colour per voxel with the density: the
     /// chroma layer's raw channels ([`nst3d_stylize::color`]) ride in every
     /// frame's state, are blended by the EMA like the field, and follow the
     /// RGB Gram loss of each frame's views (the painting given to the loss

@@ -19,7 +19,7 @@ pub fn flicker<E>(
     flicker_of(frames, velocities, transport::advect_linear, render)
 }
 
-/// [`flicker`] of frames that carry colour (issue 29): each frame is its
+/// [`flicker`] of frames that carry colour: each frame is its
 /// density and RGB colour grids, all carried alike, and `render` draws the
 /// colour picture.
 pub fn flicker_color<E>(

@@ -459,7 +459,7 @@ pub fn render_backward(
 }
 
 /// [`render_backward`] with the gradient w.r.t. every point's base colour
-/// too (issue 29: the colour a groom's points are stylized to). A segment's
+/// too (the colour a groom's points are stylized to). A segment's
 /// splat has feature `shade(u) · (c_a + c_b) / 2` (RGB, or its luminance
 /// beside a constant alpha channel), so each end point gets half of the
 /// splat's colour gradient times the shade.

@@ -349,7 +349,7 @@ fn gradient_grey_alpha_matches_renderer_finite_differences() {
     gradcheck_f32(SplatOutput::GreyAlpha, 33);
 }
 
-/// The colour gradient (issue 29) against central differences of the f64
+/// The colour gradient against central differences of the f64
 /// brute-force eq. 7 in every point's colour. The render is linear in the
 /// colours (they scale each splat's feature, never its alpha), so the check
 /// is tight; both channel layouts, since grey + alpha sees colour through

@@ -54,7 +54,7 @@ pub fn volume_iter(n: usize, mode: Mode, iters: usize) -> BenchReport {
     volume_iter_with(n, mode, iters, false)
 }
 
-/// [`volume_iter`] with colour (issue 29) when `color`: the same work, but
+/// [`volume_iter`] with colour when `color`: the same work, but
 /// the view renders emission–absorption in RGB from the chroma layer
 /// ([`crate::color`]), VGG-19 sees the colour picture, and the backward
 /// also steps the three raw colour channels — what `--color` adds to an

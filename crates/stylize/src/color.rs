@@ -1,4 +1,4 @@
-//! The smoke's colour (issue 29) as a chroma layer over the density, as a
+//! The smoke's colour as a chroma layer over the density, as a
 //! sequence steps it in its sweeps. (A single frame's colour stage,
 //! [`crate::color_stage`], holds the colour itself, free in brightness
 //! under a grey guard: measured better there, not yet in sequences.)

@@ -1,4 +1,4 @@
-//! The colour stage of a frame (issue 29): an RGB multiplier per voxel
+//! The colour stage of a frame: an RGB multiplier per voxel
 //! optimised on the stylized density, with a per-voxel scale of that
 //! density ([`JointDensity`]), from many views around the smoke.
 //!
@@ -12,8 +12,7 @@
 //!   reaches 0.65 from the same held-out views smoothed as in sequences,
 //!   0.57 unsmoothed: the stage does not smooth.
 //! - **The density moves with the colour, in the last stage only**
-//!   (session 23, docs/VOLUME_LOOK.md, "The density moving with the
-//!   colour"). The density's octaves follow the grey loss exactly as
+//!   (docs/design/color.md). The density's octaves follow the grey loss exactly as
 //!   without colour; the colour stage then also scales that density
 //!   (density mode's field, its smoothed step and its limits) for the
 //!   colour loss plus the guard. With the colour alone on the grey result's
@@ -21,15 +20,14 @@
 //!   on the smoke: its strokes are in the light and dark of the smoke as
 //!   much as in its palette, and a multiplier on a fixed density cannot
 //!   move them.
-//! - **Free in brightness, with a grey guard** (session 21,
-//!   docs/VOLUME_LOOK.md, "Colour free in brightness"): each channel moves
+//! - **Free in brightness, with a grey guard**
+//!   (docs/design/color.md): each channel moves
 //!   in [`COLOR_RANGE`], so the smoke may take a painting's dark colours,
 //!   and the loss adds [`GREY_GUARD`] times the grey loss of the colour
 //!   render's luminance. The earlier layer held luminance 1 (the colour
 //!   render's luminance was the grey render), which kept the grey look
 //!   unchanged but could not darken.
-//! - **The smoke's own statistics too** (session 30, docs/VOLUME_LOOK.md,
-//!   "The judge's painting at the job's scale"): the loss adds
+//! - **The smoke's own statistics too** (docs/design/color.md): the loss adds
 //!   [`SMOKE_TERM`] times the colour loss over the smoke only. Over the
 //!   whole picture alone the colour over-brightens a small plume to make
 //!   up for the black around it.
@@ -82,8 +80,8 @@ pub const GREY_GUARD: f32 = 1.0;
 /// Woman with a Hat 0.9–1.1 of its loss). Measured (`nst3d judge --color`
 /// against the grey result, 8 held-out views, median, the painting at the
 /// job's scale; colour on the smoke / whole picture / grey;
-/// docs/VOLUME_LOOK.md, "The judge's painting at the job's scale"), chosen on
-/// plume96 × Starry Night in session 29 (0.25, 0.5, 1, 3):
+/// docs/design/color.md), chosen on plume96 × Starry Night among
+/// 0.25, 0.5, 1 and 3:
 ///
 /// | frame | painting | 0 (before) | **0.5** |
 /// | --- | --- | --- | --- |

@@ -3,7 +3,7 @@
 //! renders of the transported density match a painting's Gram statistics.
 //!
 //! - [`field`]: the optimised quantity and its transport `T` (one type for both modes).
-//! - [`color`]: the smoke's colour as a luminance-1, smoothed chroma layer (issue 29).
+//! - [`color`]: the smoke's colour as a luminance-1, smoothed chroma layer.
 //! - [`view`]: one camera's loss `L(R_θ(d*))` and its gradient w.r.t. `d*`.
 //! - [`frame`]: the multi-octave Adam loop over a single density grid.
 //! - [`bench`]: the `volume-iter` benchmark work of `shared/bench/README.md`.

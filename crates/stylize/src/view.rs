@@ -127,7 +127,7 @@ impl<'a> ViewLoss<'a> {
     }
 }
 
-/// Colour (issue 29): `d` carries a colour per voxel, one grid per RGB
+/// Colour: `d` carries a colour per voxel, one grid per RGB
 /// channel in `color`, rendered by emission–absorption
 /// ([`render::render_color_view`]) and fed to VGG-19 as it is — no grey
 /// expansion. The painting must then be the RGB one (`ViewLoss::new` with
@@ -146,7 +146,7 @@ impl ViewLoss<'_> {
         self.picture_loss(&rgb(d, color, view)?.0.luminance3(), None)
     }
 
-    /// [`ViewLoss::loss_color`] over the smoke only (issue 29's judge): each
+    /// [`ViewLoss::loss_color`] over the smoke only (the colour judge's measure): each
     /// layer's Gram matrix summed over the cells [`smoke_pixels`] marks and
     /// divided by their count. The black background around the smoke is out
     /// of any colour's reach and dilutes the whole picture's loss; the
@@ -221,7 +221,7 @@ impl ViewLoss<'_> {
     }
 }
 
-/// Pictures that are not renders (issue 29's bound on what any colour
+/// Pictures that are not renders (the bound on what any colour
 /// could reach from one view: `color_bound` in nst3d-volume's examples).
 impl ViewLoss<'_> {
     /// Style loss of an RGB picture (3 x H x W, before the 2x upsampling

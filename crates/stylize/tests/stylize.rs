@@ -227,7 +227,7 @@ fn color_style(n: usize) -> Image {
     img
 }
 
-/// Issue 29: the colour stage colours a stylized density from several views
+/// The colour stage colours a stylized density from several views
 /// in turn: the RGB loss from every one of them falls well below the grey
 /// result's (white colour), the grey loss of the colour render's luminance
 /// (what the grey guard holds) stays near the grey result's, the colour
@@ -293,7 +293,7 @@ fn color_stage_lowers_the_rgb_loss_of_every_view() {
     assert!(c.loss_last_sweep < 0.8 * c.loss_first_sweep, "{} -> {}", c.loss_first_sweep, c.loss_last_sweep);
 }
 
-/// Issue 29, the density moving with the colour
+/// The density moving with the colour
 /// ([`nst3d_stylize::JointDensity`]): the stage returns a density that is the
 /// given one scaled within the limits, moved by the stage, and the stage's
 /// loss falls over the run; without it the density comes back unchanged.

@@ -154,8 +154,8 @@ pub fn scale_pin(dstar: &Grid3, k: f32, weight: f32) -> (f32, f32) {
 /// [`view_at`], the optimisation's own rule: absorption and exposure scaled
 /// up `2^k` times, so each ray keeps its optical depth and the picture its
 /// brightness. (Scaling the absorption alone drew every coarse octave half
-/// as bright per level — the octave exposure bug issue 10 fixed in the
-/// optimisation, still here until 2026-11-26.)
+/// as bright per level, the octave exposure bug the optimisation had
+/// first.)
 pub fn octave_loss(d: &Grid3, loss: &ViewLoss, view: &ViewSpec, octaves: usize) -> Result<(f32, Grid3), ViewError> {
     let (total, grad) = loss.loss_and_grad(d, view)?;
     if octaves <= 1 || d.dims.iter().any(|&n| n < 4) {

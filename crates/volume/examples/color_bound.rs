@@ -1,4 +1,4 @@
-//! How far could colour lower the held-out colour loss at all? (issue 29)
+//! How far could colour lower the held-out colour loss at all?
 //!
 //! The judge scores a colour result against the grey result from 8 held-out
 //! views (`nst3d judge --color`). The chroma layer keeps each voxel's

@@ -9,7 +9,7 @@
 //!   the loss the grey pipeline optimises;
 //! - **colour** (with [`JudgeSettings::color`]): the emission–absorption
 //!   render with the file's colour grid (`Cd` or `color`; white where a file
-//!   has none) against the colour painting (issue 29), over the whole
+//!   has none) against the colour painting, over the whole
 //!   picture and over the smoke only (the pixels the file's density shows;
 //!   the background is out of any colour's reach).
 //!
@@ -60,9 +60,9 @@ pub struct JudgeSettings {
     /// (default: the volume job's own default). A Gram matrix depends on the
     /// painting's size in pixels against the picture's: judged at another
     /// scale than the job painted at, a result is measured against strokes
-    /// of another size than it was asked for (until session 30 the judge read
-    /// the painting at its full size while the job ran at 0.5;
-    /// docs/VOLUME_LOOK.md, "The judge's painting at the job's scale").
+    /// of another size than it was asked for (a judge reading the painting
+    /// at its full size while the job ran at 0.5 misjudged colour results;
+    /// docs/design/color.md).
     pub style_scale: f32,
     /// Absorption γ of every picture (default: the smallest automatic one
     /// over the baseline's views, so none saturates).

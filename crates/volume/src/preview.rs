@@ -3,7 +3,7 @@
 //! sheet, or a whole sequence, all drawn by the transmittance renderer the
 //! optimiser sees (paper eq. 6), so what the artist judges is what the
 //! style loss judged; with `color`, by the emission–absorption renderer in
-//! each file's colour grid (issue 29).
+//! each file's colour grid.
 //!
 //! Everything shown together shares one dense box (the union of the active
 //! boxes), one camera set and one absorption γ: a compared file or a later

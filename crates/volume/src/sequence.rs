@@ -672,8 +672,8 @@ mod tests {
     use super::*;
 
     /// The work folder's hash follows every setting that changes the
-    /// states and none of those that do not (issue 28: it was a hand-kept
-    /// list of 30 fields).
+    /// states and none of those that do not (a hand-kept list of 30
+    /// fields drifted from the settings).
     #[test]
     fn the_job_hash_follows_the_settings_that_matter() {
         let dir = tempfile::tempdir().unwrap();

@@ -53,7 +53,7 @@ pub struct VolumeSettings {
     pub strength: f32,
     /// Match the painting's colour Grams too, not only its luminance's.
     pub style_color: bool,
-    /// Stylize an RGB colour per voxel with the density (issue 29): the
+    /// Stylize an RGB colour per voxel with the density: the
     /// smoke is rendered in colour (emission–absorption), the painting's
     /// colour Grams are matched, and the output gains a vec3 colour grid
     /// over the smoke's voxels. A single frame colours in a stage after the

@@ -419,9 +419,9 @@ class NST3D_OT_stylize_hair(_Nst3dOperator, bpy.types.Operator):
                 mesh = (v.astype(np.float32), tris.reshape(-1, 3))
             self._obj_name = obj.name
             # Blender is z-up: the cameras circle z and the result stays in
-            # the object's axes (issue 27).
+            # the object's axes.
             opts = dict(preset=s.preset, iters=s.hair_iters or None, render_size=s.render_size or None, up="z")
-            # Colour (issue 29) lives in a point attribute of a Curves
+            # Colour lives in a point attribute of a Curves
             # object; particle hair has nowhere to keep it.
             self._color = bool(s.color) and self._particles is None
             if self._color:
