@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Bakes a Blender Mantaflow smoke plume to an OpenVDB cache with
 # ../shared/tools/blender_bake_smoke.py, e.g. the 120-frame plume of the
-# docs/FARM.md chunk measurement and the 96-resolution one of
-# docs/PERFORMANCE.md "Sequence scaling":
+# docs/guide/farm.md chunk measurement and the 96-resolution one of
+# docs/guide/performance.md:
 #
 #   bash tools/bake_plume.sh data/plume120 48 120   # 32x32x48 domain, ~30 s
 #   bash tools/bake_plume.sh data/plume96 96 40     # 64x64x96 domain, ~3 min
@@ -16,7 +16,7 @@
 #
 # Plume options after FRAMES bake a different plume with the project's own
 # tools/blender_bake_plume.py (same scene, with knobs; see its header), e.g.
-# the two plumes of docs/SEQUENCES.md "EMA 0 vs 0.7, measured":
+# the two plumes of docs/design/volumes.md:
 #
 #   bash tools/bake_plume.sh data/plumeA 64 48 --offset 0.4 0.25 --vorticity 0.3
 #   bash tools/bake_plume.sh data/plumeB 56 48 --offset -0.4 0 --radius 0.2 \

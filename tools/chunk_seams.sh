@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs one sequence as a single `nst3d volume --frames` run and as farm chunks
 # with --warmup K, then compares them frame by frame with tools/seam_compare.py
-# (docs/FARM.md, "120 frames in 4 chunks"):
+# (docs/guide/farm.md):
 #
 #   NST3D=target/release/nst3d bash tools/chunk_seams.sh OUTROOT 'plume/data/fluid_data_####.vdb' \
 #       1-120 "1-30 31-60 61-90 91-120" 8 --iters 4 --octaves 1 --ema-settle

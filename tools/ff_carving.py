@@ -15,7 +15,7 @@ own Python binding (Debian python3-openvdb), so it judges files, not code.
 With --undo it writes RESULT with its change undone at depth >= DEPTH (the
 input's voxels there, scaled to keep that region's mass in RESULT), to
 judge how much of a result's strength lies deeper than DEPTH.
-docs/FEEDFORWARD.md, "What the optimisation carves", is made with it.
+docs/design/feedforward.md quotes it.
 """
 import sys
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The feed-forward quality study of docs/FEEDFORWARD.md: one trained model
+# The feed-forward quality study of docs/design/feedforward.md: one trained model
 # against single-camera and omniview:16 optimisation on frames the
 # model never saw, all scored by one judge — the mean Gram style loss from
 # the 8 cameras of `ring:8:30` (none of them a training or optimisation

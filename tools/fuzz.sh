@@ -19,7 +19,7 @@
 # An input that panics, overflows, runs over 1 s or allocates over 2 GB is
 # saved to fuzz/artifacts/<reader>/ and the script fails; such a file becomes
 # a regression test beside the reader. Per-reader figures go to
-# fuzz/artifacts/summary.tsv (docs/FUZZING.md quotes them).
+# fuzz/artifacts/summary.tsv (docs/design/performance.md quotes them).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Kills an `nst3d volume --frames` run twice with SIGKILL and restarts it with
 # the same command, then checks the result against an uninterrupted run
-# (docs/FARM.md, "120 frames in 4 chunks"):
+# (docs/guide/farm.md):
 #
 #   NST3D=target/release/nst3d bash tools/kill_resume.sh OUTDIR REFDIR -- <nst3d volume flags without --out>
 #

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The look at the defaults (docs/VOLUME_LOOK.md): both modes on three frames,
+# The look at the defaults (docs/design/volumes.md): both modes on three frames,
 # each run alone with the CLI defaults and --threads 2. Prints each run's
 # note and loss line; writes the preview sheets into OUT_DIR and their grey
 # copies into docs/img/look_FRAME_MODE.png.

@@ -33,6 +33,7 @@ EXCLUDED = [
     "crates/loss/",
     "tools/groom_cross_judge.sh",
     "tools/groom_sheet.py",
+    "tools/strand_ref/",
     "docs/STRANDS.md",
 ]
 

@@ -2,7 +2,7 @@
 # Stylizes the shared smoke frame, a plume frame and the Bangs groom at
 # their defaults with --precision fp32 and with --precision bf16 and prints
 # each run's style-loss drop, their difference, and a side-by-side preview of
-# the smoke (docs/PERFORMANCE.md, "bf16"). On a CPU without a bf16 unit the
+# the smoke (docs/guide/performance.md). On a CPU without a bf16 unit the
 # bf16 runs are emulated (same roundings, fp32 speed or slower).
 #
 #   bash tools/precision_compare.sh [OUT_DIR]      (default: out/precision)

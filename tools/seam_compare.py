@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Compares two stylized sequences frame by frame (docs/FARM.md, chunk seams).
+"""Compares two stylized sequences frame by frame (docs/guide/farm.md, chunk seams).
 
     /usr/bin/python3 tools/seam_compare.py REF_PATTERN TEST_PATTERN INPUT_PATTERN FRAMES [--seams 30,31,60,61]
 
@@ -8,7 +8,7 @@ Patterns use ####. For every frame it prints
     rel = ||test - ref|| / ||ref - input||
 
 (the difference as a fraction of the stylization itself, the measure of
-docs/FARM.md) and the largest per-voxel |test - ref|, then max and mean of rel
+docs/guide/farm.md) and the largest per-voxel |test - ref|, then max and mean of rel
 over the seam frames and over the other frames. Reads with the reference
 OpenVDB library (Debian python3-openvdb), not with nst3d, so the comparison
 does not trust the code it checks.

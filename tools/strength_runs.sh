@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Runs the settings of docs/VOLUME_LOOK.md "Art-directable strength" one at
+# Runs the settings of docs/design/volumes.md one at
 # a time and prints one line per run: name, UTC time, optimised-view loss
 # before -> after (ratio), held-out ring:6:30 mean loss before -> after
 # (ratio). v_k* and d_k* are the --strength knob; *_omni are the

@@ -1,7 +1,6 @@
 #!/usr/bin/env bash
 # Builds docs/img/strength_*.png from the preview sheets that
-# tools/strength_runs.sh wrote into RUN_DIR (docs/VOLUME_LOOK.md,
-# "Art-directable strength").
+# tools/strength_runs.sh wrote into RUN_DIR (docs/design/volumes.md).
 #
 #     bash tools/strength_strips.sh RUN_DIR [PYTHON]
 #

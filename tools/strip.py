@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Crops the "after" panel out of nst3d preview sheets and lays them side by
-side, labelled, in one small PNG (docs/VOLUME_LOOK.md, "Art-directable
+side, labelled, in one small PNG (docs/design/volumes.md, "Art-directable
 strength").
 
     python tools/strip.py OUT.png [--style STYLE.jpg] [--height 256] \
@@ -19,7 +19,7 @@ rows and the strip is written as a 8-bit grey PNG, small enough for docs.
 
 writes a whole preview sheet (before | after | painting) as a grey PNG,
 the smoke at 128 greys and the painting at 32, about 150 KB
-(docs/VOLUME_LOOK.md, "The look at the defaults").
+(docs/design/volumes.md).
 
     python tools/strip.py --measure SHEET.png ...
 
@@ -28,7 +28,7 @@ IoU of after against before (grey > 0.15), the mean grey inside the input's
 smoke, the RMS of the laplacian of the row means (horizontal streaks) and
 of the column means over lit rows/columns, and the largest laplacian of the
 column means near the centre column in the top half (the vertical line of
-docs/VOLUME_LOOK.md section 2) against that half's RMS. Panels are brought
+docs/design/volumes.md) against that half's RMS. Panels are brought
 back to 106 rows, about the optimiser's own render, first.
 
 Needs Pillow and NumPy (e.g. a throwaway venv:

@@ -53,7 +53,7 @@ else
   NST3D_PRECISION=$other cargo test $(printf -- '-p %s ' "${kernel_crates[@]}") --no-fail-fast
 fi
 
-echo "== fuzzing every reader briefly (the long run: docs/FUZZING.md)"
+echo "== fuzzing every reader briefly (the long run: docs/design/performance.md)"
 bash tools/fuzz.sh --seconds 6
 
 bash tools/test_python.sh

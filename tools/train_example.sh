@@ -6,7 +6,7 @@
 # other sizes and settings made here with Blender (plumeB: 56 voxels high,
 # source off-centre with a sideways push; plume96: the shared scene at
 # 64×64×96). Frames never trained on (smoke_000002/3, the plumeA and plumeC
-# bakes of docs/FEEDFORWARD.md) are the judge's. Rerunning after a kill
+# bakes of docs/design/feedforward.md) are the judge's. Rerunning after a kill
 # resumes from the checkpoint beside the model.
 #
 #   bash tools/train_example.sh [density|velocity] [PAINTING] [extra nst3d train arguments]

@@ -2,7 +2,7 @@
 `openjd run`, and a Slurm array job on the single-node cluster
 tools/slurm_up.sh starts. Each stylizes plume48 frames 1-40 in 4 chunks and
 is compared with one process doing the whole range (chunks meet at their
-seams within docs/FARM.md's tolerance); a Slurm task requeued mid-chunk
+seams within docs/guide/farm.md's tolerance); a Slurm task requeued mid-chunk
 ends with the same bytes. Missing tools or data fail loudly."""
 
 import os
@@ -23,7 +23,7 @@ STYLE = SHARED / "data" / "styles" / "starry_night.jpg"
 NST3D = pathlib.Path(os.environ.get("NST3D_BIN", REPO / "target" / "release" / "nst3d"))
 FAST = ["--iters", "4", "--octaves", "1", "--upsample", "1"]
 FRAMES = range(1, 41)
-# docs/FARM.md: with 8 warm-up frames a seam frame is within 0.09-0.13 of
+# docs/guide/farm.md: with 8 warm-up frames a seam frame is within 0.09-0.13 of
 # the single run (relative to the stylization itself); 0.25 is the bound.
 SEAM_TOLERANCE = 0.25
 

@@ -1,4 +1,4 @@
-//! `nst3d bench ...`: benchmarks whose medians docs/PERFORMANCE.md divides by
+//! `nst3d bench ...`: benchmarks whose medians docs/design/performance.md divides by
 //! the PyTorch peer's.
 
 use std::path::PathBuf;

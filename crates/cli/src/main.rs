@@ -15,7 +15,7 @@ mod volume;
 /// mimalloc keeps freed pages for reuse. With the system allocator every
 /// iteration's large buffers (feature maps, gradients, fields) went back to
 /// the kernel and were faulted in again: about 13,000 page faults per
-/// `volume-iter` iteration at N = 128, 10 % of its time (docs/PERFORMANCE.md).
+/// `volume-iter` iteration at N = 128, 10 % of its time (docs/design/performance.md).
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
@@ -49,7 +49,7 @@ struct Cli {
 enum Command {
     /// Stylize the density grid of an OpenVDB file with a painting.
     Volume(volume::VolumeArgs),
-    /// Run a benchmark (see docs/PERFORMANCE.md).
+    /// Run a benchmark (see docs/design/performance.md).
     Bench(bench::BenchArgs),
     /// Draw smoke as PNGs: a front view, a turntable, original | stylized, or a sequence.
     Preview(volume::preview::PreviewArgs),

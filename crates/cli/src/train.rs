@@ -29,7 +29,7 @@ pub struct TrainArgs {
     out: PathBuf,
     /// density (a scale in [0, 2]; the example model's mode) or velocity
     /// (moves smoke by up to vmax = 4 % of the patch); both keep each
-    /// frame's total density (docs/FEEDFORWARD.md, "Keeping the smoke").
+    /// frame's total density (docs/design/feedforward.md).
     #[arg(long, default_value = "density")]
     mode: Mode,
     /// Name of the density grid.
@@ -58,7 +58,7 @@ pub struct TrainArgs {
     /// Axes of the patch each step renders along: random (one of x, y, z per
     /// step), all (three pictures per step, 3x the rendering work) or z (the
     /// paper's peer and models before 2026-11-29, which learn to stretch
-    /// their strokes along z; docs/FEEDFORWARD.md).
+    /// their strokes along z; docs/design/feedforward.md).
     #[arg(long, default_value = "random")]
     view_axes: ViewAxes,
     /// Style image scale factor (smaller = larger patterns).

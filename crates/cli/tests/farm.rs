@@ -70,7 +70,7 @@ fn max_abs(a: &Grid3, b: &Grid3) -> f32 {
 /// (so with `--ema-settle`, which is the default). Without warm-up the seam
 /// frames are stylized differently (the EMA of a chunk starts cold); with 4
 /// frames of warm-up they move towards the single run's, and the frames a
-/// chunk's warm-up covers entirely are identical (docs/FARM.md has the
+/// chunk's warm-up covers entirely are identical (docs/guide/farm.md has the
 /// numbers for longer sequences).
 #[test]
 fn chunks_with_warmup_blend_at_the_seams() {
@@ -109,8 +109,7 @@ fn chunks_with_warmup_blend_at_the_seams() {
     assert!(mean(&worst[1]) < 0.3 * mean(&worst[0]), "warm-up did not bring the seams closer: {worst:?}");
     // Both the end (23) and the start (28) of a chunk: measured 0.15 and 0.07.
     // A start seam that stays near 0.5+ means the first sweep's EMA is back,
-    // e.g. --ema-settle is no longer the default (docs/FARM.md, "Why the
-    // first sweep does not blend").
+    // e.g. --ema-settle is no longer the default (docs/guide/farm.md).
     assert!(worst[1][0] < 0.25 && worst[1][3] < 0.15, "seams too far from the single run: {worst:?}");
 }
 

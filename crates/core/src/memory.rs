@@ -7,8 +7,7 @@
 /// milliseconds. Its default, one second, is shorter than one strand
 /// iteration at Short Hair size (~2.3 s): every iteration's feature maps went
 /// back and were faulted in and zeroed again: 13 % of a Short Hair frame's
-/// CPU time in the kernel's page clearing (docs/PERFORMANCE.md, "The Short
-/// Hair frame, profiled"). Ten seconds covers any iteration and still
+/// CPU time in the kernel's page clearing (docs/design/performance.md). Ten seconds covers any iteration and still
 /// returns the memory of a finished job soon after.
 pub const ALLOCATOR_PURGE_DELAY_MS: i64 = 10_000;
 

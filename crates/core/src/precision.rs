@@ -10,7 +10,7 @@
 //! `auto` is bf16 where the CPU has AMX and fp32 otherwise: on a CPU with
 //! AVX512-BF16 but no AMX the bf16 path was measured 1.3–2.7x *slower*
 //! than fp32 (the fp32 convolutions are Winograd, `vdpbf16ps` only doubles
-//! the FMA's width; docs/PERFORMANCE.md, "bf16 on AVX512-BF16"), so there
+//! the FMA's width; docs/design/performance.md), so there
 //! `bf16` must be asked for.
 //! `fp32` is the reference every finite-difference check runs on.
 //!
@@ -198,7 +198,7 @@ pub fn path() -> Path {
 }
 
 /// Products whose bf16 path `auto` skips because it was measured slower
-/// than their fp32 one on a CPU with AMX (docs/PERFORMANCE.md, "bf16 on AMX").
+/// than their fp32 one on a CPU with AMX (docs/design/performance.md).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Product {
     /// The 3D network's convolutions: the bf16 path packs an im2col copy per

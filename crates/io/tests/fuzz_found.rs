@@ -1,4 +1,4 @@
-//! Inputs the fuzzer found (`tools/fuzz.sh`, docs/FUZZING.md), kept as
+//! Inputs the fuzzer found (`tools/fuzz.sh`, docs/design/performance.md), kept as
 //! regression tests: each was a panic, a hang or a reader saying yes to
 //! something its callers cannot use. Each must now be a one-line error.
 

@@ -180,7 +180,7 @@ pub struct SequenceParams {
     /// Skip the blend on each frame's first Adam step of an octave. Off,
     /// this is Algorithm 1 as printed; on, the run stops being chaotic in its
     /// first sweep, which farm chunks need to meet a single run at their seams
-    /// (docs/FARM.md, "Why the first sweep does not blend").
+    /// (docs/guide/farm.md).
     pub settle_first_sweep: bool,
     /// Stylise an RGB colour per voxel with the density: the
     /// chroma layer's raw channels ([`nst3d_stylize::color`]) ride in every

@@ -1,5 +1,5 @@
 //! Where one `volume-iter` iteration spends its time, stage by stage
-//! (profiling aid for docs/PERFORMANCE.md). `cargo run --release -p
+//! (profiling aid for docs/design/performance.md). `cargo run --release -p
 //! nst3d-stylize --example breakdown [N]`.
 
 use std::time::Instant;

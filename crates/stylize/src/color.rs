@@ -14,7 +14,7 @@
 //! ```
 //!
 //! Why this form, each measured on smoke_000003 with Woman with a Hat
-//! (docs/VOLUME_LOOK.md, "Colour"):
+//! (docs/design/color.md):
 //! - **Luminance 1.** `w · c = 1` in every voxel, so the luminance of the
 //!   colour render *is* the grey render (emission is linear in `c`): colour
 //!   tints and never darkens or brightens. Brightness stays with the
@@ -47,7 +47,7 @@ pub const SMOOTH_PASSES: usize = 2;
 /// Adam's step on the raw channels, whatever the density's mode and rate
 /// (velocity mode steps voxels at 0.5, a rate that would saturate colour in
 /// a few steps). Measured on smoke_000003 and plume48 with Woman with a Hat
-/// (docs/VOLUME_LOOK.md, "Colour"): from 0.2 to 0.05 the held-out colour
+/// (docs/design/color.md): from 0.2 to 0.05 the held-out colour
 /// loss of a single frame stays the same (0.779 → 0.783 of the grey
 /// result's) and the picture calms, while a sequence's colour flicker falls
 /// from 0.66× to 0.39× of per-frame optimisation's — Adam's first steps are

@@ -3,7 +3,7 @@
 //! density ([`JointDensity`]), from many views around the smoke.
 //!
 //! Why a stage of its own, after the density, measured on smoke_000003 with
-//! Woman with a Hat (docs/VOLUME_LOOK.md, "Colour from every side"):
+//! Woman with a Hat (docs/design/color.md):
 //! - **Held-out views need colour placed from every side.** Optimised
 //!   together with the density from the job's camera, the colour reached
 //!   0.61 of the grey result's colour loss from that camera but 0.77 from
@@ -55,7 +55,7 @@ pub const COLOR_RANGE: (f32, f32) = (0.0, 2.0);
 /// luminance) of the colour render's luminance, added to the colour loss,
 /// as the strands' colour stage guards the hair (the same weight, measured
 /// there). On smoke_000003 at the defaults (`nst3d judge --color` against
-/// the grey result, 8 held-out views, median; docs/VOLUME_LOOK.md):
+/// the grey result, 8 held-out views, median; docs/design/color.md):
 ///
 /// | layer | painting | colour | colour on the smoke | grey |
 /// | --- | --- | --- | --- | --- |
@@ -103,8 +103,7 @@ pub const SMOKE_TERM: f32 = 0.5;
 /// Adam's step on the joint density scale ([`JointDensity`]) in the volume
 /// job. Tuned on Starry Night, checked on Woman with a Hat (smoke_000003,
 /// `nst3d judge --color` against the grey result, 8 held-out views, median;
-/// colour / colour on the smoke / grey; docs/VOLUME_LOOK.md, "The density
-/// moving with the colour"):
+/// colour / colour on the smoke / grey; docs/design/color.md):
 ///
 /// | rate | Starry Night | Woman with a Hat |
 /// | --- | --- | --- |

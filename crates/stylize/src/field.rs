@@ -31,12 +31,11 @@ impl std::str::FromStr for Mode {
 pub enum Field {
     /// Velocity parameters `w`, one vector per voxel in voxel units of its
     /// grid. The density moves by their smooth version `v = S w`
-    /// ([`Field::velocity`]; docs/VOLUME_LOOK.md section 2 says why).
+    /// ([`Field::velocity`]; docs/design/volumes.md says why).
     Velocity(Vec<[f32; 3]>),
     /// Per-voxel density scales `s`: the density is multiplied by `s`
     /// itself, and the optimiser steps along the tent-smoothed gradient
-    /// ([`Field::descent`]; docs/VOLUME_LOOK.md, "Density mode: a smoothed
-    /// step, not a smoothed field").
+    /// ([`Field::descent`]; docs/design/volumes.md).
     Scale(Vec<f32>),
 }
 
@@ -74,7 +73,7 @@ impl Field {
     /// drew a line down the middle of mirror-symmetric smoke (a centred
     /// source seen by the centred front camera: smoke_000002's cap and stem,
     /// plume48's stem, where it also showed as box-like bars), and this
-    /// perturbation removes it (docs/VOLUME_LOOK.md, "The centre line").
+    /// perturbation removes it (docs/design/volumes.md).
     /// Two things a symmetric start keeps: the two mirrored halves of the
     /// pattern meeting on the axis, and every sample sitting exactly on a
     /// voxel centre, where trilinear sampling has a kink and the first
@@ -203,7 +202,7 @@ impl Field {
     /// `d · (1 + S (s − 1))`, also removed them, but it smoothed twice
     /// (the field and, through its adjoint, the gradient), and the strokes
     /// lost about a third of their strength from views the optimiser never
-    /// saw (docs/VOLUME_LOOK.md). `S` is positive semi-definite (its
+    /// saw (docs/design/volumes.md). `S` is positive semi-definite (its
     /// frequency response is `cos²`), so `S ∇` is still a descent direction.
     pub fn descent(&self, grad: Vec<f32>, dims: [usize; 3]) -> Vec<f32> {
         match self {

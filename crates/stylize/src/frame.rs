@@ -92,7 +92,7 @@ fn pyramid(d: &Grid3, octaves: usize) -> Vec<Grid3> {
 /// grey level `exposure · I` only matches the fine picture with the larger
 /// exposure (it is `γ · I` ≈ opacity at every octave). Dividing instead made
 /// every coarse octave `factor²` too dark; the coarse optimisation then fought
-/// the brightness rather than placing patterns (docs/VOLUME_LOOK.md).
+/// the brightness rather than placing patterns (docs/design/volumes.md).
 pub fn view_at(view: &ViewSpec, factor: f32) -> ViewSpec {
     ViewSpec {
         camera: view.camera.map(|c| coarse_camera(c, factor)),

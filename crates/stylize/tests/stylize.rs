@@ -147,8 +147,8 @@ fn roughness(v: &[[f32; 3]], d: &Grid3) -> f32 {
     (diff / len) as f32
 }
 
-/// Velocity mode must not turn into voxel-scale noise (docs/VOLUME_LOOK.md,
-/// section 2). On the frame neighbouring velocities differed by about
+/// Velocity mode must not turn into voxel-scale noise (docs/design/volumes.md).
+/// On smoke_000003 neighbouring velocities differed by about
 /// their own length (roughness 1.1), which scrambles dense smoke into blocks
 /// and gives edges staircases along the grid axes. The mechanism needs no
 /// network: the style loss's gradient w.r.t. the density has voxel-scale

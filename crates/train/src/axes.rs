@@ -4,7 +4,7 @@
 //! the patch's *content* (Sec. 5.1's augmentation, [`crate::patch`]) does not
 //! hide the grid's z from it: the models trained so stretched their scale
 //! field along z (on a held-out bake the log-scale's correlation one voxel
-//! apart was 0.97 along z, 0.57 and 0.06 across; docs/FEEDFORWARD.md), a
+//! apart was 0.97 along z, 0.57 and 0.06 across; docs/design/feedforward.md), a
 //! column is as bright as a stroke when seen end on, and from the side, as
 //! every other camera sees it, the columns are streaks. Seeing each patch
 //! along another of its axes takes that away.

@@ -90,7 +90,7 @@ pub fn apply_backward(d: &Grid3, o: &Volume, s: Stylization, grad: &[f32]) -> Vo
 /// smoke (an empty render is closer to a dark painting than bright smoke
 /// is), and a network finds that route: density mode learned `s → 0`
 /// everywhere, velocity mode thinned the smoke by reading from the empty
-/// space around it (docs/FEEDFORWARD.md, "Keeping the smoke"). Fixing the
+/// space around it (docs/design/feedforward.md). Fixing the
 /// total takes that route away and leaves the look to the pattern.
 pub fn conserve_mass(d: &Grid3, dstar: &Grid3) -> (Grid3, f32) {
     let k = mass_ratio(d.data.iter().map(|v| *v as f64).sum(), dstar.data.iter().map(|v| *v as f64).sum());
@@ -136,7 +136,7 @@ pub const SCALE_PIN: f32 = 100.0;
 /// `tanh`'s floor: the two-hour density models came out with `k ≈ 10⁵`,
 /// `s ≈ 2e^{2o}` an unbounded exponential, and a frame unlike their
 /// training data had its faint haze lifted 10⁴-fold into a box-shaped
-/// cloud (docs/FEEDFORWARD.md, "The box haze"). With the pin `k` stays
+/// cloud (docs/design/feedforward.md). With the pin `k` stays
 /// near 1, so `k s` keeps the optimiser's `[0, 2]` and no voxel can grow
 /// more than about twofold; the conservation still closes the "less smoke"
 /// route.

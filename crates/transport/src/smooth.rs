@@ -1,7 +1,7 @@
 //! The smooth velocity parametrisation of velocity mode: the density moves
 //! by `v = S w`, where `w` are the optimised parameters and `S` is one pass
 //! of the separable tent `[1, 2, 1] / 4` along x, y and z, zero outside the
-//! grid (docs/VOLUME_LOOK.md, section 2, says why per-voxel velocities turn
+//! grid (docs/design/volumes.md says why per-voxel velocities turn
 //! into voxel-scale noise).
 //!
 //! `S` is symmetric, so one kernel serves the forward (`v = S w`) and the

@@ -1,7 +1,7 @@
 //! Makes a paper-sized test volume (Sec. 5.2 stylizes 645 x 609 x 1553) from
 //! a small simulation frame: its density box trilinearly resampled to the
 //! given size, written leaf by leaf so the volume is never dense in memory.
-//! docs/FEEDFORWARD.md, "High resolution", uses it.
+//! The high-resolution figures of docs/guide/feedforward.md were made with it.
 //!
 //!     cargo run --release -p nst3d-volume --example highres_plume -- IN.vdb OUT.vdb [NX NY NZ]
 

@@ -1,7 +1,7 @@
 //! The cameras Θ a volume is stylized and previewed from, built for a
 //! dense box of voxels: the front camera, camera sets around the box
 //! (omniview, ring) turned to the file's up axis, and shot cameras from a
-//! camera file mapped into the box's index space (docs/CAMERAS.md).
+//! camera file mapped into the box's index space (docs/guide/volumes.md).
 
 use anyhow::{bail, Result};
 use nst3d_io::vdb::Transform;

@@ -260,15 +260,15 @@ pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut 
     if mode == Mode::Density && model.info.get("mass").map(String::as_str) != Some(nst3d_train::step::MASS_PINNED) {
         reporter.note(&format!(
             "{} was trained before the density scale pin: on smoke unlike its training data it can lift faint \
-             haze many times over (docs/FEEDFORWARD.md, \"The box haze\"); retrain it to fix that",
+             haze many times over (docs/design/feedforward.md); retrain it to fix that",
             m.path.display()
         ));
     }
     if !model.info.contains_key("view_axes") {
         reporter.note(&format!(
             "{} was trained on pictures along its patches' z axis only: its strokes are stretched into \
-             columns along the grid's z, streaks from the side (docs/FEEDFORWARD.md, \"The camera the network \
-             learned\"); retrain it to fix that",
+             columns along the grid's z, streaks from the side (docs/design/feedforward.md); \
+             retrain it to fix that",
             m.path.display()
         ));
     }

@@ -217,7 +217,7 @@ pub fn stylize_grid(
     // views do. (The smallest absorption over them instead, so the colour is
     // placed as deep as any view could see, measured worse: smoke_000003,
     // Woman with a Hat 0.822 of the grey result's held-out colour loss
-    // against 0.592; docs/VOLUME_LOOK.md, "Colour from every side".)
+    // against 0.592; docs/design/color.md.)
     let color_views = match s.color {
         true => views_of(&CameraSet::Omniview(COLOR_VIEWS).cameras(&Lens::of(s), padded.dims), gamma, false),
         false => Vec::new(),

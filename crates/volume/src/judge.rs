@@ -70,7 +70,7 @@ pub struct JudgeSettings {
 }
 
 impl JudgeSettings {
-    /// The judge of docs/FEEDFORWARD.md: 8 azimuths at 30° elevation.
+    /// The judge of docs/design/feedforward.md: 8 azimuths at 30° elevation.
     pub fn new(style: impl Into<PathBuf>, baseline: impl Into<PathBuf>, results: Vec<PathBuf>) -> Self {
         Self {
             style: style.into(),

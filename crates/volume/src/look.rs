@@ -58,7 +58,7 @@ pub fn views_of(cameras: &[Camera], gamma: f32, equalize: bool) -> Vec<ViewSpec>
 }
 
 /// The style loss of a result from each held-out view (`--eval-cameras`),
-/// before and after: the judge of docs/FEEDFORWARD.md reads its mean and
+/// before and after: the judge of docs/design/feedforward.md reads its mean and
 /// its worst view.
 #[derive(Clone, Debug, PartialEq)]
 pub struct HeldOut {

@@ -319,7 +319,7 @@ fn shot_absorption(
 
 /// The flicker of the written frames `s.out` of the sequence
 /// `s.input` / `s.sequence`, by the metric optimised sequences report
-/// (docs/SEQUENCES.md) with the box, velocity and first camera such a run
+/// (docs/design/volumes.md) with the box, velocity and first camera such a run
 /// would use at the files' resolution (`--upsample 1`): so a feed-forward
 /// sequence and an optimised one are scored alike. Pairs of consecutive
 /// frames of the run with smoke in both count; `None` if there are none.
@@ -369,7 +369,7 @@ fn job_hash(s: &VolumeSettings, run_paths: &[PathBuf]) -> Result<u64> {
 }
 
 /// Stylizes the frames `s.sequence` names, or one chunk of them with its
-/// warm-up overlap (docs/FARM.md); frames already written are kept unless
+/// warm-up overlap (docs/guide/farm.md); frames already written are kept unless
 /// `force`. A killed run started again with the same settings resumes.
 pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Result<SequenceReport> {
     s.check()?;

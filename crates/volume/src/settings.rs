@@ -47,9 +47,8 @@ pub struct VolumeSettings {
     /// The art-directable strength (1 = the defaults): below 1 it shrinks
     /// how far the stylization may move the smoke (`vmax`) and how far it may
     /// scale it from 1 (`[smin, smax]`) by this factor, keeping the shape;
-    /// above 1 it runs this many times the iterations (docs/VOLUME_LOOK.md,
-    /// "Art-directable strength"). A trained model reads it from
-    /// [`ModelSettings::strength`].
+    /// above 1 it runs this many times the iterations (docs/design/volumes.md). A trained
+    /// model reads it from [`ModelSettings::strength`].
     pub strength: f32,
     /// Match the painting's colour Grams too, not only its luminance's.
     pub style_color: bool,
@@ -107,9 +106,9 @@ pub struct SequenceSettings {
     pub frames: String,
     /// EMA weight α of eq. 4 (0.8: at 0.7 the shared plume kept 0.51x of
     /// per-frame flicker, at 0.8 every plume measured is under 0.5x;
-    /// docs/SEQUENCES.md).
+    /// docs/design/volumes.md).
     pub ema: f32,
-    /// Each octave's first sweep runs without EMA blending (docs/FARM.md);
+    /// Each octave's first sweep runs without EMA blending (docs/guide/farm.md);
     /// `false` runs Algorithm 1 exactly as printed.
     pub ema_settle: bool,
     /// Simulation velocity grid; `None`: the first of velocity, vel, v.
@@ -187,7 +186,7 @@ impl VolumeSettings {
     /// moments, the transport and renderer tapes), and 200 MB more for a
     /// sequence (neighbouring frames and their velocities). Fitted to the
     /// peak RSS of plume48 refined 1-8x (13 K-6.7 M voxels), up to 10 % above it
-    /// (docs/FARM.md); cameras barely change it (they are rendered in turn).
+    /// (docs/guide/farm.md); cameras barely change it (they are rendered in turn).
     pub fn memory_estimate(dims: [usize; 3], sequence: bool) -> u64 {
         let voxels = dims.iter().map(|&d| d as u64).product::<u64>();
         let fixed = if sequence { 600_000_000 } else { 400_000_000 };
@@ -254,7 +253,7 @@ impl VolumeSettings {
         // Density mode: the paper's Table 1 row for it (Fig. 4: 3 octaves, 20
         // iterations, learning rate 0.2), measured stronger from unseen views
         // than 2 octaves at 0.1 on all three shared paintings
-        // (docs/VOLUME_LOOK.md, "Density mode: a smoothed step").
+        // (docs/design/volumes.md).
         let lr = self.lr.unwrap_or(match self.mode {
             Mode::Velocity => 0.5,
             Mode::Density => 0.2,

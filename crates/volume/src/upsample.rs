@@ -1,8 +1,8 @@
 //! Small grids are refined before they are stylized. A painting's strokes
 //! need voxels to live in: on a grid a few dozen voxels across, the finest
 //! octave's patterns are one or two voxels wide and the result reads as a
-//! smeared blob (plume48's frame 20, 18x18x20 voxels, docs/VOLUME_LOOK.md
-//! section 3). The density (and, for a sequence, the simulation's
+//! smeared blob (plume48's frame 20, 18x18x20 voxels, docs/design/volumes.md).
+//! The density (and, for a sequence, the simulation's
 //! velocity) is trilinearly resampled to `k` times the resolution and the
 //! stylized grid is written with a transform `k` times finer, so it still
 //! sits exactly where the original was in world space.

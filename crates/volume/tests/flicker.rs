@@ -1,6 +1,6 @@
 //! `flicker_of_outputs` scores written frames exactly as an optimised
 //! sequence scores itself, so feed-forward and optimised sequences can be
-//! compared with one metric (docs/FEEDFORWARD.md).
+//! compared with one metric (docs/design/feedforward.md).
 
 use std::path::{Path, PathBuf};
 

@@ -34,12 +34,12 @@ pub struct VolumeArgs {
     #[arg(long)]
     pub frames: Option<String>,
     /// EMA weight α of the temporal coherence (eq. 4), sequences only; 0
-    /// stylizes every frame on its own (docs/SEQUENCES.md says why 0.8).
+    /// stylizes every frame on its own (docs/design/volumes.md says why 0.8).
     #[arg(long, default_value_t = 0.8)]
     pub ema: f32,
     /// Let each octave's first sweep run without EMA blending (on by
     /// default: it makes farm chunks meet at their seams and cuts flicker
-    /// further at the same style loss; docs/FARM.md, docs/SEQUENCES.md).
+    /// further at the same style loss; docs/guide/farm.md, docs/design/volumes.md).
     /// `--ema-settle false` runs Algorithm 1 exactly as printed.
     #[arg(long, value_name = "BOOL", num_args = 0..=1, default_value_t = true, default_missing_value = "true",
           action = clap::ArgAction::Set)]
@@ -92,7 +92,7 @@ pub struct VolumeArgs {
     /// Strength of the look: `subtle` (0.5), `default` (1), `strong` (1.5) or
     /// a number. Below 1 it shrinks --vmax and the density range around 1 by
     /// that factor (the smoke keeps its shape); above 1 it runs that many
-    /// times the iterations (docs/VOLUME_LOOK.md, "Art-directable strength").
+    /// times the iterations (docs/design/volumes.md).
     /// With --model it raises the network's density scale to that power (a
     /// velocity model moves the smoke that many times as far).
     #[arg(long, default_value = "default", value_parser = nst3d_volume::settings::parse_strength)]
@@ -106,7 +106,7 @@ pub struct VolumeArgs {
     /// every frame of a sequence. A single frame is coloured after its smoke,
     /// from 16 cameras around it, free in brightness with its grey look
     /// guarded, the smoke's density scaled with the colour within
-    /// --smin/--smax (docs/VOLUME_LOOK.md); a sequence colours with the
+    /// --smin/--smax (docs/design/color.md); a sequence colours with the
     /// smoke in its sweeps. Optimisation only for now.
     #[arg(long, conflicts_with = "model")]
     pub color: bool,
@@ -140,7 +140,7 @@ pub struct VolumeArgs {
     /// `ring:N[:ELEV]` (a turntable of N cameras at ELEV degrees).
     #[arg(long, default_value = "front", conflicts_with = "camera_file")]
     pub cameras: String,
-    /// Shot camera or camera path (JSON, world space; see docs/CAMERAS.md).
+    /// Shot camera or camera path (JSON, world space; see docs/guide/volumes.md).
     #[arg(long)]
     pub camera_file: Option<PathBuf>,
     /// Seed of the omniview camera placement.
@@ -159,7 +159,7 @@ pub struct VolumeArgs {
     #[arg(long, requires = "frames")]
     pub chunk: Option<String>,
     /// Frames of overlap a chunk also optimises on each side (not written),
-    /// so its EMA sees the same neighbours as one whole run (docs/FARM.md).
+    /// so its EMA sees the same neighbours as one whole run (docs/guide/farm.md).
     #[arg(long, default_value_t = 0)]
     pub warmup: i64,
     /// Redo frames whose output file already exists.
