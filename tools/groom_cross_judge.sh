@@ -1,68 +1,59 @@
 #!/usr/bin/env bash
-# Issue 27's cross-painting test: does a groom take *its* painting's look, or
-# a look any target gives it? (docs/STRANDS.md, "Three paintings, one look")
+# The cross test of a groom's look: does a groom take *its* style's look, or
+# a look any target gives it? (docs/guide/strands.md, "What to expect")
 #
-# Stylizes GROOM toward each of the three shared paintings and toward a
-# control with no strokes at all (a grey ramp, luminance 0.2 -> 0.7), then
-# judges every result against every painting with `nst3d preview --style`
-# (8 turntable views at 15 degrees, 512 px; none an optimisation view).
+# Stylizes GROOM toward each geometric style of tools/strand_ref/styles.py
+# (stripes of two widths, a spiral, a triangle tessellation, checks), each
+# shared painting and a textureless grey ramp (the control), then judges
+# every result against every style with tools/strand_ref/judge.py: a VGG-19
+# Gram loss of the hair's box in nine frontal views inside the preset's
+# camera range (the views the optimiser faced), as result / input. It then
+# checks every pair of styles A, B: the result toward A must be nearer A
+# than the result toward B is, by 10 % for two geometric styles and 5 %
+# where a painting is in the pair, and the ramp must be nearest no style.
 #
-#   bash tools/groom_cross_judge.sh OUTDIR GROOM MESH y|z [nst3d strands options...]
-#   e.g. (from the repository) bash tools/groom_cross_judge.sh /tmp/x \
-#          ../shared/data/grooms/monkey_curly.ply ../shared/data/grooms/monkey_curly_mesh.obj z \
-#          --render-size 300 --iters 30
+#   bash tools/groom_cross_judge.sh OUTDIR GROOM MESH|- y|z ANGLE [nst3d strands options...]
+#   e.g. bash tools/groom_cross_judge.sh /tmp/x ../shared/data/grooms/monkey_curly.ply \
+#          ../shared/data/grooms/monkey_curly_mesh.obj z 10 --render-size 300 --iters 30
 #
-# Prints one table per judge (whole picture, hair only, hair only tone
-# matched): rows are what the groom was stylized toward, columns the
-# painting it is judged against, cells the median over the 8 views of
-# result / input (lower is nearer). A look of the painting's own shows as a
-# diagonal clearly below its column's other rows, the ramp row above all.
-# Runs one job at a time on one thread; finished pieces are kept, so a
-# rerun with the same OUTDIR resumes.
+# ANGLE is the preset's camera half-range in degrees (10 for short hair and
+# grass, 15 for the fur ball). Needs the PyTorch environment of
+# tools/bench_common.sh (.venv-torch, made on first use). Runs two jobs at a
+# time on one thread each; finished pieces are kept, so a rerun with the
+# same OUTDIR resumes. Set STYLES to judge a subset.
 set -euo pipefail
-[ $# -ge 4 ] || { echo "usage: $0 OUTDIR GROOM MESH y|z [nst3d strands options...]" >&2; exit 2; }
-# Paths as given, from the caller's directory (the script then runs from the repository).
-OUT=$(realpath -m "$1"); GROOM=$(realpath -m "$2"); MESH=$(realpath -m "$3"); UP=$4; shift 4
+[ $# -ge 5 ] || { echo "usage: $0 OUTDIR GROOM MESH|- y|z ANGLE [nst3d strands options...]" >&2; exit 2; }
+OUT=$(realpath -m "$1"); GROOM=$(realpath -m "$2"); MESH=$3; UP=$4; ANGLE=$5; shift 5
+[ "$MESH" = - ] || MESH=$(realpath -m "$MESH")
 cd "$(dirname "$0")/.."
 BIN=${NST3D_BIN:-./target/release/nst3d}
+[ -x "$BIN" ] || { echo "groom_cross_judge: no nst3d binary at $BIN (cargo build --release)" >&2; exit 1; }
+[ -f "$GROOM" ] || { echo "groom_cross_judge: no groom at $GROOM" >&2; exit 1; }
+[[ "$GROOM" == *.ply ]] || { echo "groom_cross_judge: the judge reads .ply grooms; $GROOM is not one" >&2; exit 1; }
+source tools/bench_common.sh   # sets PY (a Python with torch) and builds nst3d
+"$PY" -c "import PIL" 2>/dev/null || "$PY" -m pip install -q pillow
+GEOMETRIC=(stripes stripes_wide spiral triangles checks)
 PAINTINGS=(starry_night shipwreck woman_with_hat)
-mkdir -p "$OUT"
-# The control: a textureless grey ramp (written with the standard library only).
-[ -f "$OUT/ramp.png" ] || python3 - "$OUT/ramp.png" <<'EOF'
-import struct, sys, zlib
-w, h = 760, 600
-row = bytes(int((0.2 + 0.5 * x / w) * 255) for x in range(w) for _ in range(3))
-raw = b"".join(b"\0" + row for _ in range(h))
-chunk = lambda t, d: struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d) & 0xffffffff)
-png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)) \
-    + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b"")
-open(sys.argv[1] + ".tmp", "wb").write(png)
-import os; os.replace(sys.argv[1] + ".tmp", sys.argv[1])
-EOF
-style_of() { if [ "$1" = ramp ]; then echo "$OUT/ramp.png"; else echo "../shared/data/styles/$1.jpg"; fi; }
-for r in "${PAINTINGS[@]}" ramp; do
-  [ -f "$OUT/$r.usda" ] || "$BIN" --threads 1 strands --groom "$GROOM" --mesh "$MESH" --up "$UP" \
-    --style "$(style_of "$r")" "$@" --out "$OUT/$r.usda" > "$OUT/$r.log" 2>&1 ||
-    { echo "groom_cross_judge: stylizing toward $r failed, see $OUT/$r.log" >&2; exit 1; }
-  for p in "${PAINTINGS[@]}"; do
-    j="$OUT/j_${r}_vs_$p"
-    grep -q "tone matched" "$j.log" 2>/dev/null && continue
-    mkdir -p "$j"
-    "$BIN" --threads 1 preview --input "$GROOM" --compare "$OUT/$r.usda" --mesh "$MESH" --up "$UP" \
-      --turntable 8 --elevation 15 --height 512 --style "../shared/data/styles/$p.jpg" \
-      --out "$j/j_####.png" > "$j.log" 2>&1 ||
-      { echo "groom_cross_judge: judging $r against $p failed, see $j.log" >&2; exit 1; }
-  done
+read -r -a ALL <<< "${STYLES:-${GEOMETRIC[*]} ${PAINTINGS[*]} ramp}"
+mkdir -p "$OUT/styles"
+"$PY" tools/strand_ref/styles.py "$OUT/styles"
+style_of() { [ -f "$OUT/styles/$1.png" ] && echo "$OUT/styles/$1.png" || echo "../shared/data/styles/$1.jpg"; }
+mesh_args=(); [ "$MESH" = - ] || mesh_args=(--mesh "$MESH")
+stylize() {
+  local s=$1
+  [ -f "$OUT/$s.ply" ] && return 0
+  "$BIN" --threads 1 strands --groom "$GROOM" "${mesh_args[@]}" --up "$UP" --style "$(style_of "$s")" "$@" \
+    --out "$OUT/$s.ply" > "$OUT/$s.log" 2>&1 ||
+    { echo "groom_cross_judge: stylizing toward $s failed, see $OUT/$s.log" >&2; return 1; }
+}
+for ((i = 0; i < ${#ALL[@]}; i += 2)); do
+  stylize "${ALL[i]}" "$@" & a=$!
+  b=""; if ((i + 1 < ${#ALL[@]})); then stylize "${ALL[i+1]}" "$@" & b=$!; fi
+  wait $a; [ -z "$b" ] || wait $b
 done
-# The judge's three lines, in order: whole picture, hair only, hair only tone matched.
-for k in 1 2 3; do
-  printf '\n%s\n' "$(echo "whole picture|hair only|hair only, tone matched" | cut -d'|' -f$k)"
-  printf '%-16s' "stylized toward"; printf ' | %-14s' "${PAINTINGS[@]}"; echo
-  for r in "${PAINTINGS[@]}" ramp; do
-    printf '%-16s' "$r"
-    for p in "${PAINTINGS[@]}"; do
-      printf ' | %-14s' "$(grep -o 'median [0-9.]*' "$OUT/j_${r}_vs_$p.log" | sed -n "${k}p" | cut -d' ' -f2)"
-    done
-    echo
-  done
-done
+args=()
+for s in "${ALL[@]}"; do args+=(--result "$s=$OUT/$s.ply"); done
+for s in "${ALL[@]}"; do [ "$s" = ramp ] || args+=(--style "$s=$(style_of "$s")"); done
+"$PY" tools/strand_ref/judge.py --rest "$GROOM" "${args[@]}" --up "$UP" --ang "$ANGLE" --crop \
+  --painting-margin 0.05 --paintings "$(IFS=,; echo "${PAINTINGS[*]}")" \
+  --sheet "$OUT/sheet.png" --json "$OUT/judge.json" | tee "$OUT/judge.txt"

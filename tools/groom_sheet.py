@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Lays groom preview pictures out as the strand paper shows its results
-(docs/STRANDS.md, issue 27 item 5): one row per view, input | result |
+(docs/guide/strands.md): one row per view, input | result |
 painting, and measures how much of each picture the hair covers.
 
     python tools/groom_sheet.py OUT.png --style PAINTING.jpg \

@@ -230,7 +230,7 @@ curves.nst3d.render_size = 128
 curves.nst3d.color = True
 # A hair colour to start from (the monkey's tan), which the add-on reads
 # from the attribute it writes: the colour keeps its luminance, so white
-# hair (a groom without colours) has no room to change (docs/STRANDS.md).
+# hair (a groom without colours) has no room to change (docs/design/strands.md).
 tan = d.attributes.new(nst3d_blender.HAIR_COLOR, "FLOAT_COLOR", "POINT")
 tan.data.foreach_set("color", np.tile(np.array([0.78, 0.63, 0.47, 1.0], np.float32), len(d.points)))
 d.materials.append(nst3d_blender.hair_color_material("tan"))

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """How far the NNST loss of one strand render could fall if its pixels were
-free (docs/STRANDS.md, "How far could it fall?").
+free (docs/design/strands.md, "How far could it fall?").
 
 Reads a view dumped by `nst3d bench strands-iter --size N --dump DIR` (the
 render at v = 0 and its matched NNST targets) and runs Adam on the image

@@ -87,7 +87,7 @@ impl GramJudge {
     /// change its pictures' tone (the shading is fixed root to tip), yet
     /// the plain hair-only loss of the *unstylized* input darkened to half
     /// scores 0.34–0.38 of the input's with Starry Night and 0.16–0.17
-    /// with Shipwreck and Woman with a Hat (docs/STRANDS.md, "Judging the
+    /// with Shipwreck and Woman with a Hat (docs/design/strands.md, "Judging the
     /// judge"). With every picture's hair at the painting's tone, a darker
     /// or brighter copy of the input scores near 1 (0.85–0.98 on a real
     /// picture, where faint pixels leave the hair mask and bright ones clip;

@@ -98,9 +98,12 @@ pub struct StrandSettings {
     /// Strand cross-section sigma in pixels (default: the pipeline's).
     pub strand_width: Option<f32>,
     /// Match each scale's targets on the groom the coarser scales left
-    /// (`StylizeParams::rematch`); `None`: yes for one groom, no for a
-    /// sequence (see [`StrandSettings::stylize_params`]).
+    /// (`StylizeParams::rematch`); `None`: no, every scale matches on the
+    /// rest groom (see [`StrandSettings::stylize_params`]).
     pub rematch: Option<bool>,
+    /// Velocity samples blended per control point (eq. 5's neighbourhood);
+    /// `None`: the preset's.
+    pub field_neighbors: Option<usize>,
     /// VGG-19 weights file; `None`: `$NST3D_VGG19`, else the user cache.
     pub weights: Option<PathBuf>,
     /// Stylize the strands' colour too: after the shape (the
@@ -150,6 +153,7 @@ impl StrandSettings {
             scale_iters: None,
             strand_width: None,
             rematch: None,
+            field_neighbors: None,
             weights: None,
             color: false,
         }
@@ -177,6 +181,11 @@ impl StrandSettings {
         if let Some(w) = self.strand_width {
             if !(w.is_finite() && w > 0.0) {
                 bail!("--strand-width must be a positive number of pixels, got {w}");
+            }
+        }
+        if let Some(k) = self.field_neighbors {
+            if !(1..=256).contains(&k) {
+                bail!("--field-neighbors must be 1 to 256, got {k}");
             }
         }
         if self.color && self.frames.is_some() {
@@ -210,7 +219,7 @@ impl StrandSettings {
     }
 
     /// Bytes a stylization with `params` needs at its peak, from the peak
-    /// RSS measured at Table 1 sizes (docs/STRANDS.md: 2.99M control points
+    /// RSS measured at Table 1 sizes (docs/design/strands.md: 2.99M control points
     /// at 600² took 3.3 GB, 450K at 500² took 2.0 GB; this gives 3.7 and
     /// 2.4): 0.4 GB + 180 B per control point of guides and proxies + 7.7 KB
     /// per render pixel (the VGG features and splat buffers of one view).
@@ -256,12 +265,15 @@ impl StrandSettings {
         if let Some(w) = self.strand_width {
             params.strand_width_px = w;
         }
-        // A sequence matches every scale on each frame's own rest groom by
-        // default: those targets move only with the animation, while targets
-        // re-matched on the stylization so far follow it, and the fur ball
-        // in the wind flickered 0.56x of per-frame stylization with them
-        // against 0.46x without (docs/STRANDS.md).
-        params.rematch = self.rematch.unwrap_or(self.frames.is_none());
+        if let Some(k) = self.field_neighbors {
+            params.preset.neighbors = k;
+        }
+        // Every scale matches on the rest groom by default, as eq. 2 is
+        // written: targets re-matched on the stylization so far feed its
+        // gaps back into the targets, which gave every style the same
+        // clumps, and a sequence flickers more with them (the fur ball in
+        // the wind: 0.56x of per-frame stylization against 0.46x).
+        params.rematch = self.rematch.unwrap_or(false);
         params.color = self.color;
         params
     }

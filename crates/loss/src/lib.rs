@@ -80,7 +80,7 @@ const MAX_GRAM_CHUNKS: usize = 8;
 /// gives an all-zero Gram. Channels-last features (the network's own layout)
 /// are the fast case: both operands of the product then stream contiguously,
 /// where planar ones make `gemm` repack a transposed operand (2-3x slower at
-/// relu1_1, docs/PERFORMANCE.md).
+/// relu1_1, docs/design/performance.md).
 pub fn gram(f: FeatureView<'_>) -> Vec<f32> {
     let (c, p) = (f.channels, f.pixels());
     if p == 0 {

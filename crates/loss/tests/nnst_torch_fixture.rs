@@ -3,7 +3,7 @@
 
 use nst3d_core::fixture::{assert_close, load_f32, split};
 use nst3d_core::Image;
-use nst3d_loss::nnst::{nnst_loss, NnstParams, NnstTarget};
+use nst3d_loss::nnst::{nnst_loss, LayerWeight, NnstParams, NnstTarget};
 
 const STYLE: [(usize, usize, usize); 3] = [(4, 12, 14), (6, 6, 7), (8, 3, 3)];
 const CONTENT: [(usize, usize, usize); 3] = [(4, 16, 12), (6, 8, 6), (8, 4, 3)];
@@ -16,7 +16,16 @@ fn images(parts: &[&[f32]], shapes: &[(usize, usize, usize)]) -> Vec<Image> {
 
 #[test]
 fn matches_pytorch() {
-    let data = load_f32(env!("CARGO_MANIFEST_DIR"), "loss_nnst.bin", "tools/fixtures/loss_nnst.py");
+    check("loss_nnst.bin", LayerWeight::InverseChannels);
+}
+
+#[test]
+fn matches_pytorch_with_square_root_layer_weights() {
+    check("loss_nnst_sqrt.bin", LayerWeight::InverseSqrtChannels);
+}
+
+fn check(file: &str, layer_weight: LayerWeight) {
+    let data = load_f32(env!("CARGO_MANIFEST_DIR"), file, "tools/fixtures/loss_nnst.py");
     let size = |s: &[(usize, usize, usize)]| s.iter().map(|&(c, h, w)| c * h * w).collect::<Vec<_>>();
     let lens: Vec<usize> = [size(&STYLE), size(&CONTENT), vec![NC, 1], size(&CONTENT)].concat();
     let parts = split(&data, &lens);
@@ -25,7 +34,7 @@ fn matches_pytorch() {
     let (want_idx, want_loss) = (parts[6], parts[7][0]);
     let want_grads = &parts[8..11];
 
-    let target = NnstTarget::from_style_features(&style, &NnstParams { grid_divisor: 2 }).unwrap();
+    let target = NnstTarget::from_style_features(&style, &NnstParams { grid_divisor: 2, layer_weight }).unwrap();
     let matched = target.match_content(&content).unwrap();
     let idx: Vec<f32> = matched.indices().iter().map(|&i| i as f32).collect();
     assert_eq!(idx, want_idx, "nearest style columns");

@@ -1,4 +1,4 @@
-//! The colour a groom is stylized to (issue 29; the strand paper names
+//! The colour a groom is stylized to (the strand paper names
 //! "strand colours are untouched" as its third limitation). The splats
 //! already carry a colour `c_i` (eq. 6); here it becomes a parameter.
 //!
@@ -54,7 +54,7 @@ pub const COLOR_NEIGHBORS: usize = 8;
 /// iteration of the colour stage ([`stylize_color`](crate::pipeline::stylize_color)).
 /// At 0.03 the stage's loss swung from view to view (some views ended 10×
 /// above where they started) and the held-out judge came out worse; at
-/// 0.01 it fell steadily in every pass (monkey_curly, docs/STRANDS.md).
+/// 0.01 it fell steadily in every pass (monkey_curly, docs/design/strands.md).
 pub const COLOR_LEARNING_RATE: f32 = 0.01;
 
 /// Colours of every rendered point from the colour offsets at the sites, and back.

@@ -9,7 +9,7 @@
 //! enough: length preservation rebuilds each strand root to tip, so moving
 //! one control point sideways swings every point after it, and an identity
 //! backward points the optimizer the wrong way (the Bangs measurements are
-//! in `docs/STRANDS.md`). Each projection therefore has its
+//! in `docs/design/strands.md`). Each projection therefore has its
 //! vector-Jacobian product next to it, and [`ConstraintTape`] records a
 //! sequence of projections so they can be undone in reverse.
 
@@ -723,7 +723,7 @@ mod tests {
     /// On a mesh of overlapping parts (Suzanne, ears and eyes pushed into
     /// the head), collision passes take points that are inside by the
     /// winding number to outside by it, including those whose nearest
-    /// triangle is buried in another part (session 26 found a strand whose
+    /// triangle is buried in another part (a strand was seen whose
     /// points were pushed from the head into an ear and back): after one
     /// pass at most 0.5 % are left inside (18 of 9,560 here, all but 2 in
     /// front of an eye, where the socket's hole makes `w` 0.7–0.75), after

@@ -59,7 +59,7 @@ pub fn densify(
 pub type ProxyBlend = Vec<(u32, f32)>;
 
 /// [`densify`] with each proxy's [`ProxyBlend`], so attributes other than
-/// the shape (a stylized colour, issue 29) can be blended the same way.
+/// the shape (a stylized colour) can be blended the same way.
 pub fn densify_weighted(
     guides: &FlatStrands,
     scalp: Option<&TriMesh>,

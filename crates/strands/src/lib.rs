@@ -6,7 +6,7 @@
 //!   the guides, RBF-interpolated onto every control point and applied by
 //!   one forward-Euler step (eq. 4–5), with its backward (`Wᵀ`).
 //! - [`densify`]: proxy strands rooted on the scalp between the guides.
-//! - [`StrandColorLayer`]: the colour a groom is stylized to (issue 29),
+//! - [`StrandColorLayer`]: the colour a groom is stylized to,
 //!   offsets at sites on the guides spread by the field's RBF weights.
 //! - [`preserve_lengths`], [`project_collisions`] over a [`MeshBvh`]
 //!   (Sec. 3.4), combined in [`Constraints`].

@@ -117,7 +117,7 @@ pub enum EmaClock {
     /// Fraction of the current scale's iterations, Alg. 1's inner loop
     /// counter `m` as printed: every scale starts from the previous frame's
     /// field again and only its last `1 − ν` runs free. The default:
-    /// measured on the wind-blown fur ball (docs/STRANDS.md) it halves the
+    /// measured on the wind-blown fur ball (docs/design/strands.md) it halves the
     /// per-frame flicker at a lower NNST loss, where [`EmaClock::Frame`]
     /// flickers more than per-frame stylization.
     Scale,
@@ -634,7 +634,7 @@ mod tests {
         assert!(held.flicker < 0.7 * plain.flicker, "held EMA {} vs per frame {}", held.flicker, plain.flicker);
         assert!(deformed(&held_frames[3]));
         // The preset's EMA + 1€ runs through (how much it helps at real
-        // sizes is measured in docs/STRANDS.md).
+        // sizes is measured in docs/design/strands.md).
         let (paper, _) = run(&vgg, &style, params(true, true));
         assert!(paper.flicker.is_finite() && paper.eval_output.is_finite());
         // The wind moves the same in every run.

@@ -35,20 +35,40 @@ fn painting(n: usize) -> Image {
     Image::from_vec(3, n, n, data)
 }
 
-/// Checks [`loss_and_gradient`] at a small random velocity field on Bangs
-/// (with or without its head) against central differences: along the
+/// Where on the optimizer's path the chain is checked.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum At {
+    /// A small random velocity field (about 0.2% of the groom's radius).
+    NearRest,
+    /// The rest groom itself, `v = 0`.
+    Rest,
+    /// After ten AdamW steps of [`iteration`] at the preset's first
+    /// learning rate, where the optimizer actually is.
+    AfterSteps,
+}
+
+/// Checks [`loss_and_gradient`] on Bangs (with or without its head) against
+/// central differences at the velocities `at` says: along the
 /// gradient itself, which is what the optimizer follows (a wrong component
 /// anywhere lowers the numeric slope below `|g|`), and entry by entry on
 /// the largest entries. Along random directions the slope is `|g|/√n`,
 /// below f32's resolution of the loss, so those are not probed.
 fn check_chain(with_head: bool) {
+    check_chain_at(with_head, At::NearRest)
+}
+
+fn check_chain_at(with_head: bool, at: At) {
     let groom = nst3d_io::groom::read_groom(&data("Bangs_100.hair")).expect("read Bangs_100.hair");
     let head = nst3d_io::mesh::read_mesh(&data("Bangs_head.ply")).expect("read Bangs_head.ply");
     let mut params = StylizeParams::from_preset(Preset::ShortHair.params(), groom.strand_count());
     params.proxies = 150;
     params.render_size = 64;
     let scene = StrandScene::new(&groom, with_head.then_some(&head), &params).unwrap();
-    let vgg = Vgg19::random(VggFlavor::Torchvision, 7);
+    // The real weights, as the optimizer uses them: a random VGG's flat
+    // background ties many max-pool windows, and with the loss's default
+    // 1/√C layer weights the deep layers behind those kinks bend the slope
+    // along the gradient by 3–5 % (1 % with the real weights).
+    let vgg = Vgg19::load(None).expect("VGG-19 weights (tools/fetch_weights.sh)");
     vgg.prepare(VggLayer::Relu4_1);
     let target = style_target(&vgg, &painting(64), 48).unwrap();
     // Looking down on the bangs from 40° above the horizon, about where the
@@ -64,30 +84,50 @@ fn check_chain(with_head: bool) {
     // pushed out.
     let n = 3 * scene.field.sample_count();
     let radius = scene.frame.radius;
-    let v: Vec<f32> = pseudo_random(n, 11).iter().map(|x| x * 0.002 * radius).collect();
+    let v: Vec<f32> = match at {
+        At::NearRest => pseudo_random(n, 11).iter().map(|x| x * 0.002 * radius).collect(),
+        At::Rest => vec![0.0; n],
+        At::AfterSteps => {
+            let mut v = vec![0.0; n];
+            let mut adam = Adam::adamw(n, scale_learning_rate(&scene, &params, 0), params.weight_decay);
+            for _ in 0..10 {
+                iteration(&scene, &vgg, &cam, &matched, &mut v, &mut adam).unwrap();
+            }
+            v
+        }
+    };
     let loss = |x: &[f32]| loss_and_gradient(&scene, &vgg, &cam, &matched, x).unwrap().0.loss as f64;
     let (report, grad) = loss_and_gradient(&scene, &vgg, &cam, &matched, &v).unwrap();
     assert!(report.loss > 0.0 && grad.iter().all(|g| g.is_finite()));
-    assert_eq!(
-        report.stats.moved > 0,
-        with_head,
-        "collision projection active iff there is a head: {:?}",
-        report.stats
-    );
+    if at != At::Rest {
+        assert_eq!(
+            report.stats.moved > 0,
+            with_head,
+            "collision projection active iff there is a head: {:?}",
+            report.stats
+        );
+    }
 
     // The collision projection is piecewise smooth (a point enters or
     // leaves the skin's band), so the step stays small.
     let eps = 2e-4 * radius;
     let norm = grad.iter().map(|g| (*g as f64).powi(2)).sum::<f64>().sqrt();
     let along = |s: f64| v.iter().zip(&grad).map(|(a, g)| a + (s * *g as f64 / norm) as f32).collect::<Vec<f32>>();
-    let h = 2.5 * eps as f64;
+    // Without the head five steps: the loss is f32, and a shorter chord's
+    // slope is within its rounding (about 2 % at half this length). With
+    // it, half that: a longer chord crosses the collision projection's
+    // pieces (7 % off at five steps, 0.2 % at 2.5).
+    let h = if with_head { 2.5 } else { 5.0 } * eps as f64;
     let slope = (loss(&along(h)) - loss(&along(-h))) / (2.0 * h);
     let rel = (slope - norm).abs() / norm;
-    println!("head {with_head}: |g| {norm:.5e}, slope along g {slope:.5e}, rel {rel:.2e}");
+    println!("head {with_head} {at:?}: |g| {norm:.5e}, slope along g {slope:.5e}, rel {rel:.2e}");
+
     // With the head, strands lying on the skin (Bangs lies on the
     // forehead) change which points the projections move within any step
     // (the projection is piecewise linear), which bends the slope a little.
-    let tolerance = if with_head { 0.05 } else { 0.01 };
+    // After steps strands cross, and where two swap depth order the sorted
+    // compositing has a kink (3 % seen along the gradient after ten steps).
+    let tolerance = if with_head || at == At::AfterSteps { 0.05 } else { 0.01 };
     assert!(rel < tolerance, "head {with_head}: slope along the gradient {slope:e} vs |g| {norm:e}");
 
     // The largest single entries. Depth order of the splats and the
@@ -136,6 +176,17 @@ fn loss_and_gradient_matches_finite_differences_without_a_head() {
     })
 }
 
+/// The chain at the rest groom (`v = 0`) and where ten optimizer steps
+/// left it: the optimizer descends what this checks.
+#[test]
+fn loss_and_gradient_matches_finite_differences_at_rest_and_after_steps() {
+    nst3d_core::precision::fp32(|| {
+        check_chain_at(false, At::Rest);
+        check_chain_at(false, At::AfterSteps);
+        check_chain_at(true, At::AfterSteps);
+    })
+}
+
 #[test]
 fn loss_and_gradient_matches_finite_differences_through_the_collision_projection() {
     nst3d_core::precision::fp32(|| {
@@ -143,7 +194,7 @@ fn loss_and_gradient_matches_finite_differences_through_the_collision_projection
     })
 }
 
-/// The colour stage's chain (issue 29): colour offsets → layer (clamp) →
+/// The colour stage's chain: colour offsets → layer (clamp) →
 /// carry to the written points → splat render in colour → VGG-19 → Gram loss over the hair only, plus the
 /// grey guard (render → luminance → VGG-19 → Gram loss),
 /// differentiated by [`color_view_loss`] and checked against central

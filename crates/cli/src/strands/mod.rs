@@ -63,7 +63,7 @@ pub struct StrandsArgs {
     ema_nu: Option<f32>,
     /// What the EMA's iteration count m runs over: each `scale` (Alg. 1's
     /// inner counter: every scale restarts from the previous frame's field),
-    /// or the whole `frame` (measured to flicker more, docs/STRANDS.md).
+    /// or the whole `frame` (measured to flicker more, docs/design/strands.md).
     #[arg(long, default_value = "scale", value_parser = crate::named::<EmaClock>(EmaClock::NAMES.iter().copied()))]
     ema_clock: EmaClock,
     /// 1€ blending parameter α (default: the preset's).
@@ -118,10 +118,14 @@ pub struct StrandsArgs {
     #[arg(long)]
     strand_width: Option<f32>,
     /// Match each scale's NNST targets on the groom as the coarser scales left it
-    /// (true; the default for one groom), or every scale on the rest groom as the paper
-    /// writes eq. 2 (false; the default with --frames, which flickers less).
+    /// (true), or every scale on the rest groom as the paper writes eq. 2 (false, the
+    /// default: re-matched targets gave every style the same clumps).
     #[arg(long, action = clap::ArgAction::Set)]
     rematch: Option<bool>,
+    /// Velocity samples blended per control point (eq. 5's neighbourhood; default: the
+    /// preset's): more spreads each sample's pull over neighbouring strands.
+    #[arg(long)]
+    field_neighbors: Option<usize>,
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).
     #[arg(long)]
     weights: Option<PathBuf>,
@@ -247,6 +251,7 @@ impl StrandsArgs {
             scale_iters,
             strand_width: self.strand_width,
             rematch: self.rematch,
+            field_neighbors: self.field_neighbors,
             weights: self.weights,
             color: self.color,
         })

@@ -1,11 +1,11 @@
-//! Colour from every side (issue 29): the groom's colour stylized in a
+//! Colour from every side: the groom's colour stylized in a
 //! stage of its own, after the shape, as the volume pipeline's colour
 //! stage does for smoke (`nst3d_stylize::color_stage`).
 //!
 //! Why a stage of its own. Stepped beside the velocities, the colour had
 //! the shape's views (a few cached cameras per scale around the front) and
 //! NNST targets matched on grey renders; from held-out views all around the
-//! monkey its hair-only colour loss fell only 10–20 % (docs/STRANDS.md).
+//! monkey its hair-only colour loss fell only 10–20 % (docs/design/strands.md).
 //! Here the strands are fixed (the shape run exactly as without colour, so
 //! the grey result is the same), and only the colour offsets `δ` of the
 //! [`StrandColorLayer`](crate::StrandColorLayer) move:
@@ -65,7 +65,7 @@ pub const COLOR_PASSES: u32 = 4;
 /// brightness, the colour darkens the hair towards a painting's dark
 /// colours, and the grey judge of the pictures' luminance rose. Measured on
 /// monkey_curly (`nst3d preview --color`, 8 views; hair-only colour / grey
-/// judge, median against the grey result; docs/STRANDS.md):
+/// judge, median against the grey result; docs/design/strands.md):
 ///
 /// | guard | Woman with a Hat | Starry Night | Shipwreck |
 /// | --- | --- | --- | --- |
@@ -173,7 +173,7 @@ fn gram_loss(
 /// guard fitted on them did not see the grey look the file shows: with
 /// them, monkey_curly × Starry Night at the defaults scored 1.240 of the
 /// grey result's grey loss, drawing the written points 1.078
-/// (docs/STRANDS.md, "At full size"); the proxies
+/// (docs/design/strands.md, "At full size"); the proxies
 /// are the optimisation's densification and are not written (drawn, the
 /// hair was denser than any picture of the file: hair-only judge 0.921 of
 /// the grey result's with proxies, 0.818 without).

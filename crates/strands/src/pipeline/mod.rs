@@ -36,14 +36,13 @@
 //! of 16 seeded random candidates from those already taken), so every prefix
 //! of the sequence covers the ranges evenly and a seed fixes it.
 //!
-//! Loss: eq. 2–3. The coarsest scale's targets `T` of a view are matched
-//! on the *undeformed* render `R_θ(x₀)` against the style image resized for
-//! the scale, as the paper writes eq. 2; each finer scale's are matched on
-//! the groom as the coarser scales left it ([`StylizeParams::rematch`], on
-//! by default, `--rematch false` for the paper's reading), as NNST itself
-//! re-matches each scale on its current output. Matched on `x₀`, a coarse
-//! scale's deformation is pulled back by the next scale's targets, which
-//! still describe the rest groom (docs/STRANDS.md, "Monkey"); the loss is `‖Φ(R_θ(x)) − T‖²` averaged over
+//! Loss: eq. 2–3. Every scale's targets `T` of a view are matched on the
+//! *undeformed* render `R_θ(x₀)` against the style image resized for the
+//! scale, as the paper writes eq. 2. ([`StylizeParams::rematch`] matches the
+//! finer scales on the groom as the coarser scales left it instead, as NNST
+//! re-matches each scale on its output; off by default: the gaps of the
+//! deformed groom feed back into its targets and every style then drives
+//! the same clumps, docs/design/strands.md.) The loss is `‖Φ(R_θ(x)) − T‖²` averaged over
 //! hyper-columns (relu1_1, relu2_1, relu3_1, relu4_1, NNST's grid of a
 //! quarter resolution). Gradients flow NNST → VGG backward → splat backward →
 //! back through every constraint projection of the iterate (the recorded
@@ -64,7 +63,7 @@
 //! it was 0.3 while targets were matched on `x₀` for every scale, where
 //! larger steps found another stylization than the one matched).
 //!
-//! The measurements behind both defaults are in `docs/STRANDS.md`
+//! The measurements behind both defaults are in `docs/design/strands.md`
 //! ("Measurements behind the pipeline's defaults").
 //!
 //! Evaluation, held out: [`HeldOut`], the hair-only NNST loss from views

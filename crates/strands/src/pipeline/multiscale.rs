@@ -324,7 +324,7 @@ pub fn stylize_with(
     } else {
         HeldOut::default()
     };
-    // Colour (issue 29): a stage of its own on the finished strands.
+    // Colour: a stage of its own on the finished strands.
     let colors = if params.color {
         let iterations = color_iterations();
         let stage = stylize_color(scene, style, vgg, &strands, params, &mut |i, loss| {

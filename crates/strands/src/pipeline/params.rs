@@ -43,9 +43,9 @@ pub struct StylizeParams {
     /// Match each scale's NNST targets on the groom as the previous scales
     /// left it, as NNST matches each scale on its current output, instead
     /// of on the rest groom `R(x₀)` for every scale as the paper's eq. 2
-    /// is written (see the module notes and docs/STRANDS.md).
+    /// is written (see the module notes; off by default).
     pub rematch: bool,
-    /// Stylize the strands' colour with their shape (issue 29): per-point
+    /// Stylize the strands' colour with their shape: per-point
     /// colours ([`StrandColorLayer`](crate::StrandColorLayer)) optimized
     /// with the velocities against the painting in colour.
     pub color: bool,
@@ -69,7 +69,7 @@ impl StylizeParams {
             eval_views: 4,
             held_out_views: 4,
             strand_width_px: 0.5,
-            rematch: true,
+            rematch: false,
             color: false,
         }
     }

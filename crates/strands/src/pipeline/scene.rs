@@ -63,7 +63,7 @@ pub struct StrandScene {
     /// How far outside the mesh strands with a root inside are lifted
     /// (`10⁻⁴` of the mesh diagonal; see [`resolve_rest`]).
     pub lift_margin: f32,
-    /// The colours of the rendered points from the colour offsets (issue 29),
+    /// The colours of the rendered points from the colour offsets,
     /// starting at the input's colours; built on first use
     /// ([`StrandScene::color_layer`]).
     color_layer: OnceLock<StrandColorLayer>,
@@ -221,7 +221,7 @@ impl StrandScene {
         enforce(s, &self.constraints, CONSTRAINT_PASSES, tape)
     }
 
-    /// The colour layer (issue 29). Built on the first call: its RBF
+    /// The colour layer. Built on the first call: its RBF
     /// weights cost as much as the deformation field's (a k-nearest search
     /// for every control point, ~5 s of a Short Hair set-up), and a groom
     /// stylized without `--color` never needs them.

@@ -1,0 +1,152 @@
+"""Cross test of stylized grooms: every result judged against every style.
+
+    python3 judge.py --rest REST.ply --result NAME=FILE [--result ...] --style NAME=IMG [...]
+                     [--size 256] [--ang 10] [--style-px 96] [--sheet OUT.png] [--json OUT.json]
+
+Each groom (.ply as nst3d writes it, or the reference's .npy) is drawn by the
+reference's soft splat renderer from nine fixed frontal views inside the
+preset's +-ang range (the views an optimiser of that preset faces), and each
+render is compared with each style by a Gram loss over relu1_1..relu4_1 of
+the Gatys-normalised VGG-19 (each layer divided by the style's own Gram
+energy, so the four layers count alike). A cell is the median over the views
+of result / rest: below 1 the result is nearer the style than the input was.
+
+The pair test: for styles A and B, the result toward A must be nearer A than
+the result toward B is, by the margin (and the same for B), where results
+are named after their styles. A result named `ramp` (a textureless control)
+must be the nearest to no style. Prints every cell and every pair.
+"""
+import argparse
+import json
+import math
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from common import *  # noqa: E402,F401
+
+VIEWS = [(0, 0), (-0.7, 0), (0.7, 0), (0, -0.7), (0, 0.7), (-0.5, -0.5), (0.5, 0.5), (-0.5, 0.5), (0.5, -0.5)]
+
+
+def load(path):
+    if path.endswith('.npy'):
+        return torch.from_numpy(np.load(path).astype(np.float32))
+    return torch.from_numpy(read_ply(path))
+
+
+def grams(img):
+    return [gram(f) for f in vgg_feats(img)]
+
+
+def gram_dist(ga, gs):
+    return sum(((a - s) ** 2).sum().item() / (s ** 2).sum().item() for a, s in zip(ga, gs))
+
+
+def edge_stats(img):
+    """Share of edge energy at diagonal angles (30-60 and 120-150 degrees)."""
+    a = img.numpy()
+    gy, gx = np.gradient(a)
+    mag = np.hypot(gx, gy)
+    ang = (np.degrees(np.arctan2(gy, gx)) + 180.0) % 180.0
+    diag = ((ang > 30) & (ang < 60)) | ((ang > 120) & (ang < 150))
+    return float((mag * diag).sum() / max(mag.sum(), 1e-9))
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument('--rest', required=True)
+    ap.add_argument('--result', action='append', default=[])
+    ap.add_argument('--style', action='append', default=[])
+    ap.add_argument('--size', type=int, default=256)
+    ap.add_argument('--ang', type=float, default=10.0)
+    ap.add_argument('--style-px', type=int, default=96, help='style height at this render size')
+    ap.add_argument('--margin', type=float, default=0.10, help='pair margin between two geometric styles')
+    ap.add_argument('--painting-margin', type=float, default=0.05, help='pair margin where a painting is in the pair')
+    ap.add_argument('--paintings', default='', help='comma-separated style names that are paintings')
+    ap.add_argument('--sheet')
+    ap.add_argument('--json')
+    ap.add_argument('--up', default='y')
+    ap.add_argument('--crop', action='store_true', help='judge only the rest hair\'s box of each view')
+    a = ap.parse_args()
+    rest = load(a.rest)
+    results = [('rest', rest)] + [(r.split('=', 1)[0], load(r.split('=', 1)[1])) for r in a.result]
+    if a.up == 'z':  # turn a z-up groom so the reference's y-up cameras see it upright
+        results = [(n, torch.stack([P[..., 0], P[..., 2], -P[..., 1]], -1)) for n, P in results]
+    flat = results[0][1].reshape(-1, 3)
+    center = (flat.min(0).values + flat.max(0).values) / 2
+    R = (flat - center).norm(dim=1).max().item()
+    styles = []
+    for s in a.style:
+        name, path = s.split('=', 1)
+        img = resize_grey(grey_of(Image.open(path)), a.style_px)
+        with torch.no_grad():
+            styles.append((name, grams(img), img))
+    cams = [Cam(center, R, az * a.ang, el * a.ang, a.size) for az, el in VIEWS]
+    dist = {}
+    edges = {}
+    renders = {}
+    boxes = []
+    with torch.no_grad():
+        for cam in cams:
+            m = render(results[0][1], cam) > 0.02
+            ys, xs = torch.nonzero(m, as_tuple=True)
+            pad = 6
+            boxes.append((max(0, ys.min().item() - pad), min(a.size, ys.max().item() + pad + 1),
+                          max(0, xs.min().item() - pad), min(a.size, xs.max().item() + pad + 1)))
+        for name, P in results:
+            per = {s: [] for s, _, _ in styles}
+            ed = []
+            for ci, cam in enumerate(cams):
+                img = render(P, cam)
+                if a.crop:
+                    y0, y1, x0, x1 = boxes[ci]
+                    img = img[y0:y1, x0:x1]
+                if ci == 0:
+                    renders[name] = img
+                ed.append(edge_stats(img))
+                g = grams(img)
+                for s, gs, _ in styles:
+                    per[s].append(gram_dist(g, gs))
+            dist[name] = per
+            edges[name] = float(np.median(ed))
+    rel = {n: {s: float(np.median(np.array(dist[n][s]) / np.array(dist['rest'][s]))) for s, _, _ in styles}
+           for n, _ in results}
+    snames = [s for s, _, _ in styles]
+    print('result / rest, Gram loss, median of %d frontal views (lower = nearer the style)' % len(cams))
+    print('%-12s' % 'toward' + ''.join(' | %-10s' % s for s in snames) + ' | diag-edge')
+    for n, _ in results:
+        print('%-12s' % n + ''.join(' | %-10.3f' % rel[n][s] for s in snames) + ' | %.2f' % edges[n])
+    pairs = []
+    named = [s for s in snames if s in rel]
+    for i, A in enumerate(named):
+        for B in named[i + 1:]:
+            mA = 1 - rel[A][A] / rel[B][A]
+            mB = 1 - rel[B][B] / rel[A][B]
+            paint = set(a.paintings.split(','))
+            m = a.painting_margin if (A in paint or B in paint) else a.margin
+            ok = mA >= m and mB >= m
+            pairs.append(dict(a=A, b=B, margin_a=mA, margin_b=mB, need=m, ok=ok))
+            print(f'pair {A:>10} / {B:<10}: toward {A} nearer {A} by {mA:+.1%}, toward {B} nearer {B} by {mB:+.1%}'
+                  f' (need {m:.0%}) -> {"ok" if ok else "FAIL"}')
+    if 'ramp' in rel:
+        for s in snames:
+            best = min((rel[n][s], n) for n, _ in results if n != 'rest')[1]
+            print(f'nearest to {s}: {best}' + ('  (ramp: FAIL)' if best == 'ramp' else ''))
+    ramp_nearest = [s for s in snames if 'ramp' in rel and min((rel[n][s], n) for n, _ in results if n != 'rest')[1] == 'ramp']
+    print(f'{sum(p["ok"] for p in pairs)} of {len(pairs)} pairs pass; the ramp is nearest to {len(ramp_nearest)} styles')
+    if a.json:
+        json.dump(dict(rel=rel, edges=edges, pairs=pairs, ramp_nearest=ramp_nearest), open(a.json, 'w'), indent=1)
+    if a.sheet:
+        tiles = [renders[n] for n, _ in results]
+        for s, _, img in styles:
+            h = renders['rest'].shape[0]
+            t = torch.nn.functional.interpolate(img[None, None], size=(h, h), mode='bilinear')[0, 0]
+            tiles.append(t)
+        h = max(t.shape[0] for t in tiles)
+        tiles = [torch.nn.functional.pad(t, (0, 0, 0, h - t.shape[0])) for t in tiles]
+        row = torch.cat([t.clamp(0, 1) for t in tiles], 1)
+        to_png(row, a.sheet)
+
+
+if __name__ == '__main__':
+    main()
