@@ -31,7 +31,7 @@ BIN=${NST3D_BIN:-./target/release/nst3d}
 [ -f "$GROOM" ] || { echo "groom_cross_judge: no groom at $GROOM" >&2; exit 1; }
 [[ "$GROOM" == *.ply ]] || { echo "groom_cross_judge: the judge reads .ply grooms; $GROOM is not one" >&2; exit 1; }
 source tools/bench_common.sh   # sets PY (a Python with torch) and builds nst3d
-"$PY" -c "import PIL" 2>/dev/null || "$PY" -m pip install -q pillow
+"$PY" -c "import PIL, scipy" 2>/dev/null || "$PY" -m pip install -q pillow scipy
 GEOMETRIC=(stripes stripes_wide spiral triangles checks)
 PAINTINGS=(starry_night shipwreck woman_with_hat)
 read -r -a ALL <<< "${STYLES:-${GEOMETRIC[*]} ${PAINTINGS[*]} ramp}"
@@ -40,7 +40,7 @@ mkdir -p "$OUT/styles"
 style_of() { [ -f "$OUT/styles/$1.png" ] && echo "$OUT/styles/$1.png" || echo "../shared/data/styles/$1.jpg"; }
 mesh_args=(); [ "$MESH" = - ] || mesh_args=(--mesh "$MESH")
 stylize() {
-  local s=$1
+  local s=$1; shift
   [ -f "$OUT/$s.ply" ] && return 0
   "$BIN" --threads 1 strands --groom "$GROOM" "${mesh_args[@]}" --up "$UP" --style "$(style_of "$s")" "$@" \
     --out "$OUT/$s.ply" > "$OUT/$s.log" 2>&1 ||

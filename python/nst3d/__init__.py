@@ -265,6 +265,7 @@ def stylize_groom(
     strand_width: Optional[float] = None,
     rematch: Optional[bool] = None,
     field_neighbors: Optional[int] = None,
+    orientation: Optional[float] = None,
     weights: Optional[PathLike] = None,
     preview: Optional[PathLike] = None,
     color: Optional[bool] = None,
@@ -296,7 +297,7 @@ def stylize_groom(
     opts = _options(
         preset=preset, iters=iters, scale_iters=scale_iters, render_size=render_size, proxies=proxies,
         up=up, seed=seed, lr_scale=lr_scale, style_scale=style_scale, views_per_scale=views_per_scale, eval_views=eval_views,
-        strand_width=strand_width, rematch=rematch, field_neighbors=field_neighbors, weights=weights, preview=preview, color=color,
+        strand_width=strand_width, rematch=rematch, field_neighbors=field_neighbors, orientation=orientation, weights=weights, preview=preview, color=color,
     )
     col = None
     if colors is not None:
@@ -361,6 +362,7 @@ def stylize_groom_file(
     strand_width: Optional[float] = None,
     rematch: Optional[bool] = None,
     field_neighbors: Optional[int] = None,
+    orientation: Optional[float] = None,
     weights: Optional[PathLike] = None,
     preview: Optional[PathLike] = None,
     color: Optional[bool] = None,
@@ -382,7 +384,7 @@ def stylize_groom_file(
         one_euro_beta=one_euro_beta, one_euro_fmin=one_euro_fmin, fps=fps, style_flow=style_flow,
         iters=iters, scale_iters=scale_iters, render_size=render_size, proxies=proxies, up=up,
         seed=seed, lr_scale=lr_scale, style_scale=style_scale, views_per_scale=views_per_scale, eval_views=eval_views,
-        strand_width=strand_width, rematch=rematch, field_neighbors=field_neighbors, weights=weights, preview=preview, color=color,
+        strand_width=strand_width, rematch=rematch, field_neighbors=field_neighbors, orientation=orientation, weights=weights, preview=preview, color=color,
     )
     return _nst3d.stylize_groom_file(
         os.fspath(groom), os.fspath(out), os.fspath(style), opts,

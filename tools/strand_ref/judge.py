@@ -42,6 +42,25 @@ def gram_dist(ga, gs):
     return sum(((a - s) ** 2).sum().item() / (s ** 2).sum().item() for a, s in zip(ga, gs))
 
 
+def orient_hist(img, bins=18, sigma=2.0):
+    """Coherence- and energy-weighted histogram of stroke directions (the
+    structure tensor's minor eigenvector) over [0, 180) degrees."""
+    a = img.numpy().astype(np.float64)
+    gy, gx = np.gradient(a)
+    from scipy.ndimage import gaussian_filter
+    jxx, jxy, jyy = (gaussian_filter(t, sigma) for t in (gx * gx, gx * gy, gy * gy))
+    tr = jxx + jyy
+    disc = np.sqrt((jxx - jyy) ** 2 + 4 * jxy ** 2)
+    coh = (disc / (tr + 1e-12)) ** 2
+    theta = (np.degrees(0.5 * np.arctan2(2 * jxy, jxx - jyy)) + 90.0) % 180.0
+    h, _ = np.histogram(theta, bins=bins, range=(0, 180), weights=coh * tr)
+    return h / max(h.sum(), 1e-12)
+
+
+def orient_dist(ha, hb):
+    return 0.5 * float(np.abs(ha - hb).sum())
+
+
 def edge_stats(img):
     """Share of edge energy at diagonal angles (30-60 and 120-150 degrees)."""
     a = img.numpy()
@@ -67,6 +86,8 @@ def main():
     ap.add_argument('--json')
     ap.add_argument('--up', default='y')
     ap.add_argument('--crop', action='store_true', help='judge only the rest hair\'s box of each view')
+    ap.add_argument('--judge', default='gram', choices=['gram', 'orient'],
+                    help='gram: VGG-19 Gram loss; orient: distance of stroke-direction histograms')
     a = ap.parse_args()
     rest = load(a.rest)
     results = [('rest', rest)] + [(r.split('=', 1)[0], load(r.split('=', 1)[1])) for r in a.result]
@@ -76,11 +97,13 @@ def main():
     center = (flat.min(0).values + flat.max(0).values) / 2
     R = (flat - center).norm(dim=1).max().item()
     styles = []
+    shist = {}
     for s in a.style:
         name, path = s.split('=', 1)
         img = resize_grey(grey_of(Image.open(path)), a.style_px)
         with torch.no_grad():
             styles.append((name, grams(img), img))
+        shist[name] = orient_hist(img)
     cams = [Cam(center, R, az * a.ang, el * a.ang, a.size) for az, el in VIEWS]
     dist = {}
     edges = {}
@@ -105,14 +128,16 @@ def main():
                     renders[name] = img
                 ed.append(edge_stats(img))
                 g = grams(img)
+                oh = orient_hist(img)
                 for s, gs, _ in styles:
-                    per[s].append(gram_dist(g, gs))
+                    per[s].append(gram_dist(g, gs) if a.judge == 'gram' else orient_dist(oh, shist[s]))
             dist[name] = per
             edges[name] = float(np.median(ed))
     rel = {n: {s: float(np.median(np.array(dist[n][s]) / np.array(dist['rest'][s]))) for s, _, _ in styles}
            for n, _ in results}
     snames = [s for s, _, _ in styles]
-    print('result / rest, Gram loss, median of %d frontal views (lower = nearer the style)' % len(cams))
+    print('result / rest, %s, median of %d frontal views (lower = nearer the style)'
+          % ('Gram loss' if a.judge == 'gram' else 'stroke-direction histogram distance', len(cams)))
     print('%-12s' % 'toward' + ''.join(' | %-10s' % s for s in snames) + ' | diag-edge')
     for n, _ in results:
         print('%-12s' % n + ''.join(' | %-10.3f' % rel[n][s] for s in snames) + ' | %.2f' % edges[n])

@@ -303,8 +303,6 @@ fn the_docs_cover_every_file_under_docs() {
     }
 }
 
-/// Pages the strand change in flight writes; a link to them may wait for it.
-const PENDING_PAGES: [&str; 2] = ["docs/guide/strands.md", "docs/design/strands.md"];
 
 /// `path` with `.` and `..` resolved lexically.
 fn normalize(path: &Path) -> PathBuf {
@@ -349,8 +347,7 @@ fn every_linked_page_and_picture_exists() {
         for target in link_targets(&text) {
             checked += 1;
             let path = normalize(&dir.join(&target));
-            let pending = PENDING_PAGES.iter().any(|p| normalize(&repo().join(p)) == path);
-            if !path.exists() && !pending {
+            if !path.exists() {
                 let name = f.strip_prefix(repo()).unwrap_or(&f).display().to_string();
                 bad.push(format!("{name}: links to {target}, which does not exist"));
             }

@@ -104,6 +104,9 @@ pub struct StrandSettings {
     /// Velocity samples blended per control point (eq. 5's neighbourhood);
     /// `None`: the preset's.
     pub field_neighbors: Option<usize>,
+    /// Weight of the orientation term (`StylizeParams::orientation`); 0 runs
+    /// the paper's NNST loss alone.
+    pub orientation: f32,
     /// VGG-19 weights file; `None`: `$NST3D_VGG19`, else the user cache.
     pub weights: Option<PathBuf>,
     /// Stylize the strands' colour too: after the shape (the
@@ -154,6 +157,7 @@ impl StrandSettings {
             strand_width: None,
             rematch: None,
             field_neighbors: None,
+            orientation: StylizeParams::DEFAULT_ORIENTATION,
             weights: None,
             color: false,
         }
@@ -182,6 +186,9 @@ impl StrandSettings {
             if !(w.is_finite() && w > 0.0) {
                 bail!("--strand-width must be a positive number of pixels, got {w}");
             }
+        }
+        if !(self.orientation.is_finite() && self.orientation >= 0.0) {
+            bail!("--orientation must be 0 or a positive number, got {}", self.orientation);
         }
         if let Some(k) = self.field_neighbors {
             if !(1..=256).contains(&k) {
@@ -268,6 +275,7 @@ impl StrandSettings {
         if let Some(k) = self.field_neighbors {
             params.preset.neighbors = k;
         }
+        params.orientation = self.orientation;
         // Every scale matches on the rest groom by default, as eq. 2 is
         // written: targets re-matched on the stylization so far feed its
         // gaps back into the targets, which gave every style the same

@@ -297,8 +297,10 @@ impl SplatCache {
     }
 }
 
-/// Whether strand `i` survives visibility culling.
-fn strand_visible(strands: &Strands, i: usize, eye: [f32; 3], eps: f32) -> bool {
+/// Whether strand `i` survives visibility culling: its root normal · the
+/// unit direction from the root to `eye` is at least `eps` (always, without
+/// normals).
+pub fn strand_visible(strands: &Strands, i: usize, eye: [f32; 3], eps: f32) -> bool {
     let Some(normals) = strands.root_normals else { return true };
     let root = strands.points[strands.offsets[i]];
     let n = normals[i];

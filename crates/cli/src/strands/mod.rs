@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
 use nst3d_groom::{GenerateKind, GenerateSettings, StrandSettings, Temporal, UpAxis};
+use nst3d_strands::pipeline::StylizeParams;
 use nst3d_strands::{EmaClock, Preset, Wind};
 
 use crate::console::Console;
@@ -126,6 +127,10 @@ pub struct StrandsArgs {
     /// preset's): more spreads each sample's pull over neighbouring strands.
     #[arg(long)]
     field_neighbors: Option<usize>,
+    /// Weight of the orientation term: the painting's stroke directions as targets for
+    /// the strands' directions, relative to the NNST loss (0: the paper's NNST alone).
+    #[arg(long, default_value_t = StylizeParams::DEFAULT_ORIENTATION)]
+    orientation: f32,
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).
     #[arg(long)]
     weights: Option<PathBuf>,
@@ -252,6 +257,7 @@ impl StrandsArgs {
             strand_width: self.strand_width,
             rematch: self.rematch,
             field_neighbors: self.field_neighbors,
+            orientation: self.orientation,
             weights: self.weights,
             color: self.color,
         })

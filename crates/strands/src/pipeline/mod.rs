@@ -89,6 +89,7 @@
 
 mod color_stage;
 mod multiscale;
+mod orientation;
 mod params;
 mod scene;
 mod step;
@@ -118,7 +119,8 @@ pub use scene::{
     max_length_change, polyline_length, ColorCarry, GroomView, StrandScene, CONSTRAINT_PASSES, HARD_TAU_FRACTION,
     SEGMENT_TOLERANCE,
 };
-pub use step::{iteration, loss_and_gradient, StageTimes, StepReport};
+pub use orientation::{orientation_loss, OrientationView, StrokeField, STRUCTURE_SIGMA};
+pub use step::{iteration, iteration_with, loss_and_gradient, loss_and_gradient_with, OrientationTerm, StageTimes, StepReport};
 pub use views::{match_view, match_view_on, poisson_view_angles, style_target, ViewFrame};
 
 use crate::StrandError;

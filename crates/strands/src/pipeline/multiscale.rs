@@ -15,7 +15,8 @@ use crate::strands::FlatStrands;
 use crate::StrandError;
 
 use super::color_stage::{color_iterations, stylize_color};
-use super::step::{flatten, iteration, unflatten};
+use super::orientation::{OrientationView, StrokeField};
+use super::step::{flatten, iteration_with, loss_and_gradient_with, unflatten, OrientationTerm};
 use super::views::{match_view_on, poisson_view_angles, style_target};
 use super::{PipelineError, StrandScene, StylizeParams, NNST_LAYERS};
 
@@ -176,6 +177,40 @@ pub fn stylize(
     stylize_with(scene, style, vgg, params, FrameHooks::default(), progress)
 }
 
+/// The orientation term of `strands` (layout of [`StrandScene::rest`])
+/// seen through `cam`: `field` laid over the hair's box; `None` with no hair
+/// in sight.
+fn orientation_view(
+    scene: &StrandScene,
+    strands: &FlatStrands,
+    field: &StrokeField,
+    cam: &SplatCamera,
+) -> Result<Option<OrientationView>, PipelineError> {
+    let img = scene.render(strands, cam)?;
+    let hair = hair_pixels(&img, scene.style.background);
+    let s = scene.strands(strands, None);
+    Ok(OrientationView::new(field.size(), &s, &hair, &scene.style, cam))
+}
+
+/// `|∇ NNST| / |∇ orientation|` at `v` (both through the whole chain to
+/// the velocities): the orientation weight that makes the two gradients
+/// equal in norm.
+fn orientation_scale(
+    scene: &StrandScene,
+    vgg: &Vgg19,
+    cam: &SplatCamera,
+    matched: &NnstMatch,
+    unit: OrientationTerm<'_>,
+    v: &[f32],
+) -> Result<f32, PipelineError> {
+    let (_, g_nnst) = loss_and_gradient_with(scene, vgg, cam, matched, None, v)?;
+    let (_, g_both) = loss_and_gradient_with(scene, vgg, cam, matched, Some(unit), v)?;
+    let norm = |it: &mut dyn Iterator<Item = f64>| it.map(|x| x * x).sum::<f64>().sqrt();
+    let n = norm(&mut g_nnst.iter().map(|&x| x as f64));
+    let o = norm(&mut g_both.iter().zip(&g_nnst).map(|(&b, &a)| (b - a) as f64));
+    Ok(if o > 0.0 { (n / o) as f32 } else { 0.0 })
+}
+
 /// Where an iteration of [`stylize_with`] stands, before it runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct IterationClock {
@@ -245,34 +280,56 @@ pub fn stylize_with(
     let angles = poisson_view_angles(&scene.frame, p.polar_deg, p.azimuth_deg, per_scale.iter().sum(), params.seed);
     let mut first = 0;
     let mut finest = None;
+    // λ of the orientation term, set at its first iteration.
+    let mut lambda: Option<f32> = None;
     for (l, &iters) in params.iterations.iter().enumerate() {
         let views = &angles[first..first + per_scale[l]];
         first += per_scale[l];
         // The shape follows the painting's luminance, with or without
         // colour (the colour has a stage of its own, after the shape).
         let sstyle = style_target(vgg, style, params.style_height(l))?;
+        let strokes = (params.orientation > 0.0).then(|| {
+            StrokeField::from_grey(&nst3d_io::image::resize_to_height(&style.luminance3(), params.style_height(l)))
+        });
         // Where this scale's targets are matched: the rest groom (eq. 2), or
         // with `rematch` the groom as the coarser scales left it.
         let base = if params.rematch && l > 0 && iters > 0 { Some(scene.deform(&unflatten(&v))?.0) } else { None };
         if iters > 0 {
             adam.lr = scale_learning_rate(scene, params, l);
-            let mut cache: HashMap<usize, (SplatCamera, NnstMatch)> = HashMap::new();
+            let mut cache: HashMap<usize, (SplatCamera, NnstMatch, Option<OrientationView>)> = HashMap::new();
             for m in 0..iters {
                 let k = m as usize % views.len();
                 if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(k) {
                     let cam = scene.camera(views[k].0, views[k].1)?;
                     let strands = base.as_ref().unwrap_or(&scene.undeformed);
                     let (matched, _) = match_view_on(scene, strands, vgg, &sstyle, &cam)?;
-                    e.insert((cam, matched));
+                    let view = match &strokes {
+                        Some(f) => orientation_view(scene, strands, f, &cam)?,
+                        None => None,
+                    };
+                    e.insert((cam, matched, view));
                 }
-                let (cam, matched) = &cache[&k];
+                let (cam, matched, view) = &cache[&k];
+                let term = match (&strokes, view) {
+                    (Some(field), Some(view)) => {
+                        let unit = OrientationTerm { field, view, weight: 1.0 };
+                        let weight = match lambda {
+                            Some(w) => w,
+                            None => *lambda.insert(
+                                params.orientation * orientation_scale(scene, vgg, cam, matched, unit, &v)?,
+                            ),
+                        };
+                        Some(OrientationTerm { weight, ..unit })
+                    }
+                    _ => None,
+                };
                 if let Some(hook) = hooks.before_iteration.as_mut() {
                     let mut vv = unflatten(&v);
                     hook(IterationClock { scale: l, iteration: m, iterations: iters, done, total }, &mut vv)?;
                     v = flatten(&vv);
                 }
                 done += 1;
-                let step = iteration(scene, vgg, cam, matched, &mut v, &mut adam).map_err(|e| match e {
+                let step = iteration_with(scene, vgg, cam, matched, term, &mut v, &mut adam).map_err(|e| match e {
                     PipelineError::Diverged(why) => {
                         PipelineError::Diverged(format!("{why} at scale {} iteration {}", l + 1, m + 1))
                     }

@@ -45,6 +45,12 @@ pub struct StylizeParams {
     /// of on the rest groom `R(x₀)` for every scale as the paper's eq. 2
     /// is written (see the module notes; off by default).
     pub rematch: bool,
+    /// Weight of the orientation term (the painting's stroke directions as
+    /// targets for the strands' projected directions, see
+    /// [`super::orientation`]) relative to the NNST loss: `λ` is set at the
+    /// first iteration so that its gradient is this times the NNST
+    /// gradient's norm. 0 runs the paper's NNST loss alone.
+    pub orientation: f32,
     /// Stylize the strands' colour with their shape: per-point
     /// colours ([`StrandColorLayer`](crate::StrandColorLayer)) optimized
     /// with the velocities against the painting in colour.
@@ -52,6 +58,9 @@ pub struct StylizeParams {
 }
 
 impl StylizeParams {
+    /// The orientation term's default weight.
+    pub const DEFAULT_ORIENTATION: f32 = 1.0;
+
     /// The preset's settings at its own render size, with proxies scaled to
     /// keep Table 1's proxy/guide ratio for `guides` guide strands.
     pub fn from_preset(preset: PresetParams, guides: usize) -> Self {
@@ -70,6 +79,7 @@ impl StylizeParams {
             held_out_views: 4,
             strand_width_px: 0.5,
             rematch: false,
+            orientation: Self::DEFAULT_ORIENTATION,
             color: false,
         }
     }
@@ -108,6 +118,9 @@ impl StylizeParams {
         }
         if !(self.preset.camera_distance > 1.0) {
             return bad(format!("camera distance r = {} must exceed 1 groom radius", self.preset.camera_distance));
+        }
+        if !(self.orientation.is_finite() && self.orientation >= 0.0) {
+            return bad(format!("orientation weight {} must be 0 or positive", self.orientation));
         }
         if self.eval_views == 0 {
             return bad("need at least one evaluation view".into());

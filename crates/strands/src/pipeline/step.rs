@@ -12,7 +12,20 @@ use nst3d_splat::{render, render_backward, SplatCamera};
 
 use crate::constraints::{CollisionStats, ConstraintTape};
 
+use super::orientation::{orientation_loss, OrientationView, StrokeField};
 use super::{PipelineError, StrandScene, NNST_LAYERS};
+
+/// The orientation term of one view ([`super::orientation`]) and its
+/// weight `λ` beside the NNST loss.
+#[derive(Clone, Copy, Debug)]
+pub struct OrientationTerm<'a> {
+    /// The painting's stroke field at the scale's style size.
+    pub field: &'a StrokeField,
+    /// The field laid over this view.
+    pub view: &'a OrientationView,
+    /// `λ`.
+    pub weight: f32,
+}
 
 /// Wall time of each stage of one [`iteration`].
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -67,6 +80,8 @@ impl StageTimes {
 pub struct StepReport {
     /// NNST loss of the view before the step.
     pub loss: f32,
+    /// Orientation loss of the view before the step (0 without the term).
+    pub orientation: f32,
     /// The constraints' first collision pass on this iterate.
     pub stats: CollisionStats,
     /// Where the time went.
@@ -87,7 +102,20 @@ pub fn iteration(
     v: &mut [f32],
     adam: &mut Adam,
 ) -> Result<StepReport, PipelineError> {
-    let (mut report, grad) = loss_and_gradient(scene, vgg, cam, matched, v)?;
+    iteration_with(scene, vgg, cam, matched, None, v, adam)
+}
+
+/// [`iteration`] with the orientation term added to the loss.
+pub fn iteration_with(
+    scene: &StrandScene,
+    vgg: &Vgg19,
+    cam: &SplatCamera,
+    matched: &NnstMatch,
+    orientation: Option<OrientationTerm<'_>>,
+    v: &mut [f32],
+    adam: &mut Adam,
+) -> Result<StepReport, PipelineError> {
+    let (mut report, grad) = loss_and_gradient_with(scene, vgg, cam, matched, orientation, v)?;
     let clock = Instant::now();
     adam.step(v, &grad);
     report.times.optimizer = clock.elapsed();
@@ -104,6 +132,19 @@ pub fn loss_and_gradient(
     vgg: &Vgg19,
     cam: &SplatCamera,
     matched: &NnstMatch,
+    v: &[f32],
+) -> Result<(StepReport, Vec<f32>), PipelineError> {
+    loss_and_gradient_with(scene, vgg, cam, matched, None, v)
+}
+
+/// [`loss_and_gradient`] of `NNST + λ · orientation` when `orientation` is
+/// given (the report keeps the two losses apart).
+pub fn loss_and_gradient_with(
+    scene: &StrandScene,
+    vgg: &Vgg19,
+    cam: &SplatCamera,
+    matched: &NnstMatch,
+    orientation: Option<OrientationTerm<'_>>,
     v: &[f32],
 ) -> Result<(StepReport, Vec<f32>), PipelineError> {
     let mut times = StageTimes::default();
@@ -126,13 +167,19 @@ pub fn loss_and_gradient(
     // splat backward is not charged with them.
     let mut timed_by_view_loss = Duration::ZERO;
     lap(&mut timed_by_view_loss);
-    let grad_points = render_backward(&s, cam, &scene.style, &cache, &grad_img)?;
+    let mut grad_points = render_backward(&s, cam, &scene.style, &cache, &grad_img)?;
+    let mut orientation_value = 0.0;
+    if let Some(term) = orientation {
+        let (value, g) = orientation_loss(term.field, term.view, &strands, cam);
+        orientation_value = value;
+        grad_points.iter_mut().zip(&g).for_each(|(a, b)| (0..3).for_each(|k| a[k] += term.weight * b[k]));
+    }
     lap(&mut times.splat_backward);
     let grad_points = tape.backward(&scene.constraints.rest, &grad_points)?;
     lap(&mut times.constraints_backward);
     let grad = flatten(&scene.transport_backward(grad_points)?);
     lap(&mut times.field_backward);
-    Ok((StepReport { loss, stats, times }, grad))
+    Ok((StepReport { loss, orientation: orientation_value, stats, times }, grad))
 }
 
 /// VGG-19 forward of `img`, the NNST loss against `matched` and the

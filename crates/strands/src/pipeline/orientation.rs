@@ -1,0 +1,368 @@
+//! The orientation term: the painting's stroke directions as a target for
+//! the strands' projected directions, the change of method the strand
+//! paper names as future work. NNST alone (eq. 2–3) matches texture
+//! statistics, which thin strands meet about as well whichever painting
+//! is given: spirals, triangles and paintings left grooms alike (see
+//! docs/design/strands.md). Strokes have a direction, and a strand is a
+//! direction, so this term asks each visible segment to lie along the
+//! painting's stroke at its place on the hair.
+//!
+//! - **Stroke field.** The structure tensor `J = G_σ * ∇I ∇Iᵀ` of the
+//!   painting's luminance at the scale's style size (Sobel gradients,
+//!   `σ` = [`STRUCTURE_SIGMA`] pixels); the stroke runs along the smaller
+//!   eigenvector, with coherence `c = ((λ₁ − λ₂)/(λ₁ + λ₂ + ε))²`. Kept in
+//!   doubled-angle form `(c cos 2θ, c sin 2θ, c)` so bilinear sampling
+//!   averages headless directions correctly.
+//! - **Placement.** The painting is laid over the rest hair's box in each
+//!   view (cover fit, centred, aspect kept), so a spiral is drawn onto the
+//!   hair as a spiral.
+//! - **Loss.** Over the segments of visible strands,
+//!   `L = Σ w_s · ½ (c − f₀ cos 2φ − f₁ sin 2φ) / Σ w_s` with `φ` the
+//!   segment's projected angle and `f` the field at its projected midpoint
+//!   (`= Σ w c (1 − (d·t)²) / Σ w`), each segment's term multiplied by
+//!   `l²/(l² + l₀²)` of its projected length `l` (`l₀` a quarter of the
+//!   view's median rest length): a segment seen end-on has no direction to
+//!   speak of, and without the factor its angle's gradient grows as `1/l`.
+//!   The weights `w_s` are the splat's opacity times that factor at rest,
+//!   fixed per view, and so is the denominator.
+//!
+//! The gradient reaches the points through the angle and through the
+//! midpoint's place in the field; it is checked by finite differences
+//! here and as part of the whole iteration in `tests/chain_gradient.rs`.
+
+use nst3d_core::Image;
+use nst3d_splat::{strand_visible, SplatCamera, StrandStyle, Strands};
+
+use crate::strands::FlatStrands;
+
+/// Structure-tensor smoothing, pixels at the scale's style size.
+pub const STRUCTURE_SIGMA: f32 = 3.0;
+
+/// A painting's stroke directions in doubled-angle form, row-major.
+#[derive(Clone, Debug)]
+pub struct StrokeField {
+    width: usize,
+    height: usize,
+    /// `(c cos 2θ, c sin 2θ, c)` per pixel.
+    data: Vec<[f32; 3]>,
+}
+
+impl StrokeField {
+    /// Width and height in pixels.
+    pub fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// The stroke field of `grey` (channel 0 is read; `[0, 1]`).
+    pub fn from_grey(grey: &Image) -> Self {
+        let (h, w) = (grey.height, grey.width);
+        let px = |x: isize, y: isize| grey.data[y.clamp(0, h as isize - 1) as usize * w + x.clamp(0, w as isize - 1) as usize];
+        let mut t = vec![[0.0f32; 3]; h * w];
+        for y in 0..h as isize {
+            for x in 0..w as isize {
+                let gx = (px(x + 1, y - 1) + 2.0 * px(x + 1, y) + px(x + 1, y + 1)
+                    - px(x - 1, y - 1)
+                    - 2.0 * px(x - 1, y)
+                    - px(x - 1, y + 1))
+                    / 8.0;
+                let gy = (px(x - 1, y + 1) + 2.0 * px(x, y + 1) + px(x + 1, y + 1)
+                    - px(x - 1, y - 1)
+                    - 2.0 * px(x, y - 1)
+                    - px(x + 1, y - 1))
+                    / 8.0;
+                t[y as usize * w + x as usize] = [gx * gx, gx * gy, gy * gy];
+            }
+        }
+        let j = blur(&t, w, h, STRUCTURE_SIGMA);
+        let mean_trace = j.iter().map(|v| (v[0] + v[2]) as f64).sum::<f64>() / (w * h).max(1) as f64;
+        let eps = 1e-2 * mean_trace as f32 + 1e-12;
+        let data = j
+            .iter()
+            .map(|&[jxx, jxy, jyy]| {
+                let disc = ((jxx - jyy).powi(2) + 4.0 * jxy * jxy).max(0.0).sqrt();
+                let c = (disc / (jxx + jyy + eps)).powi(2);
+                // The gradient's doubled angle is atan2(2 jxy, jxx − jyy);
+                // the stroke is perpendicular: its doubled angle is opposite.
+                let (c2, s2) = (-(jxx - jyy) / (disc + 1e-12), -(2.0 * jxy) / (disc + 1e-12));
+                [c * c2, c * s2, c]
+            })
+            .collect();
+        Self { width: w, height: h, data }
+    }
+
+    /// Bilinear sample at continuous pixel coordinates `(u, v)` (pixel
+    /// centres at integers), zero outside, and its derivatives along `u`
+    /// and `v`.
+    fn sample(&self, u: f32, v: f32) -> ([f32; 3], [f32; 3], [f32; 3]) {
+        let (x0, y0) = (u.floor(), v.floor());
+        let (fx, fy) = (u - x0, v - y0);
+        let at = |x: f32, y: f32| -> [f32; 3] {
+            if x < 0.0 || y < 0.0 || x >= self.width as f32 || y >= self.height as f32 {
+                [0.0; 3]
+            } else {
+                self.data[y as usize * self.width + x as usize]
+            }
+        };
+        let (a, b, c, d) = (at(x0, y0), at(x0 + 1.0, y0), at(x0, y0 + 1.0), at(x0 + 1.0, y0 + 1.0));
+        let mut val = [0.0; 3];
+        let mut du = [0.0; 3];
+        let mut dv = [0.0; 3];
+        for k in 0..3 {
+            let top = a[k] + fx * (b[k] - a[k]);
+            let bottom = c[k] + fx * (d[k] - c[k]);
+            val[k] = top + fy * (bottom - top);
+            du[k] = (1.0 - fy) * (b[k] - a[k]) + fy * (d[k] - c[k]);
+            dv[k] = bottom - top;
+        }
+        (val, du, dv)
+    }
+}
+
+/// Separable Gaussian blur of a 3-channel field, edges replicated.
+fn blur(src: &[[f32; 3]], w: usize, h: usize, sigma: f32) -> Vec<[f32; 3]> {
+    let r = (3.0 * sigma).ceil().max(1.0) as isize;
+    let mut k: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp()).collect();
+    let s: f32 = k.iter().sum();
+    k.iter_mut().for_each(|v| *v /= s);
+    let pass = |src: &[[f32; 3]], horizontal: bool| -> Vec<[f32; 3]> {
+        let mut out = vec![[0.0f32; 3]; w * h];
+        for y in 0..h as isize {
+            for x in 0..w as isize {
+                let mut acc = [0.0f32; 3];
+                for (i, kv) in (-r..=r).zip(&k) {
+                    let (sx, sy) = if horizontal {
+                        ((x + i).clamp(0, w as isize - 1), y)
+                    } else {
+                        (x, (y + i).clamp(0, h as isize - 1))
+                    };
+                    let p = src[sy as usize * w + sx as usize];
+                    (0..3).for_each(|c| acc[c] += kv * p[c]);
+                }
+                out[y as usize * w + x as usize] = acc;
+            }
+        }
+        out
+    };
+    pass(&pass(src, true), false)
+}
+
+/// The stroke field laid over one view: where each picture pixel falls in
+/// the painting, and each segment's fixed weight.
+#[derive(Clone, Debug)]
+pub struct OrientationView {
+    /// Picture pixel of the painting's centre.
+    centre: [f32; 2],
+    /// Picture pixels per painting pixel.
+    scale: f32,
+    /// Half the painting's size, in painting pixels.
+    half: [f32; 2],
+    /// Weight of each segment (indexed by its first point), 0 where none.
+    weights: Vec<f32>,
+    /// `l₀²`, squared pixels.
+    l0sq: f32,
+}
+
+impl OrientationView {
+    /// The field of a painting `field_size` (width, height) laid over the
+    /// box of the `hair` pixels (row-major, `cam`'s picture) of the rest
+    /// groom, with the segment weights of `rest` seen through `cam`. `None`
+    /// when no hair is in sight.
+    pub fn new(
+        field_size: (usize, usize),
+        rest: &Strands,
+        hair: &[bool],
+        style: &StrandStyle,
+        cam: &SplatCamera,
+    ) -> Option<Self> {
+        let (w, h) = (cam.width, cam.height);
+        let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+        for (i, _) in hair.iter().enumerate().filter(|(_, &on)| on) {
+            let (x, y) = (i % w, i / w);
+            (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x + 1), y1.max(y + 1));
+        }
+        if x1 <= x0 || h == 0 {
+            return None;
+        }
+        let (bw, bh) = ((x1 - x0) as f32, (y1 - y0) as f32);
+        let scale = (bw / field_size.0 as f32).max(bh / field_size.1 as f32);
+        let centre = [(x0 + x1) as f32 / 2.0, (y0 + y1) as f32 / 2.0];
+        let half = [field_size.0 as f32 / 2.0, field_size.1 as f32 / 2.0];
+        let (weights, l0sq) = segment_weights(rest, style, cam);
+        Some(Self { centre, scale, half, weights, l0sq })
+    }
+
+    /// Painting pixel coordinates of picture pixel `p` (pixel centres of
+    /// the painting at integers), and their derivative per picture pixel.
+    fn to_field(&self, p: [f32; 2]) -> ([f32; 2], f32) {
+        let u = (p[0] - self.centre[0]) / self.scale + self.half[0] - 0.5;
+        let v = (p[1] - self.centre[1]) / self.scale + self.half[1] - 0.5;
+        ([u, v], 1.0 / self.scale)
+    }
+}
+
+/// Opacity along the strand times `l²/(l² + l₀²)` of each segment's
+/// projected length in `rest`; 0 for culled strands' segments.
+fn segment_weights(rest: &Strands, style: &StrandStyle, cam: &SplatCamera) -> (Vec<f32>, f32) {
+    let pts = rest.points;
+    let mut len2 = vec![0.0f32; pts.len()];
+    let mut all = Vec::new();
+    for s in 0..rest.offsets.len() - 1 {
+        for i in rest.offsets[s]..rest.offsets[s + 1] - 1 {
+            let (a, b) = (cam.project(pts[i]), cam.project(pts[i + 1]));
+            len2[i] = (b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2);
+            all.push(len2[i]);
+        }
+    }
+    if all.is_empty() {
+        return (len2, 1.0);
+    }
+    let mid = all.len() / 2;
+    let median = *all.select_nth_unstable_by(mid, f32::total_cmp).1;
+    let l0sq = 0.0625 * median.max(1e-12);
+    let mut w = vec![0.0f32; pts.len()];
+    for s in 0..rest.offsets.len() - 1 {
+        if !strand_visible(rest, s, cam.eye, style.visibility_threshold) {
+            continue;
+        }
+        let (first, end) = (rest.offsets[s], rest.offsets[s + 1]);
+        let segs = (end - first - 1).max(1) as f32;
+        for i in first..end - 1 {
+            let u = ((i - first) as f32 + 0.5) / segs;
+            let opacity = style.root_opacity + (style.tip_opacity - style.root_opacity) * u;
+            w[i] = opacity * len2[i] / (len2[i] + l0sq);
+        }
+    }
+    (w, l0sq)
+}
+
+/// `∂x/∂p` and `∂y/∂p` of the pixel coordinates of world point `p`.
+fn projection_jacobian(cam: &SplatCamera, p: [f32; 3]) -> [[f32; 3]; 2] {
+    let t = cam.to_camera(p);
+    let iz = 1.0 / t[2];
+    let row = |axis: [f32; 3], f: f32, tc: f32| -> [f32; 3] {
+        [0, 1, 2].map(|k| f * (axis[k] * iz - tc * cam.forward[k] * iz * iz))
+    };
+    [row(cam.right, cam.fx, t[0]), row(cam.down, cam.fy, t[1])]
+}
+
+/// The orientation loss of `strands` (the layout of the rest groom the view
+/// was built from) in view `view` of `field` through `cam`, and its
+/// gradient with respect to every point.
+pub fn orientation_loss(
+    field: &StrokeField,
+    view: &OrientationView,
+    strands: &FlatStrands,
+    cam: &SplatCamera,
+) -> (f32, Vec<[f32; 3]>) {
+    let pts = &strands.points;
+    let mut grad = vec![[0.0f32; 3]; pts.len()];
+    let total: f64 = view.weights.iter().map(|&w| w as f64).sum();
+    if total <= 0.0 {
+        return (0.0, grad);
+    }
+    let mut loss = 0.0f64;
+    for s in 0..strands.offsets.len() - 1 {
+        for i in strands.offsets[s]..strands.offsets[s + 1] - 1 {
+            let w = view.weights[i];
+            if w == 0.0 {
+                continue;
+            }
+            let (a, b) = (cam.project(pts[i]), cam.project(pts[i + 1]));
+            let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+            let q = dx * dx + dy * dy + 1e-12;
+            let (cos2, sin2) = ((dx * dx - dy * dy) / q, 2.0 * dx * dy / q);
+            let (uv, duv) = view.to_field([(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0]);
+            let (f, fu, fv) = field.sample(uv[0], uv[1]);
+            let per = 0.5 * (f[2] - f[0] * cos2 - f[1] * sin2);
+            let m = q / (q + view.l0sq);
+            loss += (w * m * per) as f64;
+            // d(m · per) = per dm + m dper, with dm/dq = l₀² / (q + l₀²)².
+            let dm = view.l0sq / ((q + view.l0sq) * (q + view.l0sq));
+            let g = w / total as f32;
+            // ∂per/∂(dx, dy) through the angle.
+            let q2 = q * q;
+            let gdx = -0.5 * (f[0] * 4.0 * dx * dy * dy + f[1] * 2.0 * dy * (dy * dy - dx * dx)) / q2;
+            let gdy = -0.5 * (-f[0] * 4.0 * dx * dx * dy + f[1] * 2.0 * dx * (dx * dx - dy * dy)) / q2;
+            // ∂per/∂(midpoint) through the field's place.
+            let gm = |d: [f32; 3]| 0.5 * (d[2] - d[0] * cos2 - d[1] * sin2) * duv;
+            let (gmx, gmy) = (gm(fu), gm(fv));
+            let (gdx, gdy) = (m * gdx + per * dm * 2.0 * dx, m * gdy + per * dm * 2.0 * dy);
+            let (gmx, gmy) = (m * gmx, m * gmy);
+            let ga = [g * (-gdx + 0.5 * gmx), g * (-gdy + 0.5 * gmy)];
+            let gb = [g * (gdx + 0.5 * gmx), g * (gdy + 0.5 * gmy)];
+            for (idx, gp) in [(i, ga), (i + 1, gb)] {
+                let j = projection_jacobian(cam, pts[idx]);
+                for k in 0..3 {
+                    grad[idx][k] += gp[0] * j[0][k] + gp[1] * j[1][k];
+                }
+            }
+        }
+    }
+    ((loss / total) as f32, grad)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nst3d_core::gradcheck::{check_gradient, pseudo_random};
+
+    /// A grey image of diagonal stripes, `n` pixels square.
+    fn stripes(n: usize) -> Image {
+        let data = (0..n * n)
+            .map(|i| {
+                let (x, y) = ((i % n) as f32, (i / n) as f32);
+                if ((x + y) * std::f32::consts::PI / 8.0).sin() > 0.0 { 1.0 } else { 0.0 }
+            })
+            .collect();
+        Image::from_vec(1, n, n, data)
+    }
+
+    #[test]
+    fn stripes_give_their_direction_with_full_coherence() {
+        let f = StrokeField::from_grey(&stripes(48));
+        // Stripes along x + y = const run at −45° in the picture (y down):
+        // doubled angle −90°, so (cos, sin) of it is (0, −1).
+        let [c2, s2, c] = f.data[24 * 48 + 24];
+        assert!(c > 0.9, "coherence {c}");
+        assert!(c2.abs() < 0.05 * c && (s2 + c).abs() < 0.05 * c, "({c2}, {s2}, {c})");
+    }
+
+    fn camera() -> SplatCamera {
+        SplatCamera::look_at([0.3, 0.2, 3.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 64, 64).unwrap()
+    }
+
+    fn groom() -> FlatStrands {
+        let mut points = Vec::new();
+        let mut offsets = vec![0];
+        let r = pseudo_random(40 * 3, 9);
+        for s in 0..10 {
+            for k in 0..4 {
+                let j = (s * 4 + k) * 3;
+                points.push([-0.5 + 0.1 * s as f32 + 0.05 * r[j], -0.5 + 0.3 * k as f32 + 0.05 * r[j + 1], 0.05 * r[j + 2]]);
+            }
+            offsets.push(points.len());
+        }
+        FlatStrands { points, offsets }
+    }
+
+    #[test]
+    fn orientation_gradient_matches_finite_differences() {
+        let field = StrokeField::from_grey(&stripes(40));
+        let g = groom();
+        let cam = camera();
+        let rest = Strands { points: &g.points, offsets: &g.offsets, colors: None, root_normals: None };
+        let style = StrandStyle::default();
+        let hair: Vec<bool> = (0..64 * 64).map(|i| (10..50).contains(&(i / 64))).collect();
+        let view = OrientationView::new((field.width, field.height), &rest, &hair, &style, &cam).unwrap();
+        let x: Vec<f32> = g.points.iter().flatten().copied().collect();
+        let loss = |x: &[f32]| {
+            let s = FlatStrands { points: x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect(), offsets: g.offsets.clone() };
+            orientation_loss(&field, &view, &s, &cam).0 as f64
+        };
+        let (l, grad) = orientation_loss(&field, &view, &g, &cam);
+        assert!(l > 0.0 && l < 1.0, "loss {l}");
+        let grad: Vec<f32> = grad.iter().flatten().copied().collect();
+        let r = check_gradient(&x, &grad, loss, 1e-3, 120, 1e-3);
+        assert!(r.max_rel_err < 2e-2, "{r:?}");
+    }
+}
