@@ -5,9 +5,10 @@
 # Stylizes GROOM toward each geometric style of tools/strand_ref/styles.py
 # (stripes of two widths, a spiral, a triangle tessellation, checks), each
 # shared painting and a textureless grey ramp (the control), then judges
-# every result against every style with tools/strand_ref/judge.py: a VGG-19
-# Gram loss of the hair's box in nine frontal views inside the preset's
-# camera range (the views the optimiser faced), as result / input. It then
+# every result against every style with tools/strand_ref/judge.py, twice: a
+# VGG-19 Gram loss, and the distance between stroke-direction histograms, of
+# the hair's box in nine frontal views inside the preset's camera range (the
+# views the optimiser faced), as result / input. It then
 # checks every pair of styles A, B: the result toward A must be nearer A
 # than the result toward B is, by 10 % for two geometric styles and 5 %
 # where a painting is in the pair, and the ramp must be nearest no style.
@@ -54,6 +55,11 @@ done
 args=()
 for s in "${ALL[@]}"; do args+=(--result "$s=$OUT/$s.ply"); done
 for s in "${ALL[@]}"; do [ "$s" = ramp ] || args+=(--style "$s=$(style_of "$s")"); done
-"$PY" tools/strand_ref/judge.py --rest "$GROOM" "${args[@]}" --up "$UP" --ang "$ANGLE" --crop \
-  --painting-margin 0.05 --paintings "$(IFS=,; echo "${PAINTINGS[*]}")" \
-  --sheet "$OUT/sheet.png" --json "$OUT/judge.json" | tee "$OUT/judge.txt"
+# Two judges: the Gram loss (texture statistics) and the distance of the
+# stroke-direction histograms (which way the strands and strokes run).
+for judge in gram orient; do
+  echo "== judge: $judge"
+  "$PY" tools/strand_ref/judge.py --judge "$judge" --rest "$GROOM" "${args[@]}" --up "$UP" --ang "$ANGLE" --crop \
+    --painting-margin 0.05 --paintings "$(IFS=,; echo "${PAINTINGS[*]}")" \
+    --sheet "$OUT/sheet.png" --json "$OUT/judge_$judge.json" | tee "$OUT/judge_$judge.txt"
+done
