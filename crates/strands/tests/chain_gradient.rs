@@ -201,8 +201,8 @@ fn loss_and_gradient_matches_finite_differences_at_rest_and_after_steps() {
     })
 }
 
-/// The iteration the optimizer runs by default: NNST plus the orientation
-/// term, at the rest groom and after ten steps. (With the head, ten steps
+/// The iteration with the orientation term (`--orientation`): NNST plus
+/// the term, at the rest groom and after ten steps. (With the head, ten steps
 /// of this loss press the bangs onto the skin: 15 of the 16 largest
 /// entries then sit on a kink of the collision projection, whose backward
 /// the NNST-only check with the head covers.)
