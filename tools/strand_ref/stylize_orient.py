@@ -44,12 +44,12 @@ def collide(P, groom, P0):
 
 # ---------------------------------------------------------------- orientation term (not in the paper; its future work)
 def load_style(name):
-    """make_styles() plus any /work/data/s/style_NAME.png (e.g. checks)."""
+    """make_styles() plus any $STYLE_DIR/style_NAME.png or .jpg (e.g. checks)."""
     st = make_styles()
     if name in st:
         return st[name]
     for ext in ('png', 'jpg'):
-        p = f'/work/data/s/style_{name}.{ext}'
+        p = os.path.join(os.environ.get('STYLE_DIR', '.'), f'style_{name}.{ext}')
         if os.path.exists(p):
             return grey_of(Image.open(p))
     raise KeyError(name)
