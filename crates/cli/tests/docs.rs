@@ -296,13 +296,11 @@ fn the_extraction_finds_what_a_reader_sees() {
 #[test]
 fn the_docs_cover_every_file_under_docs() {
     let files = doc_files();
-    let names: Vec<String> =
-        files.iter().map(|f| f.strip_prefix(repo()).unwrap().display().to_string()).collect();
+    let names: Vec<String> = files.iter().map(|f| f.strip_prefix(repo()).unwrap().display().to_string()).collect();
     for nested in ["docs/guide/volumes.md", "docs/design/volumes.md", "docs/ARCHITECTURE.md"] {
         assert!(names.iter().any(|n| n == nested), "{nested} is not among the checked docs: {names:?}");
     }
 }
-
 
 /// `path` with `.` and `..` resolved lexically.
 fn normalize(path: &Path) -> PathBuf {

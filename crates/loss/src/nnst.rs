@@ -756,7 +756,11 @@ mod tests {
     /// tie may go either way), and agrees with fp32 on almost every column.
     #[test]
     fn fused_matching_matches_brute_force() {
-        let target = NnstTarget::from_style_features(&[image(40, 11, 13, 1)], &NnstParams { grid_divisor: 1, ..NnstParams::default() }).unwrap();
+        let target = NnstTarget::from_style_features(
+            &[image(40, 11, 13, 1)],
+            &NnstParams { grid_divisor: 1, ..NnstParams::default() },
+        )
+        .unwrap();
         let centred = image(40, 13, 17, 2);
         let (scores, want) = brute_force(&target, &centred);
         let scale = scores.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
@@ -780,7 +784,11 @@ mod tests {
         let p = NnstParams::default();
         assert_eq!(NnstTarget::from_style_features(&[], &p).unwrap_err(), NnstError::NoLayers);
         assert_eq!(
-            NnstTarget::from_style_features(&[image(2, 4, 4, 1)], &NnstParams { grid_divisor: 0, ..NnstParams::default() }).unwrap_err(),
+            NnstTarget::from_style_features(
+                &[image(2, 4, 4, 1)],
+                &NnstParams { grid_divisor: 0, ..NnstParams::default() }
+            )
+            .unwrap_err(),
             NnstError::ZeroGridDivisor
         );
         assert!(matches!(

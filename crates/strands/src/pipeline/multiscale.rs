@@ -315,9 +315,8 @@ pub fn stylize_with(
                         let unit = OrientationTerm { field, view, weight: 1.0 };
                         let weight = match lambda {
                             Some(w) => w,
-                            None => *lambda.insert(
-                                params.orientation * orientation_scale(scene, vgg, cam, matched, unit, &v)?,
-                            ),
+                            None => *lambda
+                                .insert(params.orientation * orientation_scale(scene, vgg, cam, matched, unit, &v)?),
                         };
                         Some(OrientationTerm { weight, ..unit })
                     }

@@ -56,7 +56,9 @@ impl StrokeField {
     /// The stroke field of `grey` (channel 0 is read; `[0, 1]`).
     pub fn from_grey(grey: &Image) -> Self {
         let (h, w) = (grey.height, grey.width);
-        let px = |x: isize, y: isize| grey.data[y.clamp(0, h as isize - 1) as usize * w + x.clamp(0, w as isize - 1) as usize];
+        let px = |x: isize, y: isize| {
+            grey.data[y.clamp(0, h as isize - 1) as usize * w + x.clamp(0, w as isize - 1) as usize]
+        };
         let mut t = vec![[0.0f32; 3]; h * w];
         for y in 0..h as isize {
             for x in 0..w as isize {
@@ -311,7 +313,11 @@ mod tests {
         let data = (0..n * n)
             .map(|i| {
                 let (x, y) = ((i % n) as f32, (i / n) as f32);
-                if ((x + y) * std::f32::consts::PI / 8.0).sin() > 0.0 { 1.0 } else { 0.0 }
+                if ((x + y) * std::f32::consts::PI / 8.0).sin() > 0.0 {
+                    1.0
+                } else {
+                    0.0
+                }
             })
             .collect();
         Image::from_vec(1, n, n, data)
@@ -338,7 +344,11 @@ mod tests {
         for s in 0..10 {
             for k in 0..4 {
                 let j = (s * 4 + k) * 3;
-                points.push([-0.5 + 0.1 * s as f32 + 0.05 * r[j], -0.5 + 0.3 * k as f32 + 0.05 * r[j + 1], 0.05 * r[j + 2]]);
+                points.push([
+                    -0.5 + 0.1 * s as f32 + 0.05 * r[j],
+                    -0.5 + 0.3 * k as f32 + 0.05 * r[j + 1],
+                    0.05 * r[j + 2],
+                ]);
             }
             offsets.push(points.len());
         }
@@ -356,7 +366,8 @@ mod tests {
         let view = OrientationView::new((field.width, field.height), &rest, &hair, &style, &cam).unwrap();
         let x: Vec<f32> = g.points.iter().flatten().copied().collect();
         let loss = |x: &[f32]| {
-            let s = FlatStrands { points: x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect(), offsets: g.offsets.clone() };
+            let s =
+                FlatStrands { points: x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect(), offsets: g.offsets.clone() };
             orientation_loss(&field, &view, &s, &cam).0 as f64
         };
         let (l, grad) = orientation_loss(&field, &view, &g, &cam);
