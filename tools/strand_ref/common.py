@@ -63,14 +63,19 @@ def hypercols(feats, grid):
         cols.append(g.reshape(C, -1) / (math.sqrt(C) if NORM == 'sqrt' else C))
     return torch.cat(cols, 0).t().contiguous()
 
-def nn_targets(content_cols, style_cols):
-    """eq. 2: cosine NN on zero-centred features; targets = style columns."""
+def nn_match(content_cols, style_cols):
+    """eq. 2: cosine NN on zero-centred features; the matched style columns
+    (the targets) and their indices."""
     c = content_cols - content_cols.mean(0, keepdim=True)
     s = style_cols - style_cols.mean(0, keepdim=True)
     c = c / (c.norm(dim=1, keepdim=True) + 1e-8)
     s = s / (s.norm(dim=1, keepdim=True) + 1e-8)
     idx = (c @ s.t()).argmax(1)
-    return style_cols[idx]
+    return style_cols[idx], idx
+
+def nn_targets(content_cols, style_cols):
+    """eq. 2's targets alone."""
+    return nn_match(content_cols, style_cols)[0]
 
 def gram(f):
     C = f.shape[0]

@@ -1,45 +1,7 @@
 import argparse
 from common import *
 
-PRESETS = {
-    # render, style sizes, lrs (Table 1)
-    'grass': dict(render=600, styles=[120, 180, 225], lrs=[0.0028, 0.0032, 0.0012], rho=0.666, ang=10),
-    'fur': dict(render=500, styles=[30, 150, 240], lrs=[0.0025, 0.0018, 0.0009], rho=1.0, ang=15),
-    'short': dict(render=600, styles=[160, 240, 300], lrs=[0.0026, 0.0016, 0.0009], rho=0.665, ang=10),
-}
-
-def load_groom(name):
-    if name == 'grass':
-        P, N = grass()
-    elif name == 'fur':
-        P, N = furball()
-    else:
-        P = read_ply(name); N = None
-    return torch.from_numpy(P), (torch.from_numpy(N) if N is not None else None)
-
-def setup(groom, size):
-    P0, Nr = load_groom(groom)
-    flat = P0.reshape(-1, 3)
-    center = (flat.min(0).values + flat.max(0).values) / 2
-    R = (flat - center).norm(dim=1).max().item()
-    return P0, Nr, center, R
-
-def visibility(P0, Nr, cam, eps=0.1):
-    if Nr is None:
-        return None
-    to = cam.eye[None] - P0[:, 0]
-    to = to / to.norm(dim=1, keepdim=True)
-    return ((Nr * to).sum(1) > -eps).float()
-
-def collide(P, groom, P0):
-    if groom == 'fur':
-        r = P.norm(dim=-1, keepdim=True)
-        Pc = P / r * torch.clamp(r, min=1.01)
-        return torch.cat([P0[:, :1], Pc[:, 1:]], 1)
-    if groom == 'grass':
-        y = P[..., 1:2].clamp(min=0.0)
-        return torch.cat([P[..., :1], y, P[..., 2:]], -1)
-    return P
+from stylize import PRESETS, collide, setup, visibility
 
 
 # ---------------------------------------------------------------- orientation term (not in the paper; its future work)
@@ -90,15 +52,6 @@ def orient_field(img, sigma):
     c2 = -(jxx - jyy) / (disc + 1e-12)
     s2 = -(2 * jxy) / (disc + 1e-12)
     return torch.stack([c * c2, c * s2, c])
-
-def match_idx(content_cols, style_cols):
-    """eq. 2 as common.nn_targets, but also returns the matched style index."""
-    c = content_cols - content_cols.mean(0, keepdim=True)
-    s = style_cols - style_cols.mean(0, keepdim=True)
-    c = c / (c.norm(dim=1, keepdim=True) + 1e-8)
-    s = s / (s.norm(dim=1, keepdim=True) + 1e-8)
-    idx = (c @ s.t()).argmax(1)
-    return style_cols[idx], idx
 
 def sample_field(field, gx, gy):
     """field (3,h,w); gx, gy normalised [-1,1] coordinates (align_corners=False); zero outside."""
@@ -203,7 +156,7 @@ def main():
                 I0 = render(P0, cam, a.sigma, vis=vis)
                 f0 = vgg_feats(I0)
                 grid = (f0[2].shape[1], f0[2].shape[2])
-                T, jidx = match_idx(hypercols(f0, grid), scols)
+                T, jidx = nn_match(hypercols(f0, grid), scols)
                 if a.orient == 'layout':
                     m = I0 > 0.02
                     ys, xs = torch.nonzero(m, as_tuple=True)
