@@ -192,6 +192,25 @@ fn orientation_view(
     Ok(OrientationView::new(field.size(), &s, &hair, &scene.style, cam))
 }
 
+/// The orientation term's `λ`: `params.orientation` times
+/// [`orientation_scale`] at its first iteration, then the same.
+#[allow(clippy::too_many_arguments)]
+fn orientation_weight(
+    lambda: &mut Option<f32>,
+    scene: &StrandScene,
+    vgg: &Vgg19,
+    cam: &SplatCamera,
+    matched: &NnstMatch,
+    unit: OrientationTerm<'_>,
+    params: &StylizeParams,
+    v: &[f32],
+) -> Result<f32, PipelineError> {
+    match *lambda {
+        Some(w) => Ok(w),
+        None => Ok(*lambda.insert(params.orientation * orientation_scale(scene, vgg, cam, matched, unit, v)?)),
+    }
+}
+
 /// `|∇ NNST| / |∇ orientation|` at `v` (both through the whole chain to
 /// the velocities): the orientation weight that makes the two gradients
 /// equal in norm.
@@ -313,11 +332,7 @@ pub fn stylize_with(
                 let term = match (&strokes, view) {
                     (Some(field), Some(view)) => {
                         let unit = OrientationTerm { field, view, weight: 1.0 };
-                        let weight = match lambda {
-                            Some(w) => w,
-                            None => *lambda
-                                .insert(params.orientation * orientation_scale(scene, vgg, cam, matched, unit, &v)?),
-                        };
+                        let weight = orientation_weight(&mut lambda, scene, vgg, cam, matched, unit, params, &v)?;
                         Some(OrientationTerm { weight, ..unit })
                     }
                     _ => None,
