@@ -6,7 +6,6 @@ use std::collections::HashMap;
 
 use nst3d_core::Image;
 use nst3d_features::{Vgg19, VggLayer};
-use nst3d_loss::cell_mask;
 use nst3d_loss::nnst::{nnst_loss_matched, nnst_loss_over, NnstMatch, NnstTarget};
 use nst3d_optim::Adam;
 use nst3d_splat::SplatCamera;
@@ -17,7 +16,7 @@ use crate::StrandError;
 use super::color_stage::{color_iterations, stylize_color};
 use super::orientation::{OrientationView, StrokeField};
 use super::step::{flatten, iteration_with, loss_and_gradient_with, unflatten, OrientationTerm};
-use super::views::{match_view_on, poisson_view_angles, style_target};
+use super::views::{hair_columns, hair_pixels, match_view_on, poisson_view_angles, style_target};
 use super::{PipelineError, StrandScene, StylizeParams, NNST_LAYERS};
 
 /// What one optimization iteration reports.
@@ -129,27 +128,6 @@ pub fn held_out_loss(
         after: (after / k) as f32,
         after_rematched: (rematched / k) as f32,
     })
-}
-
-/// Hyper-columns (row-major on `grid`) whose cell of the image holds a
-/// pixel that differs from the background in any of `renders`.
-pub fn hair_columns(renders: &[&Image], background: [f32; 3], grid: (usize, usize)) -> Vec<bool> {
-    let mut mask = vec![false; grid.0 * grid.1];
-    for img in renders {
-        let cells = cell_mask(&hair_pixels(img, background), img.height, img.width, grid.0, grid.1);
-        mask.iter_mut().zip(cells).for_each(|(m, c)| *m |= c);
-    }
-    mask
-}
-
-/// Pixels of `img` (row-major) that hold hair: a channel off `background`
-/// by more than 0.02 (the held-out loss, the colour stage and the judge
-/// all count hair so).
-pub fn hair_pixels(img: &Image, background: [f32; 3]) -> Vec<bool> {
-    let plane = img.plane();
-    (0..plane)
-        .map(|i| (0..img.channels.min(3)).any(|c| (img.data[c * plane + i] - background[c]).abs() > 0.02))
-        .collect()
 }
 
 impl StylizeResult {
