@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use nst3d_core::stats::median;
 use nst3d_core::Reporter;
 use nst3d_features::{Vgg19, VggLayer};
 use nst3d_io::groom::read_groom;
@@ -123,8 +124,8 @@ pub fn strands_iter(a: &StrandsIterSettings, reporter: &mut dyn Reporter) -> Res
         .iter()
         .enumerate()
         .map(|(k, &name)| {
-            let mut t: Vec<f64> = reports.iter().map(|r| ms(r.times.stages()[k].1)).collect();
-            (name, median(&mut t))
+            let t: Vec<f64> = reports.iter().map(|r| ms(r.times.stages()[k].1)).collect();
+            (name, median(&t))
         })
         .collect();
     Ok(StrandsIterReport {
@@ -133,7 +134,7 @@ pub fn strands_iter(a: &StrandsIterSettings, reporter: &mut dyn Reporter) -> Res
         loss_match: loss0,
         loss_last: reports.last().map_or(warm.loss, |r| r.loss),
         stages,
-        ms_per_iter: median(&mut wall.clone()),
+        ms_per_iter: median(&wall),
         iteration_ms: wall,
         cpu_ms_per_iter: cpu_ms,
     })
@@ -141,18 +142,6 @@ pub fn strands_iter(a: &StrandsIterSettings, reporter: &mut dyn Reporter) -> Res
 
 fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        0.0
-    } else if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
 }
 
 /// User + system CPU time of this process (Linux `/proc/self/stat`, 100 Hz
