@@ -45,8 +45,8 @@ use nst3d_loss::{cell_mask, style_loss, style_loss_masked, StyleTarget};
 use nst3d_optim::{optimise_in_turn, Adam};
 use nst3d_splat::{render, render_backward_all, SplatCamera, Strands};
 
-use super::views::hair_pixels;
 use super::step::{flatten, unflatten};
+use super::views::hair_pixels;
 use super::{ColorCarry, PipelineError, StrandScene, StylizeParams};
 use crate::color::COLOR_LEARNING_RATE;
 use crate::strands::FlatStrands;
