@@ -191,6 +191,61 @@ fn json_v3(v: [f32; 3]) -> String {
     format!("[{:e}, {:e}, {:e}]", v[0], v[1], v[2])
 }
 
+/// `meta.json` of the dump: the camera, the strand look, the collision
+/// constraint and AdamW's settings the peer replays.
+fn peer_meta(scene: &StrandScene, cam: &SplatCamera, adam: &Adam, loss0: f32) -> String {
+    let st = &scene.style;
+    let col = &scene.constraints.collision;
+    format!(
+        r#"{{
+  "samples": {samples},
+  "camera": {{"eye": {eye}, "right": {right}, "down": {down}, "forward": {fwd},
+             "fx": {fx:e}, "fy": {fy:e}, "cx": {cx:e}, "cy": {cy:e}, "width": {cw}, "height": {ch}, "near": {near:e}}},
+  "style": {{"width": {sw:e}, "length_sigma": {ls:e}, "root_shade": {rs:e}, "tip_shade": {ts:e},
+            "root_opacity": {ro:e}, "tip_opacity": {to:e}, "background": {bg}, "visibility_threshold": {vt:e},
+            "dilation": {dil:e}}},
+  "collision": {{"tau": {tau:e}, "kappa": {kappa:e}, "skip_roots": {skip}, "hard_tau_fraction": {htf:e},
+                "passes": {passes}, "segment_tolerance": {stol:e}}},
+  "adamw": {{"lr": {lr:e}, "beta1": {b1:e}, "beta2": {b2:e}, "eps": {eps:e}, "weight_decay": {wd:e}}},
+  "nnst_grid_divisor": 4,
+  "nst3d_loss_iter0": {loss0:e}
+}}
+"#,
+        samples = scene.field.sample_count(),
+        eye = json_v3(cam.eye),
+        right = json_v3(cam.right),
+        down = json_v3(cam.down),
+        fwd = json_v3(cam.forward),
+        fx = cam.fx,
+        fy = cam.fy,
+        cx = cam.cx,
+        cy = cam.cy,
+        cw = cam.width,
+        ch = cam.height,
+        near = cam.near,
+        sw = st.width,
+        ls = st.length_sigma,
+        rs = st.root_shade,
+        ts = st.tip_shade,
+        ro = st.root_opacity,
+        to = st.tip_opacity,
+        bg = json_v3(st.background),
+        vt = st.visibility_threshold,
+        dil = st.dilation,
+        tau = col.tau,
+        kappa = col.kappa,
+        skip = col.skip_roots,
+        htf = HARD_TAU_FRACTION,
+        passes = CONSTRAINT_PASSES,
+        stol = SEGMENT_TOLERANCE,
+        lr = adam.lr,
+        b1 = adam.beta1,
+        b2 = adam.beta2,
+        eps = adam.eps,
+        wd = adam.weight_decay,
+    )
+}
+
 /// The inputs of one `strands-iter` iteration, for the PyTorch peer:
 /// `.npy` arrays plus `meta.json` (see tools/bench/strands_iter_torch.py).
 /// The collision constraint is handed over as each rest point's closest
@@ -252,56 +307,7 @@ fn dump_scene(
     npy_f32(dir, "grad0.npy", &[samples, 3], &grad0)?;
     let img = scene.render(&scene.undeformed, cam)?;
     npy_f32(dir, "render0.npy", &[img.channels, img.height, img.width], &img.data)?;
-    let st = &scene.style;
-    let col = &scene.constraints.collision;
-    let meta = format!(
-        r#"{{
-  "samples": {samples},
-  "camera": {{"eye": {eye}, "right": {right}, "down": {down}, "forward": {fwd},
-             "fx": {fx:e}, "fy": {fy:e}, "cx": {cx:e}, "cy": {cy:e}, "width": {cw}, "height": {ch}, "near": {near:e}}},
-  "style": {{"width": {sw:e}, "length_sigma": {ls:e}, "root_shade": {rs:e}, "tip_shade": {ts:e},
-            "root_opacity": {ro:e}, "tip_opacity": {to:e}, "background": {bg}, "visibility_threshold": {vt:e},
-            "dilation": {dil:e}}},
-  "collision": {{"tau": {tau:e}, "kappa": {kappa:e}, "skip_roots": {skip}, "hard_tau_fraction": {htf:e},
-                "passes": {passes}, "segment_tolerance": {stol:e}}},
-  "adamw": {{"lr": {lr:e}, "beta1": {b1:e}, "beta2": {b2:e}, "eps": {eps:e}, "weight_decay": {wd:e}}},
-  "nnst_grid_divisor": 4,
-  "nst3d_loss_iter0": {loss0:e}
-}}
-"#,
-        samples = scene.field.sample_count(),
-        eye = json_v3(cam.eye),
-        right = json_v3(cam.right),
-        down = json_v3(cam.down),
-        fwd = json_v3(cam.forward),
-        fx = cam.fx,
-        fy = cam.fy,
-        cx = cam.cx,
-        cy = cam.cy,
-        cw = cam.width,
-        ch = cam.height,
-        near = cam.near,
-        sw = st.width,
-        ls = st.length_sigma,
-        rs = st.root_shade,
-        ts = st.tip_shade,
-        ro = st.root_opacity,
-        to = st.tip_opacity,
-        bg = json_v3(st.background),
-        vt = st.visibility_threshold,
-        dil = st.dilation,
-        tau = col.tau,
-        kappa = col.kappa,
-        skip = col.skip_roots,
-        htf = HARD_TAU_FRACTION,
-        passes = CONSTRAINT_PASSES,
-        stol = SEGMENT_TOLERANCE,
-        lr = adam.lr,
-        b1 = adam.beta1,
-        b2 = adam.beta2,
-        eps = adam.eps,
-        wd = adam.weight_decay,
-    );
+    let meta = peer_meta(scene, cam, adam, loss0);
     nst3d_io::atomic::write_atomic(&dir.join("meta.json"), |w| w.write_all(meta.as_bytes()))?;
     Ok(())
 }

@@ -112,4 +112,3 @@ pub fn volume_iter_with(n: usize, mode: Mode, iters: usize, color: bool) -> Benc
     let median_ms = median(&times);
     BenchReport { iteration_ms: times, median_ms, last_loss }
 }
-
