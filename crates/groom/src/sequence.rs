@@ -14,7 +14,7 @@ use nst3d_core::{Groom, UpAxis};
 use nst3d_features::Vgg19;
 use nst3d_io::groom::{read_groom, read_groom_file};
 use nst3d_io::mesh::read_mesh;
-use nst3d_sequence::{default_work_dir, job_fingerprint, settings_key, FrameSpec};
+use nst3d_job::{default_work_dir, job_fingerprint, settings_key, FrameSpec};
 use nst3d_strands::{check_topology, FlatStrands, Flow, FrameResult, SequenceParams, SequenceStylizer, TemporalParams};
 
 use crate::axis;
@@ -229,7 +229,7 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
         None => default_work_dir(&out_at(frames[0])?, job_hash(s, frames, &groom_at, &mesh_at)?),
     };
     // Held until the job ends: a second blade on the same job exits here.
-    let _lock = nst3d_sequence::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
+    let _lock = nst3d_job::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
     let state_path = work.join(STATE_FILE);
     // Only our own file goes: the work folder may hold more.
     if s.force && state_path.exists() {

@@ -13,9 +13,9 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use nst3d_core::{math::SplitMix64, Grid3, Reporter};
 use nst3d_features::Vgg19;
+use nst3d_job::{expand_pattern, FrameSpec};
 use nst3d_network::{FeedForward, Model};
 use nst3d_optim::OneCycle;
-use nst3d_sequence::{expand_pattern, FrameSpec};
 use nst3d_stylize::{StyleSpec, ViewLoss, ViewSpec};
 
 use crate::axes::ViewAxes;
@@ -209,7 +209,7 @@ fn load_frames(s: &TrainSettings) -> Result<Vec<Grid3>> {
 fn fingerprint(s: &TrainSettings) -> String {
     let mut a = s.clone();
     (a.minutes, a.out, a.checkpoint_every) = (None, PathBuf::new(), 0);
-    nst3d_sequence::settings_key(&a, true)
+    nst3d_job::settings_key(&a, true)
 }
 
 struct Checkpoint {
@@ -511,7 +511,7 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     let (mut losses, mut lrs) = (Vec::new(), Vec::new());
     let ckpt = checkpoint_path(&s.out);
     // Two blades training one model would interleave their checkpoints.
-    let _lock = nst3d_sequence::WorkLock::acquire(&ckpt).map_err(anyhow::Error::msg)?;
+    let _lock = nst3d_job::WorkLock::acquire(&ckpt).map_err(anyhow::Error::msg)?;
     // Training time of earlier calls; the budget is the run's, not the call's.
     let mut elapsed_before = 0.0f64;
     if let Some(r) = resume(&mut trainer, &ckpt, s, reporter)? {

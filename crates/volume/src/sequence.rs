@@ -20,9 +20,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use nst3d_core::{Grid3, Reporter};
 use nst3d_io::vdb::{read_vdb, GridValues, Transform};
+use nst3d_job::{default_work_dir, expand_pattern, job_fingerprint, settings_key, FrameSpec};
 use nst3d_render::Camera;
 use nst3d_sequence::ema::{stylize_sequence_with, SequenceParams, Simulation, StateStore};
-use nst3d_sequence::{default_work_dir, expand_pattern, job_fingerprint, settings_key, DiskStore, FrameSpec};
+use nst3d_sequence::DiskStore;
 use nst3d_stylize::{color_view_image, view_image, Mode, ViewLoss, ViewSpec};
 
 use crate::cameras::Cameras;
@@ -411,7 +412,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
     // Held until the job ends: a second blade on the same job exits here,
     // before the weights and the painting's features are loaded (seconds on
     // a blade the first one keeps busy).
-    let _lock = nst3d_sequence::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
+    let _lock = nst3d_job::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
     let (style, vgg) = load_style_and_vgg(s)?;
     let cameras = Cameras::of(s)?;
     let cams_at = |f: i64| cameras.at(f as f64, dims, &transform, origin);
