@@ -3,11 +3,11 @@
 //! and match a brute-force search.
 //!
 //! The search is kiddo's immutable k-d tree. It replaced a median-split
-//! tree of our own once a benchmark of the field's workload showed it
-//! faster (build over 76,500 points and 20,000 queries of 48 neighbours,
-//! AMD EPYC Zen 5, one thread: build 8.4 → 4.3 ms, queries 146 → 93 ms;
-//! docs/design/performance.md). Our tree broke ties by index; so does this
-//! wrapper, so the neighbour lists, and the outputs, are unchanged.
+//! tree of our own once a benchmark of the field's workload found it no
+//! slower (76,500 points, 20,000 queries of 48 neighbours, one thread:
+//! build 8.4 → 3.7 ms, queries 146 → 113–126 ms; of 8 neighbours about
+//! the same; docs/design/performance.md). Our tree broke ties by index; so
+//! does this wrapper, so the neighbour lists, and the outputs, are unchanged.
 
 use kiddo::immutable::float::kdtree::ImmutableKdTree;
 use kiddo::SquaredEuclidean;
