@@ -178,6 +178,27 @@ pub fn match_view_on(
     Ok((m, loss))
 }
 
+/// Hyper-columns (row-major on `grid`) whose cell of the image holds a
+/// pixel that differs from the background in any of `renders`.
+pub fn hair_columns(renders: &[&Image], background: [f32; 3], grid: (usize, usize)) -> Vec<bool> {
+    let mut mask = vec![false; grid.0 * grid.1];
+    for img in renders {
+        let cells = cell_mask(&hair_pixels(img, background), img.height, img.width, grid.0, grid.1);
+        mask.iter_mut().zip(cells).for_each(|(m, c)| *m |= c);
+    }
+    mask
+}
+
+/// Pixels of `img` (row-major) that hold hair: a channel off `background`
+/// by more than 0.02 (the held-out loss, the colour stage and the judge
+/// all count hair so).
+pub fn hair_pixels(img: &Image, background: [f32; 3]) -> Vec<bool> {
+    let plane = img.plane();
+    (0..plane)
+        .map(|i| (0..img.channels.min(3)).any(|c| (img.data[c * plane + i] - background[c]).abs() > 0.02))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -212,25 +233,4 @@ mod tests {
         assert!(close(f.direction(90.0, 0.0), f.up));
         assert!(close(f.direction(0.0, 90.0), f.side));
     }
-}
-
-/// Hyper-columns (row-major on `grid`) whose cell of the image holds a
-/// pixel that differs from the background in any of `renders`.
-pub fn hair_columns(renders: &[&Image], background: [f32; 3], grid: (usize, usize)) -> Vec<bool> {
-    let mut mask = vec![false; grid.0 * grid.1];
-    for img in renders {
-        let cells = cell_mask(&hair_pixels(img, background), img.height, img.width, grid.0, grid.1);
-        mask.iter_mut().zip(cells).for_each(|(m, c)| *m |= c);
-    }
-    mask
-}
-
-/// Pixels of `img` (row-major) that hold hair: a channel off `background`
-/// by more than 0.02 (the held-out loss, the colour stage and the judge
-/// all count hair so).
-pub fn hair_pixels(img: &Image, background: [f32; 3]) -> Vec<bool> {
-    let plane = img.plane();
-    (0..plane)
-        .map(|i| (0..img.channels.min(3)).any(|c| (img.data[c * plane + i] - background[c]).abs() > 0.02))
-        .collect()
 }
