@@ -76,8 +76,10 @@
 //! of the rest groom, the final one the same objective on the stylized
 //! groom; the loss re-matched on the final render is reported too.
 //!
-//! The code, one job per file: `params.rs` ([`StylizeParams`]), `scene.rs`
-//! ([`StrandScene`]: setup and the deformation `v ↦ x` with its backward),
+//! The code, one job per file: `params.rs` ([`StylizeParams`]), `scene/`
+//! ([`StrandScene`]: setup and the deformation `v ↦ x` with its backward;
+//! `fit.rs` fits the rest groom outside the head, `topology.rs` carries the
+//! result back to the groom's own points, `view.rs` draws a groom file),
 //! `views.rs` (view frame, camera angles, style targets and matching),
 //! `step.rs` (one [`iteration`]) and `multiscale.rs` (the loop over scales,
 //! [`stylize_with`], and the evaluation).
