@@ -105,8 +105,8 @@ pub struct StrandSettings {
     /// `None`: the preset's.
     pub field_neighbors: Option<usize>,
     /// Weight of the orientation term (`StylizeParams::orientation`); 0 runs
-    /// the paper's NNST loss alone.
-    pub orientation: f32,
+    /// the paper's NNST loss alone; `None`: the preset's.
+    pub orientation: Option<f32>,
     /// VGG-19 weights file; `None`: `$NST3D_VGG19`, else the user cache.
     pub weights: Option<PathBuf>,
     /// Stylize the strands' colour too: after the shape (the
@@ -157,7 +157,7 @@ impl StrandSettings {
             strand_width: None,
             rematch: None,
             field_neighbors: None,
-            orientation: StylizeParams::DEFAULT_ORIENTATION,
+            orientation: None,
             weights: None,
             color: false,
         }
@@ -187,8 +187,8 @@ impl StrandSettings {
                 bail!("--strand-width must be a positive number of pixels, got {w}");
             }
         }
-        if !(self.orientation.is_finite() && self.orientation >= 0.0) {
-            bail!("--orientation must be 0 or a positive number, got {}", self.orientation);
+        if let Some(w) = self.orientation.filter(|w| !(w.is_finite() && *w >= 0.0)) {
+            bail!("--orientation must be 0 or a positive number, got {w}");
         }
         if let Some(k) = self.field_neighbors {
             if !(1..=256).contains(&k) {
@@ -275,7 +275,9 @@ impl StrandSettings {
         if let Some(k) = self.field_neighbors {
             params.preset.neighbors = k;
         }
-        params.orientation = self.orientation;
+        if let Some(w) = self.orientation {
+            params.orientation = w;
+        }
         // Every scale matches on the rest groom by default, as eq. 2 is
         // written: targets re-matched on the stylization so far feed its
         // gaps back into the targets, which gave every style the same

@@ -10,7 +10,9 @@
 //! - **Stroke field.** The structure tensor `J = G_σ * ∇I ∇Iᵀ` of the
 //!   painting's luminance at the scale's style size (Sobel gradients,
 //!   `σ` = [`STRUCTURE_SIGMA`] pixels); the stroke runs along the smaller
-//!   eigenvector, with coherence `c = ((λ₁ − λ₂)/(λ₁ + λ₂ + ε))²`. Kept in
+//!   eigenvector, with weight `c = ((λ₁ − λ₂)/(λ₁ + λ₂ + ε))² · E/(E + E₀)`,
+//!   the coherence times a gate on the gradient energy `E = λ₁ + λ₂`
+//!   ([`STROKE_ENERGY`]) so that only visible strokes have a direction. Kept in
 //!   doubled-angle form `(c cos 2θ, c sin 2θ, c)` so bilinear sampling
 //!   averages headless directions correctly.
 //! - **Placement.** The painting is laid over the rest hair's box in each
@@ -41,6 +43,14 @@ use crate::strands::FlatStrands;
 
 /// Structure-tensor smoothing, pixels at the scale's style size.
 pub const STRUCTURE_SIGMA: f32 = 3.0;
+
+/// Gradient energy `|∇I|²` (luminance per pixel, squared) at which a
+/// place of the painting counts half as a stroke: a grey step of 1 % per
+/// pixel. Coherence alone is scale-free, so a smooth ramp (0.2 → 0.7
+/// across the picture, 0.002 per pixel) would be a perfect vertical stroke
+/// and comb the hair; weighted by `E/(E + this)` it counts 4 %, where the
+/// edges of stripes count over 99 %.
+pub const STROKE_ENERGY: f32 = 1e-4;
 
 /// A painting's stroke directions in doubled-angle form, row-major.
 #[derive(Clone, Debug)]
@@ -86,7 +96,8 @@ impl StrokeField {
             .iter()
             .map(|&[jxx, jxy, jyy]| {
                 let disc = ((jxx - jyy).powi(2) + 4.0 * jxy * jxy).max(0.0).sqrt();
-                let c = (disc / (jxx + jyy + eps)).powi(2);
+                let energy = jxx + jyy;
+                let c = (disc / (energy + eps)).powi(2) * energy / (energy + STROKE_ENERGY);
                 // The gradient's doubled angle is atan2(2 jxy, jxx − jyy);
                 // the stroke is perpendicular: its doubled angle is opposite.
                 let (c2, s2) = (-(jxx - jyy) / (disc + 1e-12), -(2.0 * jxy) / (disc + 1e-12));
@@ -324,6 +335,20 @@ mod tests {
         let [c2, s2, c] = f.data[24 * 48 + 24];
         assert!(c > 0.9, "coherence {c}");
         assert!(c2.abs() < 0.05 * c && (s2 + c).abs() < 0.05 * c, "({c2}, {s2}, {c})");
+    }
+
+    /// A smooth ramp has a coherent gradient but no stroke: it must not
+    /// give the hair a direction.
+    #[test]
+    fn a_smooth_ramp_has_almost_no_stroke() {
+        // 0.2 → 0.7 across 200 pixels, as the cross test's ramp at a
+        // scale's style size.
+        let n = 200;
+        let ramp = Image::from_vec(1, n, n, (0..n * n).map(|i| 0.2 + 0.5 * (i % n) as f32 / n as f32).collect());
+        let c = StrokeField::from_grey(&ramp).data[100 * n + 100][2];
+        assert!(c < 0.1, "ramp weight {c}");
+        let edge = StrokeField::from_grey(&stripes(48)).data[24 * 48 + 24][2];
+        assert!(edge > 0.9, "stripes weight {edge}");
     }
 
     fn camera() -> SplatCamera {
