@@ -193,7 +193,8 @@ fn orientation_view(
 }
 
 /// The orientation term's `λ`: `params.orientation` times
-/// [`orientation_scale`] at its first iteration, then the same.
+/// [`orientation_scale`] times the field's [`StrokeField::strength`] at its
+/// first iteration, then the same.
 #[allow(clippy::too_many_arguments)]
 fn orientation_weight(
     lambda: &mut Option<f32>,
@@ -207,7 +208,10 @@ fn orientation_weight(
 ) -> Result<f32, PipelineError> {
     match *lambda {
         Some(w) => Ok(w),
-        None => Ok(*lambda.insert(params.orientation * orientation_scale(scene, vgg, cam, matched, unit, v)?)),
+        None => {
+            let scale = orientation_scale(scene, vgg, cam, matched, unit, v)?;
+            Ok(*lambda.insert(params.orientation * scale * unit.field.strength()))
+        }
     }
 }
 

@@ -59,6 +59,8 @@ pub struct StrokeField {
     height: usize,
     /// `(c cos 2θ, c sin 2θ, c)` per pixel.
     data: Vec<[f32; 3]>,
+    /// See [`StrokeField::strength`].
+    strength: f32,
 }
 
 impl StrokeField {
@@ -92,19 +94,32 @@ impl StrokeField {
         let j = blur(&t, w, h, STRUCTURE_SIGMA);
         let mean_trace = j.iter().map(|v| (v[0] + v[2]) as f64).sum::<f64>() / (w * h).max(1) as f64;
         let eps = 1e-2 * mean_trace as f32 + 1e-12;
+        let (mut gated, mut coherent) = (0.0f64, 0.0f64);
         let data = j
             .iter()
             .map(|&[jxx, jxy, jyy]| {
                 let disc = ((jxx - jyy).powi(2) + 4.0 * jxy * jxy).max(0.0).sqrt();
                 let energy = jxx + jyy;
-                let c = (disc / (energy + eps)).powi(2) * energy / (energy + STROKE_ENERGY);
+                let coherence = (disc / (energy + eps)).powi(2);
+                let c = coherence * energy / (energy + STROKE_ENERGY);
+                (gated, coherent) = (gated + c as f64, coherent + coherence as f64);
                 // The gradient's doubled angle is atan2(2 jxy, jxx − jyy);
                 // the stroke is perpendicular: its doubled angle is opposite.
                 let (c2, s2) = (-(jxx - jyy) / (disc + 1e-12), -(2.0 * jxy) / (disc + 1e-12));
                 [c * c2, c * s2, c]
             })
             .collect();
-        Self { width: w, height: h, data }
+        let strength = if coherent > 0.0 { (gated / coherent) as f32 } else { 0.0 };
+        Self { width: w, height: h, data, strength }
+    }
+
+    /// How much of the painting's coherent structure is visible strokes
+    /// (`Σ c / Σ coherence`, in `[0, 1]`): the orientation weight is
+    /// scaled by it, since setting `λ` from gradient norms would otherwise
+    /// undo the energy gate (a ramp's faint field would be scaled up to a
+    /// stroked painting's strength).
+    pub fn strength(&self) -> f32 {
+        self.strength
     }
 
     /// Bilinear sample at continuous pixel coordinates `(u, v)` (pixel
@@ -347,8 +362,10 @@ mod tests {
         let ramp = Image::from_vec(1, n, n, (0..n * n).map(|i| 0.2 + 0.5 * (i % n) as f32 / n as f32).collect());
         let c = StrokeField::from_grey(&ramp).data[100 * n + 100][2];
         assert!(c < 0.1, "ramp weight {c}");
+        assert!(StrokeField::from_grey(&ramp).strength() < 0.1);
         let edge = StrokeField::from_grey(&stripes(48)).data[24 * 48 + 24][2];
         assert!(edge > 0.9, "stripes weight {edge}");
+        assert!(StrokeField::from_grey(&stripes(48)).strength() > 0.9);
     }
 
     fn camera() -> SplatCamera {
