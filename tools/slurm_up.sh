@@ -3,6 +3,8 @@
 # (munge + slurmctld + slurmd on localhost, one partition "main" with every
 # core), installing Debian's slurm-wlm and munge first if needed.
 # Idempotent: a running cluster is left as it is. Run as root (or with sudo).
+#
+#   bash tools/slurm_up.sh
 set -euo pipefail
 SUDO=""; [ "$(id -u)" = 0 ] || SUDO="sudo"
 if ! command -v slurmctld >/dev/null || ! command -v munged >/dev/null; then

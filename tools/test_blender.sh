@@ -5,6 +5,8 @@
 # into out/blender/blender_smoke_before_after.png (docs/img has the committed
 # copy) and stylizes particle hair; then with a window under Xvfb, the
 # operator's interactive path (a thread, progress in the panel).
+#
+#   bash tools/test_python.sh && bash tools/test_blender.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if ! command -v blender >/dev/null || ! command -v xvfb-run >/dev/null; then

@@ -3,6 +3,8 @@
 # the package with it byte for byte), installs the package with pip from
 # this checkout into .venv-py (a venv over Debian's python3, so OpenVDB's
 # own binding pyopenvdb is importable beside it) and runs pytest.
+#
+#   bash tools/test_python.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

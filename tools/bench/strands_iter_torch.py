@@ -10,6 +10,8 @@ point's closest head point and outward direction, camera, strand look,
 constraint and AdamW settings, the view's matched NNST targets, the style
 hyper-columns and nst3d's render at v = 0).
 
+    python3 tools/bench/strands_iter_torch.py DIR   (run by tools/bench_strands_vs_torch.sh)
+
 One timed iteration, as nst3d's `pipeline::iteration`:
   transport    p' = p + W v (torch.sparse CSR matmul, v is the leaf), roots pinned;
   constraints  differentiated by autograd, as nst3d's ConstraintTape does by hand:

@@ -21,6 +21,7 @@ pub mod microkernel;
 pub mod names;
 pub mod precision;
 pub mod report;
+pub mod stats;
 pub mod stop;
 
 pub use axis::UpAxis;

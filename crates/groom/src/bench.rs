@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use nst3d_core::stats::median;
 use nst3d_core::Reporter;
 use nst3d_features::{Vgg19, VggLayer};
 use nst3d_io::groom::read_groom;
@@ -123,8 +124,8 @@ pub fn strands_iter(a: &StrandsIterSettings, reporter: &mut dyn Reporter) -> Res
         .iter()
         .enumerate()
         .map(|(k, &name)| {
-            let mut t: Vec<f64> = reports.iter().map(|r| ms(r.times.stages()[k].1)).collect();
-            (name, median(&mut t))
+            let t: Vec<f64> = reports.iter().map(|r| ms(r.times.stages()[k].1)).collect();
+            (name, median(&t))
         })
         .collect();
     Ok(StrandsIterReport {
@@ -133,7 +134,7 @@ pub fn strands_iter(a: &StrandsIterSettings, reporter: &mut dyn Reporter) -> Res
         loss_match: loss0,
         loss_last: reports.last().map_or(warm.loss, |r| r.loss),
         stages,
-        ms_per_iter: median(&mut wall.clone()),
+        ms_per_iter: median(&wall),
         iteration_ms: wall,
         cpu_ms_per_iter: cpu_ms,
     })
@@ -141,18 +142,6 @@ pub fn strands_iter(a: &StrandsIterSettings, reporter: &mut dyn Reporter) -> Res
 
 fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n == 0 {
-        0.0
-    } else if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
 }
 
 /// User + system CPU time of this process (Linux `/proc/self/stat`, 100 Hz
@@ -200,6 +189,61 @@ fn npy_i64(dir: &Path, name: &str, v: &[i64]) -> std::io::Result<()> {
 
 fn json_v3(v: [f32; 3]) -> String {
     format!("[{:e}, {:e}, {:e}]", v[0], v[1], v[2])
+}
+
+/// `meta.json` of the dump: the camera, the strand look, the collision
+/// constraint and AdamW's settings the peer replays.
+fn peer_meta(scene: &StrandScene, cam: &SplatCamera, adam: &Adam, loss0: f32) -> String {
+    let st = &scene.style;
+    let col = &scene.constraints.collision;
+    format!(
+        r#"{{
+  "samples": {samples},
+  "camera": {{"eye": {eye}, "right": {right}, "down": {down}, "forward": {fwd},
+             "fx": {fx:e}, "fy": {fy:e}, "cx": {cx:e}, "cy": {cy:e}, "width": {cw}, "height": {ch}, "near": {near:e}}},
+  "style": {{"width": {sw:e}, "length_sigma": {ls:e}, "root_shade": {rs:e}, "tip_shade": {ts:e},
+            "root_opacity": {ro:e}, "tip_opacity": {to:e}, "background": {bg}, "visibility_threshold": {vt:e},
+            "dilation": {dil:e}}},
+  "collision": {{"tau": {tau:e}, "kappa": {kappa:e}, "skip_roots": {skip}, "hard_tau_fraction": {htf:e},
+                "passes": {passes}, "segment_tolerance": {stol:e}}},
+  "adamw": {{"lr": {lr:e}, "beta1": {b1:e}, "beta2": {b2:e}, "eps": {eps:e}, "weight_decay": {wd:e}}},
+  "nnst_grid_divisor": 4,
+  "nst3d_loss_iter0": {loss0:e}
+}}
+"#,
+        samples = scene.field.sample_count(),
+        eye = json_v3(cam.eye),
+        right = json_v3(cam.right),
+        down = json_v3(cam.down),
+        fwd = json_v3(cam.forward),
+        fx = cam.fx,
+        fy = cam.fy,
+        cx = cam.cx,
+        cy = cam.cy,
+        cw = cam.width,
+        ch = cam.height,
+        near = cam.near,
+        sw = st.width,
+        ls = st.length_sigma,
+        rs = st.root_shade,
+        ts = st.tip_shade,
+        ro = st.root_opacity,
+        to = st.tip_opacity,
+        bg = json_v3(st.background),
+        vt = st.visibility_threshold,
+        dil = st.dilation,
+        tau = col.tau,
+        kappa = col.kappa,
+        skip = col.skip_roots,
+        htf = HARD_TAU_FRACTION,
+        passes = CONSTRAINT_PASSES,
+        stol = SEGMENT_TOLERANCE,
+        lr = adam.lr,
+        b1 = adam.beta1,
+        b2 = adam.beta2,
+        eps = adam.eps,
+        wd = adam.weight_decay,
+    )
 }
 
 /// The inputs of one `strands-iter` iteration, for the PyTorch peer:
@@ -263,56 +307,7 @@ fn dump_scene(
     npy_f32(dir, "grad0.npy", &[samples, 3], &grad0)?;
     let img = scene.render(&scene.undeformed, cam)?;
     npy_f32(dir, "render0.npy", &[img.channels, img.height, img.width], &img.data)?;
-    let st = &scene.style;
-    let col = &scene.constraints.collision;
-    let meta = format!(
-        r#"{{
-  "samples": {samples},
-  "camera": {{"eye": {eye}, "right": {right}, "down": {down}, "forward": {fwd},
-             "fx": {fx:e}, "fy": {fy:e}, "cx": {cx:e}, "cy": {cy:e}, "width": {cw}, "height": {ch}, "near": {near:e}}},
-  "style": {{"width": {sw:e}, "length_sigma": {ls:e}, "root_shade": {rs:e}, "tip_shade": {ts:e},
-            "root_opacity": {ro:e}, "tip_opacity": {to:e}, "background": {bg}, "visibility_threshold": {vt:e},
-            "dilation": {dil:e}}},
-  "collision": {{"tau": {tau:e}, "kappa": {kappa:e}, "skip_roots": {skip}, "hard_tau_fraction": {htf:e},
-                "passes": {passes}, "segment_tolerance": {stol:e}}},
-  "adamw": {{"lr": {lr:e}, "beta1": {b1:e}, "beta2": {b2:e}, "eps": {eps:e}, "weight_decay": {wd:e}}},
-  "nnst_grid_divisor": 4,
-  "nst3d_loss_iter0": {loss0:e}
-}}
-"#,
-        samples = scene.field.sample_count(),
-        eye = json_v3(cam.eye),
-        right = json_v3(cam.right),
-        down = json_v3(cam.down),
-        fwd = json_v3(cam.forward),
-        fx = cam.fx,
-        fy = cam.fy,
-        cx = cam.cx,
-        cy = cam.cy,
-        cw = cam.width,
-        ch = cam.height,
-        near = cam.near,
-        sw = st.width,
-        ls = st.length_sigma,
-        rs = st.root_shade,
-        ts = st.tip_shade,
-        ro = st.root_opacity,
-        to = st.tip_opacity,
-        bg = json_v3(st.background),
-        vt = st.visibility_threshold,
-        dil = st.dilation,
-        tau = col.tau,
-        kappa = col.kappa,
-        skip = col.skip_roots,
-        htf = HARD_TAU_FRACTION,
-        passes = CONSTRAINT_PASSES,
-        stol = SEGMENT_TOLERANCE,
-        lr = adam.lr,
-        b1 = adam.beta1,
-        b2 = adam.beta2,
-        eps = adam.eps,
-        wd = adam.weight_decay,
-    );
+    let meta = peer_meta(scene, cam, adam, loss0);
     nst3d_io::atomic::write_atomic(&dir.join("meta.json"), |w| w.write_all(meta.as_bytes()))?;
     Ok(())
 }

@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use nst3d_sequence::FrameSpec;
+use nst3d_job::FrameSpec;
 use nst3d_strands::{fur_ball, grass_patch, FurBallParams, GrassParams, Wind};
 
 use crate::output::write_groom;

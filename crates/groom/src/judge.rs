@@ -15,6 +15,9 @@ use nst3d_features::{Vgg19, VggLayer};
 use nst3d_io::image::{luminance_rgb, resize_to_height};
 use nst3d_loss::{cell_mask, style_loss, style_loss_masked, StyleTarget};
 
+/// Median as the judges report it (the mean of the middle two for an even count).
+pub use nst3d_core::stats::median;
+
 /// Gram matrices of a painting, for scoring pictures of one height.
 pub struct GramJudge {
     vgg: Vgg19,
@@ -128,28 +131,5 @@ fn as_rgb(picture: &Image) -> Image {
         Image::from_vec(3, picture.height, picture.width, [picture.data.as_slice(); 3].concat())
     } else {
         picture.clone()
-    }
-}
-
-/// Median of `v` (the mean of the middle two for an even count).
-pub fn median(v: &[f32]) -> f32 {
-    let mut s = v.to_vec();
-    s.sort_by(f32::total_cmp);
-    match s.len() {
-        0 => f32::NAN,
-        n if n % 2 == 1 => s[n / 2],
-        n => 0.5 * (s[n / 2 - 1] + s[n / 2]),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn median_of_odd_and_even_counts() {
-        assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
-        assert_eq!(median(&[4.0, 1.0, 3.0, 2.0]), 2.5);
-        assert!(median(&[]).is_nan());
     }
 }

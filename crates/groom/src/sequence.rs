@@ -6,15 +6,16 @@
 //! is done, then the whole stylizer state, so a killed job resumes after
 //! its last finished frame and ends bit-identical to an uninterrupted one.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use nst3d_core::Reporter;
+use nst3d_core::{Groom, UpAxis};
 use nst3d_features::Vgg19;
 use nst3d_io::groom::{read_groom, read_groom_file};
 use nst3d_io::mesh::read_mesh;
-use nst3d_sequence::{default_work_dir, job_fingerprint, settings_key, FrameSpec};
-use nst3d_strands::{check_topology, FlatStrands, Flow, SequenceParams, SequenceStylizer, TemporalParams};
+use nst3d_job::{default_work_dir, job_fingerprint, settings_key, FrameSpec};
+use nst3d_strands::{check_topology, FlatStrands, Flow, FrameResult, SequenceParams, SequenceStylizer, TemporalParams};
 
 use crate::axis;
 use crate::checks::Checks;
@@ -47,59 +48,15 @@ pub struct GroomSequenceReport {
     pub worst: Checks,
 }
 
-/// Stylizes the frames `s.frames` of the animated groom `s.groom`.
-pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -> Result<GroomSequenceReport> {
-    let format = OutFormat::of(&s.out)?;
-    s.check()?;
-    let spec = s.frames.as_deref().context("the job has no frames (set `frames`)")?;
-    let frames = FrameSpec::parse(spec)?;
-    let frames = frames.frames();
-    let groom_at = |f| frame_path(&s.groom, f, "--groom");
-    let out_at = |f| frame_path(&s.out, f, "--out");
-    if s.out == s.groom {
-        bail!("--out {} is the input pattern: nst3d never overwrites its input", s.out.display());
-    }
-    s.check_outputs(Some(frames[0]))?;
-    let mesh_varies = s.mesh.as_deref().is_some_and(is_pattern);
-    let mesh_at = |f| -> Result<Option<PathBuf>> {
-        match &s.mesh {
-            Some(m) if mesh_varies => frame_path(m, f, "--mesh").map(Some),
-            m => Ok(m.clone()),
-        }
-    };
-
-    // Every frame's groom up front: present, readable, same topology.
-    let first_path = groom_at(frames[0])?;
-    let first_file = read_groom_file(&first_path)?;
-    for note in attribute_notes(&first_file, format) {
-        reporter.note(&format!("{}: {note}", first_path.display()));
-    }
-    // The first frame's file decides the axis of the whole sequence.
-    let (up, note) = axis::resolve(s.up, &first_file);
-    if let Some(note) = note {
-        reporter.note(&format!("{}: {note}", first_path.display()));
-    }
-    let first = first_file.groom;
-    for &f in &frames[1..] {
-        let path = groom_at(f)?;
-        let g = read_groom(&path)?;
-        check_topology(&first, f, &g).with_context(|| path.display().to_string())?;
-    }
-    let fixed_mesh = if mesh_varies { None } else { s.mesh.as_deref().map(read_mesh).transpose()? };
-    let fixed_mesh = fixed_mesh.map(|m| axis::mesh_to_y_up(&m, up).into_owned());
-    if s.mesh.is_none() {
-        reporter.note(NO_MESH);
-    }
-    if mesh_varies {
-        for &f in frames {
-            let p = mesh_at(f)?.expect("a mesh pattern");
-            if !p.exists() {
-                bail!("{}: mesh of frame {f} not found", p.display());
-            }
-        }
-    }
-    let painting = nst3d_io::image::load_style(&s.style, 1.0)?;
-    let vgg = Vgg19::load(s.weights.as_deref())?;
+/// The temporal settings of the sequence (Table 1's, or Long Hair's for a
+/// preset without them, said in a note) and the stylizer's parameters:
+/// which filters run, the EMA's clock and the flow the EMA follows.
+fn sequence_params(
+    s: &StrandSettings,
+    first: &Groom,
+    up: UpAxis,
+    reporter: &mut dyn Reporter,
+) -> Result<(SequenceParams, TemporalParams)> {
     let stylize = s.stylize_params(first.strand_count());
     StrandSettings::check_memory(&stylize, first.strand_count())?;
     let (temporal, borrowed) = s.temporal_params();
@@ -123,6 +80,147 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
         None => Flow::Animation,
         Some(v) => Flow::Style(up.to_y_up(v)),
     };
+    Ok((params, temporal))
+}
+
+/// Every frame's mesh of a mesh pattern must exist before the first frame runs.
+fn check_meshes(frames: &[i64], mesh_at: &dyn Fn(i64) -> Result<Option<PathBuf>>) -> Result<()> {
+    for &f in frames {
+        let p = mesh_at(f)?.expect("a mesh pattern");
+        if !p.exists() {
+            bail!("{}: mesh of frame {f} not found", p.display());
+        }
+    }
+    Ok(())
+}
+
+/// Resume: the state saved after the last finished frame of this job, if
+/// any, restored into `seq`: the frames done and the worst checks over them.
+fn resume(
+    seq: &mut SequenceStylizer<'_>,
+    state_path: &Path,
+    work: &Path,
+    frames: &[i64],
+    out_at: &dyn Fn(i64) -> Result<PathBuf>,
+    reporter: &mut dyn Reporter,
+) -> Result<(usize, Checks)> {
+    if !state_path.exists() {
+        return Ok((0, Checks::default()));
+    }
+    let bytes = std::fs::read(state_path).with_context(|| state_path.display().to_string())?;
+    let extra = seq.restore_state(&bytes).with_context(|| format!("{} (--force starts over)", state_path.display()))?;
+    let &[n, w0, w1, w2] = extra.as_slice() else {
+        bail!("{}: saved state has no frame count (--force starts over)", state_path.display());
+    };
+    let done = n as usize;
+    if done > frames.len() {
+        bail!(
+            "{}: saved state has {done} frames done, the job has {} (--force starts over)",
+            state_path.display(),
+            frames.len()
+        );
+    }
+    for &f in &frames[..done] {
+        let out = out_at(f)?;
+        if !out.exists() {
+            bail!(
+                "{}: output of frame {f} is missing but the saved state in {} has it done; --force starts over",
+                out.display(),
+                work.display()
+            );
+        }
+    }
+    let worst = Checks { vs_input: w0, vs_rest: w1 as f32, inside: w2 as usize };
+    if done == frames.len() {
+        reporter.status(&format!("all {done} frames already done (state in {}; --force redoes them)", work.display()));
+    } else if let Some(last) = done.checked_sub(1).map(|i| frames[i]) {
+        reporter.status(&format!(
+            "resuming after frame {last} ({done} of {} done) from {}",
+            frames.len(),
+            work.display()
+        ));
+    }
+    Ok((done, worst))
+}
+
+/// The report line of a written frame.
+fn frame_line(f: i64, r: &FrameResult, out: &Path) -> String {
+    format!(
+        "frame {f}: NNST loss {:.4e} -> {:.4e} (output {:.4e}){}; wrote {}",
+        r.eval_before,
+        r.optimized.eval_after,
+        r.eval_output,
+        r.flicker.map_or(String::new(), |k| format!(
+            "; flicker {:.5} (raw {:.5}, input {:.5})",
+            k.compensated, k.raw, k.input_raw
+        )),
+        out.display()
+    )
+}
+
+/// Every frame's groom up front: present, readable, the same topology as
+/// the first frame's, which is returned with the up axis its file decides
+/// for the whole sequence (`up`: the user's, if set).
+fn read_grooms(
+    frames: &[i64],
+    groom_at: &dyn Fn(i64) -> Result<PathBuf>,
+    format: OutFormat,
+    up: Option<UpAxis>,
+    reporter: &mut dyn Reporter,
+) -> Result<(Groom, UpAxis)> {
+    let first_path = groom_at(frames[0])?;
+    let first_file = read_groom_file(&first_path)?;
+    for note in attribute_notes(&first_file, format) {
+        reporter.note(&format!("{}: {note}", first_path.display()));
+    }
+    // The first frame's file decides the axis of the whole sequence.
+    let (up, note) = axis::resolve(up, &first_file);
+    if let Some(note) = note {
+        reporter.note(&format!("{}: {note}", first_path.display()));
+    }
+    let first = first_file.groom;
+    for &f in &frames[1..] {
+        let path = groom_at(f)?;
+        let g = read_groom(&path)?;
+        check_topology(&first, f, &g).with_context(|| path.display().to_string())?;
+    }
+    Ok((first, up))
+}
+
+/// Stylizes the frames `s.frames` of the animated groom `s.groom`.
+pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -> Result<GroomSequenceReport> {
+    let format = OutFormat::of(&s.out)?;
+    s.check()?;
+    let spec = s.frames.as_deref().context("the job has no frames (set `frames`)")?;
+    let frames = FrameSpec::parse(spec)?;
+    let frames = frames.frames();
+    let groom_at = |f| frame_path(&s.groom, f, "--groom");
+    let out_at = |f| frame_path(&s.out, f, "--out");
+    if s.out == s.groom {
+        bail!("--out {} is the input pattern: nst3d never overwrites its input", s.out.display());
+    }
+    s.check_outputs(Some(frames[0]))?;
+    let mesh_varies = s.mesh.as_deref().is_some_and(is_pattern);
+    let mesh_at = |f| -> Result<Option<PathBuf>> {
+        match &s.mesh {
+            Some(m) if mesh_varies => frame_path(m, f, "--mesh").map(Some),
+            m => Ok(m.clone()),
+        }
+    };
+
+    // Every frame's groom up front: present, readable, same topology.
+    let (first, up) = read_grooms(frames, &groom_at, format, s.up, reporter)?;
+    let fixed_mesh = if mesh_varies { None } else { s.mesh.as_deref().map(read_mesh).transpose()? };
+    let fixed_mesh = fixed_mesh.map(|m| axis::mesh_to_y_up(&m, up).into_owned());
+    if s.mesh.is_none() {
+        reporter.note(NO_MESH);
+    }
+    if mesh_varies {
+        check_meshes(frames, &mesh_at)?;
+    }
+    let painting = nst3d_io::image::load_style(&s.style, 1.0)?;
+    let vgg = Vgg19::load(s.weights.as_deref())?;
+    let (params, temporal) = sequence_params(s, &first, up, reporter)?;
     let mut seq = SequenceStylizer::new(&vgg, &painting, params)?;
 
     // Resume: the state saved after the last finished frame of this job.
@@ -131,51 +229,13 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
         None => default_work_dir(&out_at(frames[0])?, job_hash(s, frames, &groom_at, &mesh_at)?),
     };
     // Held until the job ends: a second blade on the same job exits here.
-    let _lock = nst3d_sequence::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
+    let _lock = nst3d_job::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
     let state_path = work.join(STATE_FILE);
     // Only our own file goes: the work folder may hold more.
     if s.force && state_path.exists() {
         std::fs::remove_file(&state_path).with_context(|| format!("cannot remove {}", state_path.display()))?;
     }
-    let mut done = 0usize;
-    let mut worst = Checks::default();
-    if state_path.exists() {
-        let bytes = std::fs::read(&state_path).with_context(|| state_path.display().to_string())?;
-        let extra =
-            seq.restore_state(&bytes).with_context(|| format!("{} (--force starts over)", state_path.display()))?;
-        let &[n, w0, w1, w2] = extra.as_slice() else {
-            bail!("{}: saved state has no frame count (--force starts over)", state_path.display());
-        };
-        done = n as usize;
-        if done > frames.len() {
-            bail!(
-                "{}: saved state has {done} frames done, the job has {} (--force starts over)",
-                state_path.display(),
-                frames.len()
-            );
-        }
-        for &f in &frames[..done] {
-            let out = out_at(f)?;
-            if !out.exists() {
-                bail!(
-                    "{}: output of frame {f} is missing but the saved state in {} has it done; --force starts over",
-                    out.display(),
-                    work.display()
-                );
-            }
-        }
-        worst = Checks { vs_input: w0, vs_rest: w1 as f32, inside: w2 as usize };
-        if done == frames.len() {
-            reporter
-                .status(&format!("all {done} frames already done (state in {}; --force redoes them)", work.display()));
-        } else if let Some(last) = done.checked_sub(1).map(|i| frames[i]) {
-            reporter.status(&format!(
-                "resuming after frame {last} ({done} of {} done) from {}",
-                frames.len(),
-                work.display()
-            ));
-        }
-    }
+    let (done, mut worst) = resume(&mut seq, &state_path, &work, frames, &out_at, reporter)?;
     let per_frame: u32 = seq.params().stylize.iterations.iter().sum();
     reporter.begin(per_frame as u64 * (frames.len() - done) as u64);
     for (i, &f) in frames.iter().enumerate().skip(done) {
@@ -207,17 +267,7 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
         if let Some(p) = &s.preview {
             write_preview(&frame_path(p, f, "--preview")?, &r.scene, &r.strands, None, &painting)?;
         }
-        reporter.result(&format!(
-            "frame {f}: NNST loss {:.4e} -> {:.4e} (output {:.4e}){}; wrote {}",
-            r.eval_before,
-            r.optimized.eval_after,
-            r.eval_output,
-            r.flicker.map_or(String::new(), |k| format!(
-                "; flicker {:.5} (raw {:.5}, input {:.5})",
-                k.compensated, k.raw, k.input_raw
-            )),
-            out.display()
-        ));
+        reporter.result(&frame_line(f, &r, &out));
         // Outputs first, then the state: a kill in between redoes this frame.
         std::fs::create_dir_all(&work).with_context(|| format!("cannot create the work folder {}", work.display()))?;
         let state = seq.save_state(&[(i + 1) as f64, worst.vs_input, worst.vs_rest as f64, worst.inside as f64]);

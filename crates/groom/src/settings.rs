@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use nst3d_core::UpAxis;
-use nst3d_sequence::expand_pattern;
+use nst3d_job::expand_pattern;
 use nst3d_strands::pipeline::StylizeParams;
 use nst3d_strands::{EmaClock, Preset, TemporalParams};
 

@@ -11,6 +11,7 @@
 #![warn(missing_docs)]
 
 pub mod activation;
+pub mod apply;
 pub mod bench;
 pub mod conv3d;
 pub mod feedforward;

@@ -4,11 +4,16 @@
 //! The update follows `torch.optim.Adam`'s single-tensor CPU path operation by
 //! operation, including where it rounds to `f32`, so a run matches the
 //! reference to float rounding and Adam settings carry over unchanged.
+//!
+//! [`color_stage`] is the loop the colour stages of smoke and strands share
+//! (views in turn, one Adam step each) with the two constants they agree on.
 
 #![warn(missing_docs)]
 
+pub mod color_stage;
 pub mod schedule;
 
+pub use color_stage::{optimise_in_turn, SweepLosses, COLOR_VIEWS, GREY_GUARD};
 pub use schedule::{clip_grad_norm, OneCycle};
 
 use rayon::prelude::*;

@@ -178,6 +178,55 @@ fn cells(extent: f32) -> usize {
     (extent.round() as usize).max(1)
 }
 
+/// Min and max of `f` over the box corners in camera coordinates.
+fn span(coords: &[[f32; 3]], f: &dyn Fn(&[f32; 3]) -> f32) -> (f32, f32) {
+    coords.iter().map(f).fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)))
+}
+
+/// The window of the view (`(u_lo, u_hi, v_lo, v_hi)`: in voxels for
+/// orthographic cameras, tangents for perspective ones), the lattice size
+/// and whether it is perspective, for the box corners `coords` in camera
+/// coordinates at depths `t_near..t_far`.
+#[allow(clippy::type_complexity)]
+fn window(
+    cam: &Camera,
+    coords: &[[f32; 3]],
+    (t_near, t_far): (f32, f32),
+) -> Result<((f32, f32, f32, f32), [usize; 3], bool), RenderError> {
+    Ok(match cam.projection {
+        Projection::Orthographic => {
+            let (u_lo, u_hi) = span(coords, &|c| c[0]);
+            let (v_lo, v_hi) = span(coords, &|c| c[1]);
+            let lattice = [cells(u_hi - u_lo), cells(v_hi - v_lo), cells(t_far - t_near)];
+            ((u_lo, u_hi, v_lo, v_hi), lattice, false)
+        }
+        Projection::Perspective => {
+            if !(cam.fov_y_deg > 0.0 && cam.fov_y_deg < 180.0) {
+                return Err(RenderError::BadFov(cam.fov_y_deg));
+            }
+            if !(cam.aspect > 0.0 && cam.aspect.is_finite()) {
+                return Err(RenderError::BadAspect(cam.aspect));
+            }
+            if t_near < MIN_DEPTH {
+                return Err(RenderError::EyeInsideBounds);
+            }
+            let tan_y = (cam.fov_y_deg.to_radians() * 0.5).tan();
+            let tan_x = tan_y * cam.aspect;
+            // Projected bounding box in tangent space, clipped to the field of view.
+            let (u_lo, u_hi) = span(coords, &|c| c[0] / c[2]);
+            let (v_lo, v_hi) = span(coords, &|c| c[1] / c[2]);
+            let (u_lo, u_hi) = (u_lo.max(-tan_x), u_hi.min(tan_x));
+            let (v_lo, v_hi) = (v_lo.max(-tan_y), v_hi.min(tan_y));
+            if u_lo >= u_hi || v_lo >= v_hi {
+                return Err(RenderError::OutOfView);
+            }
+            // At the nearest bounding plane a tangent span `s` is `s · t_near` voxels.
+            let lattice = [cells((u_hi - u_lo) * t_near), cells((v_hi - v_lo) * t_near), cells(t_far - t_near)];
+            ((u_lo, u_hi, v_lo, v_hi), lattice, true)
+        }
+    })
+}
+
 impl View {
     /// Builds the lattice; `allow_axis` permits the permutation shortcut for
     /// axis-aligned orthographic views (tests turn it off to compare).
@@ -204,44 +253,8 @@ impl View {
                 [dot(p, right), dot(p, up), dot(p, forward)]
             })
             .collect();
-        let range = |f: &dyn Fn(&[f32; 3]) -> f32| {
-            cam_coords.iter().map(f).fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)))
-        };
-        let (t_near, t_far) = range(&|c| c[2]);
-
-        // The window (in voxels for ortho, tangents for perspective) and the lattice size.
-        let window = match cam.projection {
-            Projection::Orthographic => {
-                let (u_lo, u_hi) = range(&|c| c[0]);
-                let (v_lo, v_hi) = range(&|c| c[1]);
-                let lattice = [cells(u_hi - u_lo), cells(v_hi - v_lo), cells(t_far - t_near)];
-                ((u_lo, u_hi, v_lo, v_hi), lattice, false)
-            }
-            Projection::Perspective => {
-                if !(cam.fov_y_deg > 0.0 && cam.fov_y_deg < 180.0) {
-                    return Err(RenderError::BadFov(cam.fov_y_deg));
-                }
-                if !(cam.aspect > 0.0 && cam.aspect.is_finite()) {
-                    return Err(RenderError::BadAspect(cam.aspect));
-                }
-                if t_near < MIN_DEPTH {
-                    return Err(RenderError::EyeInsideBounds);
-                }
-                let tan_y = (cam.fov_y_deg.to_radians() * 0.5).tan();
-                let tan_x = tan_y * cam.aspect;
-                // Projected bounding box in tangent space, clipped to the field of view.
-                let (u_lo, u_hi) = range(&|c| c[0] / c[2]);
-                let (v_lo, v_hi) = range(&|c| c[1] / c[2]);
-                let (u_lo, u_hi) = (u_lo.max(-tan_x), u_hi.min(tan_x));
-                let (v_lo, v_hi) = (v_lo.max(-tan_y), v_hi.min(tan_y));
-                if u_lo >= u_hi || v_lo >= v_hi {
-                    return Err(RenderError::OutOfView);
-                }
-                // At the nearest bounding plane a tangent span `s` is `s · t_near` voxels.
-                let lattice = [cells((u_hi - u_lo) * t_near), cells((v_hi - v_lo) * t_near), cells(t_far - t_near)];
-                ((u_lo, u_hi, v_lo, v_hi), lattice, true)
-            }
-        };
+        let (t_near, t_far) = span(&cam_coords, &|c| c[2]);
+        let window = window(cam, &cam_coords, (t_near, t_far))?;
         let ((u_lo, u_hi, v_lo, v_hi), lattice, perspective) = window;
         let frustum = Frustum {
             eye: cam.eye,

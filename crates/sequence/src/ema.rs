@@ -247,30 +247,10 @@ pub fn stylize_sequence_with(
 ) -> Result<(), SequenceError> {
     let n = sim.len();
     let fp = &params.frame;
-    // Octave dims from the common domain, as the single-frame pyramid does.
-    let mut dims = vec![sim.dims()];
-    for _ in 1..fp.octaves.max(1) {
-        let [x, y, z] = *dims.last().unwrap();
-        let next = [x.div_ceil(2), y.div_ceil(2), z.div_ceil(2)];
-        if next.iter().any(|&k| k < 4) {
-            break;
-        }
-        dims.push(next);
-    }
+    let dims = octave_dims(sim.dims(), fp.octaves);
     let octaves = dims.len();
     let resume = store.resume_point();
-    if let Some(r) = resume {
-        if r.octaves != octaves || r.octave >= octaves || r.sweeps_done > fp.iterations {
-            return Err(SequenceError::Checkpoint(format!(
-                "checkpoint at octave {}/{} sweep {} does not fit a run of {} octaves x {} sweeps",
-                r.octave + 1,
-                r.octaves,
-                r.sweeps_done,
-                octaves,
-                fp.iterations
-            )));
-        }
-    }
+    check_resume(resume, octaves, fp.iterations)?;
     for (k, level) in (0..octaves).rev().enumerate() {
         // Octaves wholly before the checkpoint are done.
         let first_sweep = match resume {
@@ -284,33 +264,14 @@ pub fn stylize_sequence_with(
             |t: usize| -> Vec<ViewSpec> { views(t).iter().map(|v| nst3d_stylize::frame::view_at(v, factor)).collect() };
         let vmax_here = fp.limits.vmax / factor;
         if first_sweep.is_none() {
-            // Carry fields up from the coarser octave; fresh Adam moments.
-            for t in 0..n {
-                // The coarsest octave has nothing coarser: its frames start afresh.
-                let saved = match dims.get(level + 1) {
-                    Some(&coarser) => load_sized(store, t, coarser)?.map(|s| (s, coarser)),
-                    None => None,
-                };
-                let voxels = here.iter().product();
-                let (field, color) = match saved {
-                    None => (Field::initial(fp.mode, voxels), params.color.then(|| ColorState::white(voxels))),
-                    Some((s, coarser)) => (
-                        s.field.resize(coarser, here),
-                        s.color
-                            .map(|c| c.resize(coarser, here))
-                            .or_else(|| params.color.then(|| ColorState::white(voxels))),
-                    ),
-                };
-                let len = field.len();
-                store.save(t, FrameState { field, m: vec![0.0; len], v: vec![0.0; len], step: 0, color })?;
-            }
+            start_octave(store, params, n, (here, dims.get(level + 1).copied()))?;
             store.commit(SweepMark { octave: k, octaves, sweeps_done: 0 })?;
         }
         for it in first_sweep.unwrap_or(0)..fp.iterations {
             let forward = it % 2 == 0;
             let order: Vec<usize> = if forward { (0..n).collect() } else { (0..n).rev().collect() };
             // The previous frame's updated field (and colour), already carried to this frame's time.
-            let mut carried: Option<(Field, Option<Vec<Field>>)> = None;
+            let mut carried: Option<Carried> = None;
             for &t in &order {
                 let d = density_at(sim, t, level)?;
                 let u = velocity_at(sim, t, here)?;
@@ -342,29 +303,8 @@ pub fn stylize_sequence_with(
                         }
                     }
                     Some(cs) => {
-                        let (grids, chroma_tape) = color::chroma(&color::raw_of(&cs.raw), d.dims, color::SMOOTH_PASSES);
-                        let mut grad_color: Vec<Grid3> = (0..3).map(|_| Grid3::zeros(d.dims)).collect();
-                        for view in &level_views(t) {
-                            let (l, g, gc) = loss.loss_and_grad_color(&dstar, &grids, view)?;
-                            total += l;
-                            grad_dstar.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
-                            for (acc, g) in grad_color.iter_mut().zip(&gc) {
-                                acc.data.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
-                            }
-                        }
-                        let grad_raw = color::chroma_backward(&chroma_tape, &grad_color).concat();
-                        let mut raw: Vec<f32> = cs.raw.iter().flat_map(|f| f.params().to_vec()).collect();
-                        let mut adam = Adam::new(raw.len(), color::LEARNING_RATE);
-                        adam.set_state(&cs.m, &cs.v, st.step)
-                            .map_err(|e| SequenceError::Frame { frame: t, message: e.to_string() })?;
-                        adam.step(&mut raw, &grad_raw);
-                        let (m, v, _) = adam.state();
-                        cs.m.copy_from_slice(m);
-                        cs.v.copy_from_slice(v);
-                        for (f, chunk) in cs.raw.iter_mut().zip(raw.chunks_exact(d.len())) {
-                            f.params_mut().copy_from_slice(chunk);
-                        }
-                        cs.constrain();
+                        let views = level_views(t);
+                        total = color_step(loss, cs, (t, st.step), (&dstar, &mut grad_dstar), &views)?;
                     }
                 }
                 // The transport's backward is linear in ∂L/∂d*: one pass for all views.
@@ -382,23 +322,9 @@ pub fn stylize_sequence_with(
                 nst3d_core::stop::check()?;
                 // Forward sweeps carry v̂_t along u_t to t+1; backward sweeps
                 // carry v̂_t back to t-1 along −u_{t−1}.
-                carried = if params.alpha > 0.0 {
-                    let next = if forward { t + 1 } else { t.wrapping_sub(1) };
-                    if next < n && sim.linked(if forward { next } else { t }) {
-                        let disp = if forward { u } else { velocity_at(sim, next, here)?.map(|w| negate(&w)) };
-                        let raw = st.color.as_ref().map(|c| &c.raw);
-                        Some(match disp {
-                            Some(w) => (
-                                st.field.carried(here, &w),
-                                raw.map(|r| r.iter().map(|f| f.carried(here, &w)).collect()),
-                            ),
-                            None => (st.field.clone(), raw.cloned()),
-                        })
-                    } else {
-                        None
-                    }
-                } else {
-                    None
+                carried = match params.alpha > 0.0 {
+                    true => carry(sim, &st, t, forward, u, here)?,
+                    false => None,
                 };
                 store.save(t, st)?;
             }
@@ -406,6 +332,133 @@ pub fn stylize_sequence_with(
         }
     }
     Ok(())
+}
+
+/// Octave dims from the common domain, as the single-frame pyramid does:
+/// halved (rounded up) until a side would drop under 4 voxels.
+fn octave_dims(full: [usize; 3], octaves: usize) -> Vec<[usize; 3]> {
+    let mut dims = vec![full];
+    for _ in 1..octaves.max(1) {
+        let [x, y, z] = *dims.last().unwrap();
+        let next = [x.div_ceil(2), y.div_ceil(2), z.div_ceil(2)];
+        if next.iter().any(|&k| k < 4) {
+            break;
+        }
+        dims.push(next);
+    }
+    dims
+}
+
+/// A checkpoint must fit the run: the same octaves, and no more sweeps done
+/// than the run makes.
+fn check_resume(resume: Option<SweepMark>, octaves: usize, iterations: usize) -> Result<(), SequenceError> {
+    if let Some(r) = resume {
+        if r.octaves != octaves || r.octave >= octaves || r.sweeps_done > iterations {
+            return Err(SequenceError::Checkpoint(format!(
+                "checkpoint at octave {}/{} sweep {} does not fit a run of {} octaves x {} sweeps",
+                r.octave + 1,
+                r.octaves,
+                r.sweeps_done,
+                octaves,
+                iterations
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The start of an octave of dims `here`: every frame's field (and colour)
+/// carried up from the coarser octave's (`coarser`; none at the coarsest,
+/// whose frames start afresh), with fresh Adam moments.
+fn start_octave(
+    store: &mut dyn StateStore,
+    params: &SequenceParams,
+    n: usize,
+    (here, coarser): ([usize; 3], Option<[usize; 3]>),
+) -> Result<(), SequenceError> {
+    let fp = &params.frame;
+    for t in 0..n {
+        let saved = match coarser {
+            Some(coarser) => load_sized(store, t, coarser)?.map(|s| (s, coarser)),
+            None => None,
+        };
+        let voxels = here.iter().product();
+        let (field, color) = match saved {
+            None => (Field::initial(fp.mode, voxels), params.color.then(|| ColorState::white(voxels))),
+            Some((s, coarser)) => (
+                s.field.resize(coarser, here),
+                s.color.map(|c| c.resize(coarser, here)).or_else(|| params.color.then(|| ColorState::white(voxels))),
+            ),
+        };
+        let len = field.len();
+        store.save(t, FrameState { field, m: vec![0.0; len], v: vec![0.0; len], step: 0, color })?;
+    }
+    Ok(())
+}
+
+/// One sweep's step of a frame's colour: the colour loss over `views` of
+/// the transported density `dstar`, its density gradient added to
+/// `grad_dstar`, and an Adam step (at frame `t`'s `step`) on the colour's
+/// raw channels through the luma-divided chroma. Returns the loss.
+fn color_step(
+    loss: &ViewLoss,
+    cs: &mut ColorState,
+    (t, step): (usize, u64),
+    (dstar, grad_dstar): (&Grid3, &mut [f32]),
+    views: &[ViewSpec],
+) -> Result<f32, SequenceError> {
+    let dims = dstar.dims;
+    let (grids, chroma_tape) = color::chroma(&color::raw_of(&cs.raw), dims, color::SMOOTH_PASSES);
+    let mut grad_color: Vec<Grid3> = (0..3).map(|_| Grid3::zeros(dims)).collect();
+    let mut total = 0.0;
+    for view in views {
+        let (l, g, gc) = loss.loss_and_grad_color(dstar, &grids, view)?;
+        total += l;
+        grad_dstar.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
+        for (acc, g) in grad_color.iter_mut().zip(&gc) {
+            acc.data.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
+        }
+    }
+    let grad_raw = color::chroma_backward(&chroma_tape, &grad_color).concat();
+    let mut raw: Vec<f32> = cs.raw.iter().flat_map(|f| f.params().to_vec()).collect();
+    let mut adam = Adam::new(raw.len(), color::LEARNING_RATE);
+    adam.set_state(&cs.m, &cs.v, step).map_err(|e| SequenceError::Frame { frame: t, message: e.to_string() })?;
+    adam.step(&mut raw, &grad_raw);
+    let (m, v, _) = adam.state();
+    cs.m.copy_from_slice(m);
+    cs.v.copy_from_slice(v);
+    for (f, chunk) in cs.raw.iter_mut().zip(raw.chunks_exact(dstar.len())) {
+        f.params_mut().copy_from_slice(chunk);
+    }
+    cs.constrain();
+    Ok(total)
+}
+
+/// A frame's field and colour channels carried to the next frame's time.
+type Carried = (Field, Option<Vec<Field>>);
+
+/// Frame `t`'s updated field (and colour) carried to the next frame of the
+/// sweep: forward sweeps carry v̂_t along u_t (`u`) to t+1; backward sweeps
+/// carry v̂_t back to t-1 along −u_{t−1}. None at the sweep's end or where
+/// the next frame is not linked to this one.
+fn carry(
+    sim: &dyn Simulation,
+    st: &FrameState,
+    t: usize,
+    forward: bool,
+    u: Option<Vec<[f32; 3]>>,
+    here: [usize; 3],
+) -> Result<Option<Carried>, SequenceError> {
+    let next = if forward { t + 1 } else { t.wrapping_sub(1) };
+    if !(next < sim.len() && sim.linked(if forward { next } else { t })) {
+        return Ok(None);
+    }
+    let disp = if forward { u } else { velocity_at(sim, next, here)?.map(|w| negate(&w)) };
+    let raw = st.color.as_ref().map(|c| &c.raw);
+    Ok(Some(match disp {
+        Some(w) => (st.field.carried(here, &w), raw.map(|r| r.iter().map(|f| f.carried(here, &w)).collect())),
+        None => (st.field.clone(), raw.cloned()),
+    }))
 }
 
 /// Frame `t`'s state, checked to hold one value (scale) or vector (velocity)

@@ -2,6 +2,7 @@
 //! strands of 32 segments on a unit fur ball, 600x600, median of several runs.
 //! Run with `RAYON_NUM_THREADS=2 cargo bench -p nst3d-splat`.
 
+use nst3d_core::stats::median;
 use nst3d_core::{gradcheck::pseudo_random, Image};
 use nst3d_splat::{render, render_backward, SplatCamera, StrandStyle, Strands};
 use std::time::Instant;
@@ -35,11 +36,6 @@ fn fur_ball(n_strands: usize, segments: usize, seed: u64) -> (Vec<[f32; 3]>, Vec
     (points, offsets, normals)
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 fn main() {
     let (points, offsets, normals) = fur_ball(2100, 32, 3);
     let cam = SplatCamera::look_at([0.0, 0.8, 3.4], [0.0; 3], [0.0, 1.0, 0.0], 45.0, 600, 600).unwrap();
@@ -65,9 +61,9 @@ fn main() {
             "splat 2100 strands x 32 seg, 600x600, {label} ({splats} splats, {} threads): \
              forward {:.1} ms, backward {:.1} ms, forward+backward {:.1} ms (median of 9)",
             rayon::current_num_threads(),
-            median(fwd),
-            median(bwd),
-            median(total)
+            median(&fwd),
+            median(&bwd),
+            median(&total)
         );
     }
 }

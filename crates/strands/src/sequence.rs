@@ -62,7 +62,7 @@ use nst3d_core::mesh::TriMesh;
 use nst3d_core::Image;
 use nst3d_features::Vgg19;
 use nst3d_loss::nnst::{nnst_loss, nnst_loss_matched};
-use nst3d_splat::StrandStyle;
+use nst3d_splat::{SplatCamera, StrandStyle};
 
 use crate::field::Kernel;
 use crate::pipeline::{
@@ -351,64 +351,11 @@ impl<'a> SequenceStylizer<'a> {
             None => self.topology = Some(point_counts(groom)),
         }
         let mut scene = StrandScene::new(groom, mesh, &self.params.stylize).map_err(wrap)?;
-        match self.view {
-            Some(v) => {
-                scene.frame = v.frame;
-                scene.distance = v.distance;
-                scene.fov_deg = v.fov_deg;
-                scene.style = v.style;
-            }
-            None => {
-                self.view = Some(LockedView {
-                    frame: scene.frame,
-                    distance: scene.distance,
-                    fov_deg: scene.fov_deg,
-                    style: scene.style,
-                })
-            }
-        }
-        if let Some(prev) = &self.previous {
-            // Same input topology but a different mesh can still grow a
-            // different number of proxies.
-            if prev.undeformed.offsets != scene.undeformed.offsets || prev.samples.len() != scene.field.sample_count() {
-                return Err(SequenceError::Topology {
-                    frame,
-                    reason: format!(
-                        "{} strands × {} points and {} velocity samples after densification, {} × {} and {} before \
-                         (did the mesh change?)",
-                        scene.undeformed.strand_count(),
-                        scene.undeformed.points.len(),
-                        scene.field.sample_count(),
-                        prev.undeformed.strand_count(),
-                        prev.undeformed.points.len(),
-                        prev.samples.len()
-                    ),
-                });
-            }
-        }
+        self.lock_view(&mut scene);
+        self.check_proxies(frame, &scene)?;
 
         // T(v̂ₜ₋₁, uₜ₋₁): the previous field carried to this frame's samples.
-        let transported = match (&self.previous, self.params.ema) {
-            (Some(prev), true) => {
-                let motion: Vec<V3> = match self.params.flow {
-                    Flow::Animation => {
-                        scene.field.samples().iter().zip(&prev.samples).map(|(&o, &q)| sub(o, q)).collect()
-                    }
-                    Flow::Style(s) => vec![s; prev.samples.len()],
-                };
-                let t = transport_velocities(
-                    &prev.samples,
-                    &prev.velocities,
-                    &motion,
-                    scene.field.samples(),
-                    Kernel::InverseDistance,
-                    TRANSPORT_NEIGHBOURS,
-                )
-                .map_err(|e| wrap(e.into()))?;
-                Some(t)
-            }
-            _ => None,
-        };
+        let transported = self.transported(&scene).map_err(wrap)?;
         let (temporal, clock) = (self.params.temporal, self.params.ema_clock);
         let mut ema = |c: IterationClock, v: &mut [[f32; 3]]| -> Result<(), PipelineError> {
             let Some(prev) = &transported else { return Ok(()) };
@@ -441,25 +388,7 @@ impl<'a> SequenceStylizer<'a> {
         let cam = scene.front_camera(self.params.flicker_size).map_err(wrap)?;
         let render_output = scene.render(&strands, &cam).map_err(wrap)?;
         let render_input = scene.render(&scene.undeformed, &cam).map_err(wrap)?;
-        let flicker = match &self.previous {
-            Some(prev) => {
-                let carried: Vec<V3> = scene
-                    .undeformed
-                    .points
-                    .iter()
-                    .zip(prev.output.points.iter().zip(&prev.undeformed.points))
-                    .map(|(&x, (&p, &q))| add(x, sub(p, q)))
-                    .collect();
-                let carried = scene.undeformed.with_points(carried).map_err(|e| wrap(e.into()))?;
-                let render_carried = scene.render(&carried, &cam).map_err(wrap)?;
-                Some(FrameFlicker {
-                    compensated: mean_abs_diff(&render_output, &render_carried),
-                    raw: mean_abs_diff(&render_output, &prev.render_output),
-                    input_raw: mean_abs_diff(&render_input, &prev.render_input),
-                })
-            }
-            None => None,
-        };
+        let flicker = self.flicker(&scene, &cam, (&render_output, &render_input)).map_err(wrap)?;
 
         self.frames += 1;
         for (s, x) in
@@ -495,6 +424,105 @@ impl<'a> SequenceStylizer<'a> {
             strands,
             guides,
             flicker,
+        })
+    }
+
+    /// Every frame is seen through the first frame's camera frame, distance,
+    /// lens and look, so the sequence does not jump with its box.
+    fn lock_view(&mut self, scene: &mut StrandScene) {
+        match self.view {
+            Some(v) => {
+                scene.frame = v.frame;
+                scene.distance = v.distance;
+                scene.fov_deg = v.fov_deg;
+                scene.style = v.style;
+            }
+            None => {
+                self.view = Some(LockedView {
+                    frame: scene.frame,
+                    distance: scene.distance,
+                    fov_deg: scene.fov_deg,
+                    style: scene.style,
+                })
+            }
+        }
+    }
+
+    /// Same input topology but a different mesh can still grow a different
+    /// number of proxies: a frame's field must match the previous one's.
+    fn check_proxies(&self, frame: i64, scene: &StrandScene) -> Result<(), SequenceError> {
+        if let Some(prev) = &self.previous {
+            if prev.undeformed.offsets != scene.undeformed.offsets || prev.samples.len() != scene.field.sample_count() {
+                return Err(SequenceError::Topology {
+                    frame,
+                    reason: format!(
+                        "{} strands × {} points and {} velocity samples after densification, {} × {} and {} before \
+                     (did the mesh change?)",
+                        scene.undeformed.strand_count(),
+                        scene.undeformed.points.len(),
+                        scene.field.sample_count(),
+                        prev.undeformed.strand_count(),
+                        prev.undeformed.points.len(),
+                        prev.samples.len()
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// T(v̂ₜ₋₁, uₜ₋₁): the previous frame's optimized field carried to
+    /// this frame's samples (none for the first frame or without the EMA).
+    fn transported(&self, scene: &StrandScene) -> Result<Option<Vec<V3>>, PipelineError> {
+        Ok(match (&self.previous, self.params.ema) {
+            (Some(prev), true) => {
+                let motion: Vec<V3> = match self.params.flow {
+                    Flow::Animation => {
+                        scene.field.samples().iter().zip(&prev.samples).map(|(&o, &q)| sub(o, q)).collect()
+                    }
+                    Flow::Style(s) => vec![s; prev.samples.len()],
+                };
+                let t = transport_velocities(
+                    &prev.samples,
+                    &prev.velocities,
+                    &motion,
+                    scene.field.samples(),
+                    Kernel::InverseDistance,
+                    TRANSPORT_NEIGHBOURS,
+                )
+                .map_err(PipelineError::from)?;
+                Some(t)
+            }
+            _ => None,
+        })
+    }
+
+    /// The flicker of this frame's front render against the previous
+    /// frame's: motion-compensated, raw, and the input's raw.
+    fn flicker(
+        &self,
+        scene: &StrandScene,
+        cam: &SplatCamera,
+        (render_output, render_input): (&Image, &Image),
+    ) -> Result<Option<FrameFlicker>, PipelineError> {
+        Ok(match &self.previous {
+            Some(prev) => {
+                let carried: Vec<V3> = scene
+                    .undeformed
+                    .points
+                    .iter()
+                    .zip(prev.output.points.iter().zip(&prev.undeformed.points))
+                    .map(|(&x, (&p, &q))| add(x, sub(p, q)))
+                    .collect();
+                let carried = scene.undeformed.with_points(carried).map_err(PipelineError::from)?;
+                let render_carried = scene.render(&carried, cam)?;
+                Some(FrameFlicker {
+                    compensated: mean_abs_diff(render_output, &render_carried),
+                    raw: mean_abs_diff(render_output, &prev.render_output),
+                    input_raw: mean_abs_diff(render_input, &prev.render_input),
+                })
+            }
+            None => None,
         })
     }
 

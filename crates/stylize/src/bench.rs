@@ -12,6 +12,10 @@ use nst3d_transport as transport;
 use crate::field::{Field, Mode};
 use crate::view::{StyleSpec, ViewLoss, ViewSpec};
 
+/// Median as Python's `statistics.median` computes it, so our figures and
+/// the PyTorch peer's compare.
+pub use nst3d_core::stats::median;
+
 /// Timings of a benchmark run.
 #[derive(Clone, Debug)]
 pub struct BenchReport {
@@ -107,16 +111,4 @@ pub fn volume_iter_with(n: usize, mode: Mode, iters: usize, color: bool) -> Benc
     }
     let median_ms = median(&times);
     BenchReport { iteration_ms: times, median_ms, last_loss }
-}
-
-/// Median as Python's `statistics.median` computes it (mean of the two
-/// middle values for an even count), so our number and the peer's compare.
-pub fn median(values: &[f64]) -> f64 {
-    let mut v = values.to_vec();
-    v.sort_by(|a, b| a.total_cmp(b));
-    match v.len() {
-        0 => 0.0,
-        n if n % 2 == 1 => v[n / 2],
-        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
-    }
 }

@@ -35,39 +35,23 @@
 //!   iteration costs one colour render and two VGG passes (colour and
 //!   guard); 160 such iterations measured as strong (0.65–0.66) as 40
 //!   steps that summed all 16 views (640 passes, 0.65).
+//!
+//! The schedule, the view count and the guard's weight are the strands'
+//! colour stage's too ([`nst3d_optim::color_stage`]); this module is the
+//! smoke's step: a colour grid (and the density's scale) rendered and
+//! differentiated through the volume renderer.
 
 use nst3d_core::Grid3;
-use nst3d_optim::Adam;
+use nst3d_optim::{optimise_in_turn, Adam};
 
 use crate::field::{Field, Limits};
 use crate::view::{ViewError, ViewLoss, ViewSpec};
 
-/// Cameras the colour stage looks from: an omniview set of this many
-/// (Sec. 4's Poisson-disk cameras on a sphere), built by the caller at the
-/// job's lens and absorption.
-pub const COLOR_VIEWS: usize = 16;
+pub use nst3d_optim::color_stage::{COLOR_VIEWS, GREY_GUARD};
 
 /// Range of each colour channel: white is 1, so a voxel may darken to
 /// black or brighten to twice its grey emission per channel.
 pub const COLOR_RANGE: (f32, f32) = (0.0, 2.0);
-
-/// Weight of the grey guard: the grey loss (Gram loss to the painting's
-/// luminance) of the colour render's luminance, added to the colour loss,
-/// as the strands' colour stage guards the hair (the same weight, measured
-/// there). On smoke_000003 at the defaults (`nst3d judge --color` against
-/// the grey result, 8 held-out views, median; docs/design/color.md):
-///
-/// | layer | painting | colour | colour on the smoke | grey |
-/// | --- | --- | --- | --- | --- |
-/// | luminance 1 (before) | Woman with a Hat | 0.595 | 0.490 | 1.000 |
-/// | free, guard 1 | Woman with a Hat | 0.582 | 0.367 | 0.758 |
-/// | luminance 1 (before) | Starry Night | 0.845 | 0.704 | 1.000 |
-/// | free, guard 1 | Starry Night | 0.827 | 0.661 | 0.903 |
-/// | free, guard 1 (not tuned on) | Shipwreck | 0.658 | 0.250 | 0.770 |
-///
-/// The colour gets closer to the painting and the grey look too: with
-/// brightness free the stage also draws the painting's light and dark.
-pub const GREY_GUARD: f32 = 1.0;
 
 /// Weight of the smoke term: the colour loss over the smoke only (the Gram
 /// matrices summed over the VGG cells that show smoke, divided by their
@@ -177,10 +161,10 @@ pub struct ColorResult {
     /// The density the colour belongs to: the one given, scaled by the
     /// optimised field with [`ColorStageParams::density`].
     pub density: Grid3,
-    /// The stage's loss (colour plus guard) summed over the first sweep: as
+    /// The stage's loss (colour plus guard), mean over the first sweep: as
     /// many iterations as there are views, starting from white smoke.
     pub loss_first_sweep: f32,
-    /// The same sum over the last as many iterations.
+    /// The same mean over the last as many iterations.
     pub loss_last_sweep: f32,
 }
 
@@ -202,8 +186,6 @@ pub fn stylize_color(
     params: &ColorStageParams,
     progress: &mut dyn FnMut(&ColorProgress),
 ) -> Result<ColorResult, ViewError> {
-    assert!(!views.is_empty(), "the colour stage needs at least one view");
-    let n = views.len();
     let iterations = params.iterations.max(1);
     let (lo, hi) = COLOR_RANGE;
     let (guard_w, lr) = (params.grey_guard, params.learning_rate);
@@ -214,20 +196,13 @@ pub fn stylize_color(
         let limits = Limits { vmax: 0.0, smin: j.smin, smax: j.smax };
         (Field::identity(crate::Mode::Density, d.len()), Adam::new(d.len(), j.learning_rate), limits)
     });
-    let (mut first, mut last) = (0.0, 0.0);
     let guard = (guard_w > 0.0).then_some((grey, guard_w));
-    for it in 0..iterations {
+    let sweeps = optimise_in_turn(views, iterations, |it, view| {
         let scaled = joint.as_ref().map(|(field, _, _)| field.forward(d));
         let density = scaled.as_ref().map_or(d, |(dd, _)| dd);
         let (l, l_grey, grad_d, grad) =
-            loss.loss_and_grad_color_guarded(density, &color, &views[it % n], params.smoke_term, guard)?;
+            loss.loss_and_grad_color_guarded(density, &color, view, params.smoke_term, guard)?;
         let l = l + guard_w * l_grey;
-        if it < n {
-            first += l;
-        }
-        if it + n >= iterations {
-            last += l;
-        }
         for ((c, a), g) in color.iter_mut().zip(&mut adam).zip(&grad) {
             a.step(&mut c.data, &g.data);
             c.data.iter_mut().for_each(|x| *x = x.clamp(lo, hi));
@@ -240,10 +215,11 @@ pub fn stylize_color(
         }
         progress(&ColorProgress { iteration: it + 1, iterations, loss: l });
         nst3d_core::stop::check()?;
-    }
+        Ok::<f32, ViewError>(l)
+    })?;
     let density = match &joint {
         Some((field, _, _)) => field.transport(d),
         None => d.clone(),
     };
-    Ok(ColorResult { color, density, loss_first_sweep: first, loss_last_sweep: last })
+    Ok(ColorResult { color, density, loss_first_sweep: sweeps.first, loss_last_sweep: sweeps.last })
 }

@@ -13,9 +13,9 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use nst3d_core::{math::SplitMix64, Grid3, Reporter};
 use nst3d_features::Vgg19;
+use nst3d_job::{expand_pattern, FrameSpec};
 use nst3d_network::{FeedForward, Model};
 use nst3d_optim::OneCycle;
-use nst3d_sequence::{expand_pattern, FrameSpec};
 use nst3d_stylize::{StyleSpec, ViewLoss, ViewSpec};
 
 use crate::axes::ViewAxes;
@@ -209,7 +209,7 @@ fn load_frames(s: &TrainSettings) -> Result<Vec<Grid3>> {
 fn fingerprint(s: &TrainSettings) -> String {
     let mut a = s.clone();
     (a.minutes, a.out, a.checkpoint_every) = (None, PathBuf::new(), 0);
-    nst3d_sequence::settings_key(&a, true)
+    nst3d_job::settings_key(&a, true)
 }
 
 struct Checkpoint {
@@ -353,10 +353,8 @@ fn write_outputs(
         .with_context(|| format!("cannot write the loss curve {}", curve.display()))
 }
 
-/// Trains (or resumes training) the network `s` describes.
-pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainReport> {
-    let inputs: Vec<&Path> = s.frames.iter().map(PathBuf::as_path).collect();
-    nst3d_io::atomic::check_output("--out", &s.out, &[], &inputs).map_err(anyhow::Error::msg)?;
+/// The settings' limits, checked before anything is loaded.
+fn check_settings(s: &TrainSettings) -> Result<()> {
     if !s.patch.is_multiple_of(4) || !(16..=256).contains(&s.patch) {
         bail!("--patch must be a multiple of 4 from 16 to 256, got {}", s.patch);
     }
@@ -373,6 +371,127 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
             s.octaves
         );
     }
+    Ok(())
+}
+
+/// What a resumed run takes from its checkpoint besides the trainer's state.
+struct Resumed {
+    rng: SplitMix64,
+    losses: Vec<f32>,
+    lrs: Vec<f32>,
+    /// Whether the schedule goes on being paced by the clock.
+    paced: bool,
+    /// Training time of earlier calls.
+    elapsed_before: f64,
+}
+
+/// Resume: the checkpoint's network, Adam moments, schedule and position
+/// set in `trainer`, and the rest of its state; `None` without one.
+fn resume(
+    trainer: &mut TrainStep,
+    ckpt: &Path,
+    s: &TrainSettings,
+    reporter: &mut dyn Reporter,
+) -> Result<Option<Resumed>> {
+    let Some(c) = load_checkpoint(ckpt, s)? else {
+        return Ok(None);
+    };
+    trainer.net = c.net;
+    trainer.set_adam_state(&c.m, &c.v, c.step)?;
+    trainer.set_position(c.position);
+    // A resumed run keeps the schedule it was planned with, and a
+    // paced one goes on being paced by what is left of its budget.
+    trainer.schedule = OneCycle::new(1e-4, c.planned_steps, 20.0);
+    let paced = c.clock.paced && s.minutes.is_some();
+    let elapsed_before = c.clock.elapsed_s;
+    let left = match s.minutes {
+        Some(m) if elapsed_before > 0.0 => {
+            format!(", {:.1} of its {m} minutes left", (m - elapsed_before / 60.0).max(0.0))
+        }
+        _ => String::new(),
+    };
+    // A paced run's steps and its schedule's position part ways (the
+    // clock moves the schedule), so it says both.
+    let at = if paced {
+        format!("after {} steps, the schedule at {:.0} of {}", c.step, c.position, c.planned_steps)
+    } else {
+        format!("at step {} of {}", c.step + 1, c.planned_steps)
+    };
+    reporter.status(&format!("resuming {at} from {}{left}", ckpt.display()));
+    Ok(Some(Resumed { rng: SplitMix64::new(c.rng), losses: c.losses, lrs: c.lrs, paced, elapsed_before }))
+}
+
+/// A training patch: a random frame, a random corner, a random rotation
+/// about x and y within the settings' ranges and a random mirror (Sec. 5.1).
+fn sample_patch(rng: &mut SplitMix64, frames: &[Grid3], s: &TrainSettings) -> Grid3 {
+    let d = &frames[(rng.next_u64() % frames.len() as u64) as usize];
+    let origin: [usize; 3] = std::array::from_fn(|a| (rng.next_u64() % (d.dims[a] - s.patch + 1) as u64) as usize);
+    let rot = Rotation {
+        theta: (2.0 * rng.uniform_f32() - 1.0) * s.theta_deg.to_radians(),
+        phi: (2.0 * rng.uniform_f32() - 1.0) * s.phi_deg.to_radians(),
+        mirror: rng.uniform_f32() < 0.5,
+    };
+    rotated_patch(d, origin, s.patch, &rot)
+}
+
+/// How the schedule follows the clock.
+struct Pacing {
+    /// Given only a budget, until the calibration steps are timed.
+    sizing: bool,
+    /// The schedule is paced by the clock (after sizing, or resumed so).
+    paced: bool,
+    /// Seconds a step at the recent rate.
+    step_s: f64,
+}
+
+impl Pacing {
+    /// Given only a budget: after the calibration steps the schedule is
+    /// sized to the steps the measured rate fits in it; from then on the
+    /// schedule is paced by the clock (each step advances it by what is
+    /// left of it over the steps the recent rate still fits), so it ends
+    /// with the budget however busy the machine gets. `done`: steps of this
+    /// call, `elapsed`: its seconds, `dt`: the last step's.
+    fn after_step(
+        &mut self,
+        trainer: &mut TrainStep,
+        s: &TrainSettings,
+        (done, elapsed, dt): (u64, f64, f64),
+        elapsed_before: f64,
+        reporter: &mut dyn Reporter,
+    ) {
+        let budget_s = 60.0 * s.minutes.unwrap_or_default();
+        if self.sizing {
+            if done == CALIBRATION_STEPS {
+                let total = sized_steps(trainer.steps(), elapsed, budget_s);
+                trainer.schedule = OneCycle::new(1e-4, total, 20.0);
+                reporter.status(&format!(
+                    "{:.0} ms a step over the first {done}: the OneCycle schedule is sized to {total} steps \
+                     for {} min and paced by the clock",
+                    1e3 * elapsed / done as f64,
+                    s.minutes.unwrap_or_default()
+                ));
+                reporter.end();
+                reporter.begin(total.saturating_sub(trainer.position().floor() as u64));
+                self.step_s = elapsed / done as f64;
+                (self.sizing, self.paced) = (false, true);
+            }
+        } else if self.paced {
+            // The recent rate: a machine that got busier is seen within ~20
+            // steps (a resumed run starts from its first step's time).
+            self.step_s = if self.step_s == 0.0 { dt } else { 0.9 * self.step_s + 0.1 * dt };
+            // 2 % kept back for the checkpoints and the final write, as in sizing.
+            let steps_left = ((0.98 * budget_s - elapsed_before - elapsed) / self.step_s.max(1e-9)).max(1.0);
+            let left = trainer.schedule.total_steps as f64 - trainer.position();
+            trainer.pace = (left / steps_left).clamp(0.0, 8.0);
+        }
+    }
+}
+
+/// Trains (or resumes training) the network `s` describes.
+pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainReport> {
+    let inputs: Vec<&Path> = s.frames.iter().map(PathBuf::as_path).collect();
+    nst3d_io::atomic::check_output("--out", &s.out, &[], &inputs).map_err(anyhow::Error::msg)?;
+    check_settings(s)?;
     let frames = load_frames(s)?;
     let style_img = nst3d_io::image::luminance_rgb(&nst3d_io::image::load_style(&s.style, s.style_scale)?);
     let style_sha = nst3d_weights::sha256_file(&s.style)?;
@@ -384,7 +503,7 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     // Given only a budget, the schedule is sized after the first steps are
     // timed; until then it is provisionally the default one (the first steps
     // of any OneCycle sit at its initial rate, so the switch is seamless).
-    let mut sizing = s.steps.is_none() && s.minutes.is_some();
+    let mut pacing = Pacing { sizing: s.steps.is_none() && s.minutes.is_some(), paced: false, step_s: 0.0 };
     let planned = s.steps.unwrap_or(DEFAULT_STEPS);
     let mut trainer = TrainStep::new(net, stylization, OneCycle::new(1e-4, planned, 20.0));
     trainer.octaves = s.octaves;
@@ -392,37 +511,12 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     let (mut losses, mut lrs) = (Vec::new(), Vec::new());
     let ckpt = checkpoint_path(&s.out);
     // Two blades training one model would interleave their checkpoints.
-    let _lock = nst3d_sequence::WorkLock::acquire(&ckpt).map_err(anyhow::Error::msg)?;
+    let _lock = nst3d_job::WorkLock::acquire(&ckpt).map_err(anyhow::Error::msg)?;
     // Training time of earlier calls; the budget is the run's, not the call's.
     let mut elapsed_before = 0.0f64;
-    // Whether the schedule is paced by the clock (after sizing, or resumed so).
-    let mut paced = false;
-    if let Some(c) = load_checkpoint(&ckpt, s)? {
-        trainer.net = c.net;
-        trainer.set_adam_state(&c.m, &c.v, c.step)?;
-        trainer.set_position(c.position);
-        rng = SplitMix64::new(c.rng);
-        (losses, lrs) = (c.losses, c.lrs);
-        // A resumed run keeps the schedule it was planned with, and a
-        // paced one goes on being paced by what is left of its budget.
-        trainer.schedule = OneCycle::new(1e-4, c.planned_steps, 20.0);
-        sizing = false;
-        paced = c.clock.paced && s.minutes.is_some();
-        elapsed_before = c.clock.elapsed_s;
-        let left = match s.minutes {
-            Some(m) if elapsed_before > 0.0 => {
-                format!(", {:.1} of its {m} minutes left", (m - elapsed_before / 60.0).max(0.0))
-            }
-            _ => String::new(),
-        };
-        // A paced run's steps and its schedule's position part ways (the
-        // clock moves the schedule), so it says both.
-        let at = if paced {
-            format!("after {} steps, the schedule at {:.0} of {}", c.step, c.position, c.planned_steps)
-        } else {
-            format!("at step {} of {}", c.step + 1, c.planned_steps)
-        };
-        reporter.status(&format!("resuming {at} from {}{left}", ckpt.display()));
+    if let Some(r) = resume(&mut trainer, &ckpt, s, reporter)? {
+        (rng, losses, lrs, elapsed_before) = (r.rng, r.losses, r.lrs, r.elapsed_before);
+        (pacing.sizing, pacing.paced) = (false, r.paced);
     }
     let resumed_at = trainer.steps();
     // γ = 8/P as the benchmark: the densest ray of a full patch gets optical
@@ -434,17 +528,10 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     let gamma = 8.0 / s.patch as f32;
     let view = ViewSpec { camera: None, gamma, exposure: gamma, equalize: false };
     let t0 = Instant::now();
-    let (mut last_step, mut step_s) = (Instant::now(), 0.0f64);
+    let mut last_step = Instant::now();
     reporter.begin(trainer.schedule.total_steps.saturating_sub(trainer.position().floor() as u64));
     while !trainer.schedule_done() {
-        let d = &frames[(rng.next_u64() % frames.len() as u64) as usize];
-        let origin: [usize; 3] = std::array::from_fn(|a| (rng.next_u64() % (d.dims[a] - s.patch + 1) as u64) as usize);
-        let rot = Rotation {
-            theta: (2.0 * rng.uniform_f32() - 1.0) * s.theta_deg.to_radians(),
-            phi: (2.0 * rng.uniform_f32() - 1.0) * s.phi_deg.to_radians(),
-            mirror: rng.uniform_f32() < 0.5,
-        };
-        let patch = rotated_patch(d, origin, s.patch, &rot);
+        let patch = sample_patch(&mut rng, &frames, s);
         let before = trainer.position().floor() as u64;
         let axes = s.view_axes.pick(|| rng.uniform_f32());
         let l = trainer.step(&patch, &loss, &view, &axes)?;
@@ -463,42 +550,12 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         }
         losses.push(l);
         lrs.push(trainer.last_lr());
-        // Given only a budget: after the calibration steps the schedule is
-        // sized to the steps the measured rate fits in it; from then on the
-        // schedule is paced by the clock (each step advances it by what is
-        // left of it over the steps the recent rate still fits), so it ends
-        // with the budget however busy the machine gets.
         let now = Instant::now();
         let dt = (now - last_step).as_secs_f64();
         last_step = now;
-        let budget_s = 60.0 * s.minutes.unwrap_or_default();
-        let elapsed = t0.elapsed().as_secs_f64();
         let done = trainer.steps() - resumed_at;
-        if sizing {
-            if done == CALIBRATION_STEPS {
-                let total = sized_steps(trainer.steps(), elapsed, budget_s);
-                trainer.schedule = OneCycle::new(1e-4, total, 20.0);
-                reporter.status(&format!(
-                    "{:.0} ms a step over the first {done}: the OneCycle schedule is sized to {total} steps \
-                     for {} min and paced by the clock",
-                    1e3 * elapsed / done as f64,
-                    s.minutes.unwrap_or_default()
-                ));
-                reporter.end();
-                reporter.begin(total.saturating_sub(trainer.position().floor() as u64));
-                step_s = elapsed / done as f64;
-                (sizing, paced) = (false, true);
-            }
-        } else if paced {
-            // The recent rate: a machine that got busier is seen within ~20
-            // steps (a resumed run starts from its first step's time).
-            step_s = if step_s == 0.0 { dt } else { 0.9 * step_s + 0.1 * dt };
-            // 2 % kept back for the checkpoints and the final write, as in sizing.
-            let steps_left = ((0.98 * budget_s - elapsed_before - elapsed) / step_s.max(1e-9)).max(1.0);
-            let left = trainer.schedule.total_steps as f64 - trainer.position();
-            trainer.pace = (left / steps_left).clamp(0.0, 8.0);
-        }
-        let clock = Clock { elapsed_s: elapsed_before + t0.elapsed().as_secs_f64(), paced };
+        pacing.after_step(&mut trainer, s, (done, t0.elapsed().as_secs_f64(), dt), elapsed_before, reporter);
+        let clock = Clock { elapsed_s: elapsed_before + t0.elapsed().as_secs_f64(), paced: pacing.paced };
         let out_of_time = s.minutes.is_some_and(|m| clock.elapsed_s >= 60.0 * m);
         // A stopped run checkpoints first, so rerunning it resumes at this step.
         let stop = nst3d_core::stop::requested();
@@ -520,7 +577,7 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         resumed_at,
         planned_steps: trainer.schedule.total_steps,
         schedule_done: trainer.schedule_done(),
-        sized: paced,
+        sized: pacing.paced,
         loss_first: mean(&losses[..tenth.min(losses.len())]),
         loss_last: mean(&losses[losses.len().saturating_sub(tenth)..]),
         out: s.out.clone(),

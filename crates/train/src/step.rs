@@ -6,56 +6,13 @@
 use crate::axes::{turn_to_z, turn_to_z_backward, Axis};
 use nst3d_core::Grid3;
 use nst3d_network::{FeedForward, Volume};
+// The inference half lives with the network (the volume job applies a
+// trained model without the training crate); re-exported for the trainer.
+pub use nst3d_network::apply::{apply, apply_with_strength, mass_ratio, velocity_field, Stylization, MASS_PINNED};
 use nst3d_optim::{clip_grad_norm, Adam, OneCycle};
 use nst3d_stylize::frame::view_at;
 use nst3d_stylize::{ViewError, ViewLoss, ViewSpec};
-use nst3d_transport::{advect_linear, advect_linear_backward, downsample2, downsample2_backward};
-
-/// How the network's output changes the density.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Stylization {
-    /// `d* = d · s`, `s = 1 + tanh(o) ∈ [0, 2]` (eq. 3, one output channel).
-    Density,
-    /// `d* = I(d, g + v)`, `v = vmax · tanh(o)` voxels (eq. 1, three channels).
-    Velocity {
-        /// Largest displacement per axis, in voxels.
-        vmax: f32,
-    },
-}
-
-impl Stylization {
-    /// Output channels the network needs.
-    pub fn channels(self) -> usize {
-        match self {
-            Stylization::Density => 1,
-            Stylization::Velocity { .. } => 3,
-        }
-    }
-}
-
-/// `d*` from the density `d` and the network's raw output `o`.
-pub fn apply(d: &Grid3, o: &Volume, s: Stylization) -> Grid3 {
-    apply_with_strength(d, o, s, 1.0)
-}
-
-/// [`apply`] with the stylization raised to `strength` (inference only; 1 is
-/// the trained network): density mode scales by `s^strength` (the log-scale
-/// field times `strength`), velocity mode moves by `strength · v`.
-pub fn apply_with_strength(d: &Grid3, o: &Volume, s: Stylization, strength: f32) -> Grid3 {
-    match s {
-        Stylization::Density => Grid3::from_vec(
-            d.dims,
-            d.data.iter().zip(&o.data).map(|(d, o)| d * (1.0 + o.tanh()).powf(strength)).collect(),
-        ),
-        Stylization::Velocity { vmax } => advect_linear(d, &velocity(o, strength * vmax)),
-    }
-}
-
-/// `vmax · tanh(o)` as one `[x, y, z]` vector per voxel.
-fn velocity(o: &Volume, vmax: f32) -> Vec<[f32; 3]> {
-    let n = o.voxels();
-    (0..n).map(|i| std::array::from_fn(|a| vmax * o.data[a * n + i].tanh())).collect()
-}
+use nst3d_transport::{advect_linear_backward, downsample2, downsample2_backward};
 
 /// Backward of [`apply`]: `∂L/∂o` from `∂L/∂d*`.
 pub fn apply_backward(d: &Grid3, o: &Volume, s: Stylization, grad: &[f32]) -> Volume {
@@ -70,7 +27,7 @@ pub fn apply_backward(d: &Grid3, o: &Volume, s: Stylization, grad: &[f32]) -> Vo
         Stylization::Velocity { vmax } => {
             let n = o.voxels();
             let mut gv = vec![[0.0f32; 3]; n];
-            advect_linear_backward(d, &velocity(o, vmax), grad, &mut gv);
+            advect_linear_backward(d, &velocity_field(o, vmax), grad, &mut gv);
             let mut out = Volume::zeros(3, o.dims);
             for a in 0..3 {
                 for i in 0..n {
@@ -97,15 +54,6 @@ pub fn conserve_mass(d: &Grid3, dstar: &Grid3) -> (Grid3, f32) {
     (Grid3::from_vec(dstar.dims, dstar.data.iter().map(|v| v * k).collect()), k)
 }
 
-/// `Σ before / Σ after`, or 1 when either is not positive (nothing to keep).
-pub fn mass_ratio(before: f64, after: f64) -> f32 {
-    if before > 0.0 && after > 0.0 {
-        (before / after) as f32
-    } else {
-        1.0
-    }
-}
-
 /// Backward of [`conserve_mass`] w.r.t. the unscaled `dstar`, given
 /// `grad = ∂L/∂(k d*)`: `k g_m − (k / Σ d*) Σ_i g_i d*_i` (`k` depends on
 /// every voxel through `Σ d*`).
@@ -118,10 +66,6 @@ pub fn conserve_mass_backward(dstar: &Grid3, k: f32, grad: &[f32]) -> Vec<f32> {
     let shift = (k as f64 * dot / total) as f32;
     grad.iter().map(|g| k * g - shift).collect()
 }
-
-/// The `mass` a density model trained with [`scale_pin`] declares in its
-/// metadata (velocity models and older density models say `conserved`).
-pub const MASS_PINNED: &str = "conserved, scale pinned";
 
 /// Weight `λ` of the density-mode scale pin ([`scale_pin`]).
 pub const SCALE_PIN: f32 = 100.0;

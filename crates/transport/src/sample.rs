@@ -37,6 +37,16 @@ impl Region {
     fn len(&self) -> usize {
         self.dims.iter().product()
     }
+
+    /// The box from corner `lo` to corner `hi`, both included; empty when
+    /// `lo` is past `hi` (no cell touched).
+    fn spanning(lo: [isize; 3], hi: [isize; 3]) -> Self {
+        if lo[0] > hi[0] {
+            Self { origin: [0; 3], dims: [0; 3] }
+        } else {
+            Self { origin: lo, dims: std::array::from_fn(|a| (hi[a] - lo[a] + 1) as usize) }
+        }
+    }
 }
 
 /// Lower cell corner and fractional offsets of `p`, or `None` when all eight
@@ -237,16 +247,7 @@ pub fn sample_trilinear_rows_backward(
     let Some(grad_grid) = grad_grid else {
         // Only the position gradient: independent per sample, no scatter.
         if let Some(gp) = grad_pos {
-            gp.par_chunks_mut(row_len).zip(grad_out.par_chunks(row_len)).enumerate().for_each_init(
-                Vec::new,
-                |pos, (r, (gp_row, g_row))| {
-                    pos.resize(gp_row.len(), [0f32; 3]);
-                    fill_row(r, pos);
-                    for ((gp, &g), &p) in gp_row.iter_mut().zip(g_row).zip(pos.iter()) {
-                        *gp = sample_taps::<true>(&grid.data, grid.dims, p).1.map(|x| x * g);
-                    }
-                },
-            );
+            position_gradient_rows(grid, row_len, &fill_row, grad_out, gp);
         }
         return;
     };
@@ -294,11 +295,7 @@ pub fn sample_trilinear_rows_backward(
                     }
                 }
             }
-            let region = if lo[0] > hi[0] {
-                Region { origin: [0; 3], dims: [0; 3] }
-            } else {
-                Region { origin: lo, dims: std::array::from_fn(|a| (hi[a] - lo[a] + 1) as usize) }
-            };
+            let region = Region::spanning(lo, hi);
             let mut buf = vec![0f32; region.len()];
             for r in r0..r1 {
                 fill(r, &mut pos);
@@ -326,9 +323,15 @@ pub fn sample_trilinear_rows_backward(
         })
         .collect();
 
-    let [nx, ny, _] = grid.dims;
+    add_partials(grad_grid, grid.dims, &partials);
+}
+
+/// Sums the threads' private buffers (each covering `region` of a grid of
+/// `dims`) into `grad_grid`, in parallel over its z-slices.
+fn add_partials(grad_grid: &mut [f32], dims: [usize; 3], partials: &[(Region, Vec<f32>)]) {
+    let [nx, ny, _] = dims;
     grad_grid.par_chunks_mut(nx * ny).enumerate().for_each(|(z, slice)| {
-        for (region, buf) in &partials {
+        for (region, buf) in partials {
             let [ox, oy, oz] = region.origin.map(|o| o as usize);
             let [dx, dy, dz] = region.dims;
             if z < oz || z >= oz + dz {
@@ -343,6 +346,27 @@ pub fn sample_trilinear_rows_backward(
             }
         }
     });
+}
+
+/// The position gradient alone of [`sample_trilinear_rows_backward`]:
+/// independent per sample, so parallel over rows with no scatter.
+fn position_gradient_rows(
+    grid: &Grid3,
+    row_len: usize,
+    fill_row: &(impl Fn(usize, &mut [[f32; 3]]) + Sync),
+    grad_out: &[f32],
+    gp: &mut [[f32; 3]],
+) {
+    gp.par_chunks_mut(row_len).zip(grad_out.par_chunks(row_len)).enumerate().for_each_init(
+        Vec::new,
+        |pos, (r, (gp_row, g_row))| {
+            pos.resize(gp_row.len(), [0f32; 3]);
+            fill_row(r, pos);
+            for ((gp, &g), &p) in gp_row.iter_mut().zip(g_row).zip(pos.iter()) {
+                *gp = sample_taps::<true>(&grid.data, grid.dims, p).1.map(|x| x * g);
+            }
+        },
+    );
 }
 
 #[cfg(test)]

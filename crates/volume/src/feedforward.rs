@@ -11,11 +11,11 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use nst3d_core::{Grid3, Reporter};
 use nst3d_io::vdb::{read_vdb, GridValues, SparseGrid, VdbGrid, LEAF_DIM};
+use nst3d_job::{expand_pattern, FrameSpec};
+use nst3d_network::apply::{apply_with_strength, mass_ratio, Stylization, MASS_PINNED};
 use nst3d_network::tiled::infer_tiles;
 use nst3d_network::{Model, Volume};
-use nst3d_sequence::{expand_pattern, FrameSpec};
 use nst3d_stylize::Mode;
-use nst3d_train::step::{apply_with_strength, mass_ratio, Stylization};
 
 use crate::output::write_stylized_grid;
 use crate::settings::{ModelSettings, VolumeSettings};
@@ -257,7 +257,7 @@ fn one_frame(
 /// model `m`, each frame on its own.
 pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut dyn Reporter) -> Result<ModelReport> {
     let (model, mode, vmax) = load_model(m)?;
-    if mode == Mode::Density && model.info.get("mass").map(String::as_str) != Some(nst3d_train::step::MASS_PINNED) {
+    if mode == Mode::Density && model.info.get("mass").map(String::as_str) != Some(MASS_PINNED) {
         reporter.note(&format!(
             "{} was trained before the density scale pin: on smoke unlike its training data it can lift faint \
              haze many times over (docs/design/feedforward.md); retrain it to fix that",

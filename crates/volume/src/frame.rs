@@ -9,14 +9,17 @@
 //! scaling it with the colour, and the file gets that density.
 //! A before | after | painting preview is rendered from the first camera.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use nst3d_core::Grid3;
 use nst3d_core::Reporter;
+use nst3d_core::{Grid3, Image};
 use nst3d_io::image::{resize_to_height, side_by_side, write_png};
 use nst3d_io::vdb::{read_vdb, Transform};
-use nst3d_stylize::{stylize_color, stylize_frame_views, ColorStageParams, JointDensity, Mode, ViewLoss, COLOR_VIEWS};
+use nst3d_stylize::{
+    stylize_color, stylize_frame_views, ColorStageParams, FrameParams, JointDensity, Mode, ViewLoss, ViewSpec,
+    COLOR_VIEWS,
+};
 
 use crate::cameras::{CameraSet, Cameras, Lens};
 use crate::dense::pad;
@@ -146,6 +149,82 @@ pub fn stylize_frame_file(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Re
     })
 }
 
+/// A grid too small for strokes stylized `k` times finer (its transform and
+/// origin refined with it); with `k` = 1 the grid as it is.
+fn refine(
+    dense: Grid3,
+    k: usize,
+    transform: &Transform,
+    origin: [i32; 3],
+    name: &str,
+    reporter: &mut dyn Reporter,
+) -> Result<(Grid3, Transform, [i32; 3])> {
+    let dims = dense.dims;
+    Ok(match k {
+        1 => (dense, transform.clone(), origin),
+        _ => {
+            let refined = refine_density(&dense, k);
+            reporter.note(&format!(
+                "grid '{name}' is {}x{}x{} voxels, too few for strokes; it is stylized and written {k}x finer ({}x{}x{}; --upsample 1 keeps the file's resolution)",
+                dims[0], dims[1], dims[2], refined.dims[0], refined.dims[1], refined.dims[2]
+            ));
+            (refined, refine_transform(transform, k), refine_origin(origin, k)?)
+        }
+    })
+}
+
+/// The colour stage of a frame: [`COLOR_VIEWS`] times the density's
+/// iterations per octave, at the colour layer's rate, guarded.
+fn color_stage_params(s: &VolumeSettings, params: &FrameParams) -> ColorStageParams {
+    ColorStageParams {
+        iterations: COLOR_VIEWS * s.iterations(),
+        learning_rate: nst3d_stylize::color::LEARNING_RATE,
+        grey_guard: nst3d_stylize::color_stage::GREY_GUARD,
+        smoke_term: nst3d_stylize::color_stage::SMOKE_TERM,
+        // The density moves with the colour within the job's own scale
+        // limits (its --smin/--smax and strength), whatever the mode.
+        density: Some(JointDensity {
+            learning_rate: nst3d_stylize::color_stage::JOINT_DENSITY_RATE,
+            smin: params.limits.smin,
+            smax: params.limits.smax,
+        }),
+    }
+}
+
+/// The preview: before | after | the painting, all scaled to one readable
+/// height (`grids`: the input, the stylized density and its colour).
+fn write_preview(
+    path: &Path,
+    loss: &ViewLoss,
+    view: &ViewSpec,
+    (input, density, color): (&Grid3, &Grid3, Option<&[Grid3]>),
+    style: &Image,
+) -> Result<()> {
+    // Before | after | the painting, all scaled to one readable height.
+    let h = PREVIEW_HEIGHT;
+    let before = resize_to_height(&display(loss, input, view)?, h);
+    let after = match color {
+        None => display(loss, density, view)?,
+        Some(c) => nst3d_render::upsample2x(&nst3d_stylize::color_view_image(density, c, view)?),
+    };
+    let after = resize_to_height(&after, h);
+    let painting = resize_to_height(style, h);
+    write_png(path, &side_by_side(&[&before, &after, &painting]))?;
+    Ok(())
+}
+
+/// The views of `--eval-cameras` around the padded grid (none without).
+fn held_out_views(s: &VolumeSettings, padded: &Grid3) -> Result<Vec<ViewSpec>> {
+    Ok(match &s.eval_cameras {
+        Some(e) => {
+            let cams = CameraSet::parse(e)?.cameras(&Lens::of(s), padded.dims);
+            let g = absorption_for(s.absorption, cams.iter().map(|c| (padded, c)))?;
+            views_of(&cams, g, s.equalize)
+        }
+        None => Vec::new(),
+    })
+}
+
 /// Stylizes one dense grid in memory with the settings of a single frame
 /// (`s.input` and `s.out` are not used; `s.preview` is written when set):
 /// `dense` is a box whose voxel (0,0,0) is index `origin` of a grid with
@@ -170,17 +249,7 @@ pub fn stylize_grid(
     let dims = dense.dims;
     let k = s.upsample.factor(dims);
     VolumeSettings::check_memory(dims.map(|d| d * k), false)?;
-    let (dense, transform, origin) = match k {
-        1 => (dense, transform.clone(), origin),
-        _ => {
-            let refined = refine_density(&dense, k);
-            reporter.note(&format!(
-                "grid '{name}' is {}x{}x{} voxels, too few for strokes; it is stylized and written {k}x finer ({}x{}x{}; --upsample 1 keeps the file's resolution)",
-                dims[0], dims[1], dims[2], refined.dims[0], refined.dims[1], refined.dims[2]
-            ));
-            (refined, refine_transform(transform, k), refine_origin(origin, k)?)
-        }
-    };
+    let (dense, transform, origin) = refine(dense, k, transform, origin, name, reporter)?;
     let dims = dense.dims;
     let (style, vgg) = load_style_and_vgg(s)?;
 
@@ -200,19 +269,7 @@ pub fn stylize_grid(
     let loss = ViewLoss::new(&vgg, &grey_style, &s.style_spec())?;
     let color_loss = s.color.then(|| ViewLoss::new(&vgg, &style, &s.style_spec())).transpose()?;
     let params = s.frame_params(vmax, &view);
-    let color_params = ColorStageParams {
-        iterations: COLOR_VIEWS * s.iterations(),
-        learning_rate: nst3d_stylize::color::LEARNING_RATE,
-        grey_guard: nst3d_stylize::color_stage::GREY_GUARD,
-        smoke_term: nst3d_stylize::color_stage::SMOKE_TERM,
-        // The density moves with the colour within the job's own scale
-        // limits (its --smin/--smax and strength), whatever the mode.
-        density: Some(JointDensity {
-            learning_rate: nst3d_stylize::color_stage::JOINT_DENSITY_RATE,
-            smin: params.limits.smin,
-            smax: params.limits.smax,
-        }),
-    };
+    let color_params = color_stage_params(s, &params);
     // The colour views see the smoke at the job's absorption, as its own
     // views do. (The smallest absorption over them instead, so the colour is
     // placed as deep as any view could see, measured worse: smoke_000003,
@@ -223,14 +280,7 @@ pub fn stylize_grid(
         false => Vec::new(),
     };
     let color_iterations = if s.color { color_params.iterations } else { 0 };
-    let held_out = match &s.eval_cameras {
-        Some(e) => {
-            let cams = CameraSet::parse(e)?.cameras(&Lens::of(s), padded.dims);
-            let g = absorption_for(s.absorption, cams.iter().map(|c| (&padded, c)))?;
-            views_of(&cams, g, s.equalize)
-        }
-        None => Vec::new(),
-    };
+    let held_out = held_out_views(s, &padded)?;
 
     reporter.begin((s.octaves() * s.iterations() + color_iterations) as u64);
     let result = stylize_frame_views(&padded, &loss, &params, &views, &mut |p| {
@@ -260,23 +310,12 @@ pub fn stylize_grid(
     reporter.end();
 
     if let Some(preview) = &s.preview {
-        // Before | after | the painting, all scaled to one readable height.
-        let h = PREVIEW_HEIGHT;
-        let before = resize_to_height(&display(&loss, &padded, &view)?, h);
-        let after = match &color {
-            None => display(&loss, &density, &view)?,
-            Some(c) => nst3d_render::upsample2x(&nst3d_stylize::color_view_image(&density, c, &view)?),
-        };
-        let after = resize_to_height(&after, h);
-        let painting = resize_to_height(&style, h);
-        write_png(preview, &side_by_side(&[&before, &after, &painting]))?;
+        write_preview(preview, &loss, &view, (&padded, &density, color.as_deref()), &style)?;
     }
-    let held_out = match held_out.is_empty() {
-        true => None,
-        false => Some(match (&color, &color_loss) {
-            (Some(c), Some(cl)) => HeldOut::measure_color(cl, &padded, &density, c, &held_out)?,
-            _ => HeldOut::measure(&loss, &padded, &density, &held_out)?,
-        }),
+    let held_out = match (held_out.is_empty(), &color, &color_loss) {
+        (true, _, _) => None,
+        (false, Some(c), Some(cl)) => Some(HeldOut::measure_color(cl, &padded, &density, c, &held_out)?),
+        (false, _, _) => Some(HeldOut::measure(&loss, &padded, &density, &held_out)?),
     };
     Ok(StylizedGrid {
         cameras: views.len(),

@@ -29,6 +29,7 @@ pub mod sequence;
 pub mod settings;
 pub mod simulation;
 pub mod style;
+pub mod summary;
 pub mod upsample;
 
 pub use cameras::{front_camera, turntable, CameraSet, Cameras, Lens};
@@ -73,9 +74,9 @@ fn check_outputs(s: &VolumeSettings) -> anyhow::Result<()> {
     use std::path::PathBuf;
     let (input, out) = match &s.sequence {
         Some(q) => {
-            let f = nst3d_sequence::FrameSpec::parse(&q.frames)?.frames()[0];
+            let f = nst3d_job::FrameSpec::parse(&q.frames)?.frames()[0];
             let at = |p: &std::path::Path| -> anyhow::Result<PathBuf> {
-                Ok(PathBuf::from(nst3d_sequence::expand_pattern(&p.to_string_lossy(), f)?))
+                Ok(PathBuf::from(nst3d_job::expand_pattern(&p.to_string_lossy(), f)?))
             };
             if s.input == s.out {
                 anyhow::bail!("--out {} is the input pattern: nst3d never overwrites its input", s.out.display());

@@ -16,8 +16,8 @@ use anyhow::{anyhow, bail, Context, Result};
 use nst3d_core::{Grid3, Image};
 use nst3d_io::image::{resize_to_height, side_by_side, write_png};
 use nst3d_io::vdb::{read_vdb, DenseBox};
+use nst3d_job::{expand_pattern, FrameSpec};
 use nst3d_render::{Camera, Projection};
-use nst3d_sequence::{expand_pattern, FrameSpec};
 
 use crate::cameras::{front_camera, turntable};
 use crate::dense::{in_box, union_box};

@@ -20,9 +20,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use nst3d_core::{Grid3, Reporter};
 use nst3d_io::vdb::{read_vdb, GridValues, Transform};
+use nst3d_job::{default_work_dir, expand_pattern, job_fingerprint, settings_key, FrameSpec};
 use nst3d_render::Camera;
 use nst3d_sequence::ema::{stylize_sequence_with, SequenceParams, Simulation, StateStore};
-use nst3d_sequence::{default_work_dir, expand_pattern, job_fingerprint, settings_key, DiskStore, FrameSpec};
+use nst3d_sequence::DiskStore;
 use nst3d_stylize::{color_view_image, view_image, Mode, ViewLoss, ViewSpec};
 
 use crate::cameras::Cameras;
@@ -387,12 +388,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
     let velocity_grid = velocity_grid(seq, &sv, &all, reporter)?;
     let is_empty = |f: i64| all.iter().position(|&a| a == f).is_some_and(|i| sv.empty[i]);
     let passed: Vec<i64> = todo.iter().map(|&i| run_frames[i]).filter(|&f| is_empty(f)).collect();
-    if !passed.is_empty() {
-        reporter.note(&format!(
-            "frames {passed:?} have an empty grid '{}'; they are written unchanged (not stylized)",
-            s.grid
-        ));
-    }
+    note_empty_frames(&passed, &s.grid, reporter);
     let Shot { k, vmax, dims, origin, transform, full } = shot(s, seq, &sv, velocity_grid, &paths, reporter)?;
     // The frames optimised: the run's frames with smoke. `run_index[k]` is
     // frame k's place in `run_frames`; two are linked when adjacent there.
@@ -406,19 +402,8 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         ..full.clone()
     };
     let (full, sim) = (Refined { inner: full, k }, Refined { inner: sim, k });
-    reporter.status(&format!(
-        "{} frames ({} to write, {} warm-up, {} empty), common box {}x{}x{} at {:?}, velocity grid {} (x{:.4} voxels/frame)",
-        run_frames.len(),
-        todo.len(),
-        run_frames.iter().filter(|&&f| !(start..=end).contains(&f)).count(),
-        run_frames.len() - sim.len(),
-        dims[0],
-        dims[1],
-        dims[2],
-        origin,
-        sim.inner.velocity_grid.as_deref().unwrap_or("none"),
-        sim.inner.velocity_scale
-    ));
+    let warmup = run_frames.iter().filter(|&&f| !(start..=end).contains(&f)).count();
+    reporter.status(&run_status(run_frames.len(), todo.len(), warmup, &sim, dims, origin));
 
     let work = match &seq.work_dir {
         Some(w) => w.clone(),
@@ -427,7 +412,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
     // Held until the job ends: a second blade on the same job exits here,
     // before the weights and the painting's features are loaded (seconds on
     // a blade the first one keeps busy).
-    let _lock = nst3d_sequence::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
+    let _lock = nst3d_job::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
     let (style, vgg) = load_style_and_vgg(s)?;
     let cameras = Cameras::of(s)?;
     let cams_at = |f: i64| cameras.at(f as f64, dims, &transform, origin);
@@ -483,6 +468,54 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         flicker: if pairs > 0 { flicker_sum / pairs as f64 } else { 0.0 },
         output: s.out.to_string_lossy().to_string(),
     }))
+}
+
+/// Says which frames to write have an empty grid (they are copied, not stylized).
+fn note_empty_frames(passed: &[i64], grid: &str, reporter: &mut dyn Reporter) {
+    if !passed.is_empty() {
+        reporter
+            .note(&format!("frames {passed:?} have an empty grid '{grid}'; they are written unchanged (not stylized)"));
+    }
+}
+
+/// The status line of a run: its frames, the box they share and the
+/// velocity grid the EMA follows.
+fn run_status(
+    frames: usize,
+    to_write: usize,
+    warmup: usize,
+    sim: &Refined<VdbSimulation>,
+    dims: [usize; 3],
+    origin: [i32; 3],
+) -> String {
+    format!(
+        "{} frames ({} to write, {} warm-up, {} empty), common box {}x{}x{} at {:?}, velocity grid {} (x{:.4} voxels/frame)",
+        frames,
+        to_write,
+        warmup,
+        frames - sim.len(),
+        dims[0],
+        dims[1],
+        dims[2],
+        origin,
+        sim.inner.velocity_grid.as_deref().unwrap_or("none"),
+        sim.inner.velocity_scale
+    )
+}
+
+/// The style loss of a written frame, mean over its views: of the grey
+/// render, or with colour of the colour render.
+fn frame_loss(loss: &ViewLoss, d: &Grid3, color: Option<&Vec<Grid3>>, views: &[ViewSpec]) -> Result<f32> {
+    Ok(match color {
+        None => mean_loss(loss, d, views)?,
+        Some(c) => {
+            let mut sum = 0.0;
+            for v in views {
+                sum += loss.loss_color(d, c, v)?;
+            }
+            sum / views.len().max(1) as f32
+        }
+    })
 }
 
 /// Where each frame of a run comes from and goes to.
@@ -571,16 +604,7 @@ fn write_frames(
                 }
                 tally.stylized += 1;
                 let view = &views[t][0];
-                tally.losses += match &color {
-                    None => mean_loss(loss, &d, &views[t])?,
-                    Some(c) => {
-                        let mut sum = 0.0;
-                        for v in &views[t] {
-                            sum += loss.loss_color(&d, c, v)?;
-                        }
-                        sum / views[t].len().max(1) as f32
-                    }
-                };
+                tally.losses += frame_loss(loss, &d, color.as_ref(), &views[t])?;
                 // Flicker of consecutive written frames, computed pairwise so
                 // memory holds two frames; with colour, of the colour picture.
                 if let Some((tp, dp, cp)) = &prev {

@@ -282,236 +282,281 @@ impl Vm<'_> {
         loop {
             let at = self.pos;
             let op = self.u8().map_err(|_| format!("pickle ended without STOP at byte {at}"))?;
-            match op {
-                0x80 => {
-                    let proto = self.u8()?;
-                    if proto > 5 {
-                        return Err(format!("unsupported pickle protocol {proto}"));
-                    }
-                }
-                0x95 => {
-                    self.take(8)?; // FRAME: a length hint only.
-                }
-                b'.' => {
-                    let v = self.pop()?;
-                    return Ok((v, self.pos));
-                }
-                b'(' => self.marks.push(self.stack.len()),
-                b'0' => {
-                    self.pop()?;
-                }
-                b'1' => {
-                    self.pop_mark()?;
-                }
-                b'2' => {
-                    let v = self.top()?.clone();
-                    self.stack.push(v);
-                }
-                b'N' => self.stack.push(Value::None),
-                0x88 => self.stack.push(Value::Bool(true)),
-                0x89 => self.stack.push(Value::Bool(false)),
-                b'J' => {
-                    let v = i32::from_le_bytes(self.take_array()?);
-                    self.stack.push(Value::Int(v.into()));
-                }
-                b'K' => {
-                    let v = self.u8()?;
-                    self.stack.push(Value::Int(v.into()));
-                }
-                b'M' => {
-                    let v = u16::from_le_bytes(self.take_array()?);
-                    self.stack.push(Value::Int(v.into()));
-                }
-                0x8a => {
-                    let n = self.u8()? as usize;
-                    let v = self.long_value(n)?;
-                    self.stack.push(v);
-                }
-                0x8b => {
-                    let n = i32::from_le_bytes(self.take_array()?);
-                    let n = usize::try_from(n).map_err(|_| format!("negative LONG4 length at byte {at}"))?;
-                    let v = self.long_value(n)?;
-                    self.stack.push(v);
-                }
-                b'G' => {
-                    self.take(8)?;
-                    self.stack.push(Value::Float);
-                }
-                b'X' => {
-                    let n = self.u32()? as usize;
-                    let v = self.str_value(n)?;
-                    self.stack.push(v);
-                }
-                0x8c => {
-                    let n = self.u8()? as usize;
-                    let v = self.str_value(n)?;
-                    self.stack.push(v);
-                }
-                0x8d => {
-                    let n = self.u64_len()?;
-                    let v = self.str_value(n)?;
-                    self.stack.push(v);
-                }
-                b'T' => {
-                    let n = self.u32()? as usize;
-                    let v = self.latin1_value(n)?;
-                    self.stack.push(v);
-                }
-                b'U' => {
-                    let n = self.u8()? as usize;
-                    let v = self.latin1_value(n)?;
-                    self.stack.push(v);
-                }
-                b'B' => {
-                    let n = self.u32()? as usize;
-                    let v = self.bytes_value(n)?;
-                    self.stack.push(v);
-                }
-                b'C' => {
-                    let n = self.u8()? as usize;
-                    let v = self.bytes_value(n)?;
-                    self.stack.push(v);
-                }
-                0x8e => {
-                    let n = self.u64_len()?;
-                    let v = self.bytes_value(n)?;
-                    self.stack.push(v);
-                }
-                b'}' => {
-                    let v = self.arena.push(Node::Dict(Vec::new()));
-                    self.stack.push(v);
-                }
-                b']' | 0x8f => {
-                    // A set (EMPTY_SET) is kept as a list: only its membership could matter.
-                    let v = self.arena.push(Node::List(Vec::new()));
-                    self.stack.push(v);
-                }
-                b')' => {
-                    let v = self.arena.push(Node::Tuple(Vec::new()));
-                    self.stack.push(v);
-                }
-                b't' => {
-                    let items = self.pop_mark()?;
-                    let v = self.arena.push(Node::Tuple(items));
-                    self.stack.push(v);
-                }
-                0x85..=0x87 => {
-                    let n = (op - 0x84) as usize;
-                    let floor = self.marks.last().copied().unwrap_or(0);
-                    if self.stack.len() < floor + n {
-                        return Err(format!("pickle stack underflow in TUPLE{n} at byte {at}"));
-                    }
-                    let items = self.stack.split_off(self.stack.len() - n);
-                    let v = self.arena.push(Node::Tuple(items));
-                    self.stack.push(v);
-                }
-                b'l' => {
-                    let items = self.pop_mark()?;
-                    let v = self.arena.push(Node::List(items));
-                    self.stack.push(v);
-                }
-                b'd' => {
-                    let items = self.pop_mark()?;
-                    let v = self.arena.push(Node::Dict(Vec::new()));
-                    self.stack.push(v);
-                    self.set_items(items)?;
-                }
-                0x91 => {
-                    // FROZENSET: items after the mark.
-                    let items = self.pop_mark()?;
-                    let v = self.arena.push(Node::List(items));
-                    self.stack.push(v);
-                }
-                b's' => {
-                    let v = self.pop()?;
-                    let k = self.pop()?;
-                    self.set_items(vec![k, v])?;
-                }
-                b'u' => {
-                    let items = self.pop_mark()?;
-                    self.set_items(items)?;
-                }
-                b'a' => {
-                    let v = self.pop()?;
-                    self.append_items(vec![v])?;
-                }
-                b'e' | 0x90 => {
-                    let items = self.pop_mark()?;
-                    self.append_items(items)?;
-                }
-                b'q' => {
-                    let i = self.u8()?;
-                    self.memo_put(i.into())?;
-                }
-                b'r' => {
-                    let i = self.u32()?;
-                    self.memo_put(i)?;
-                }
-                0x94 => {
-                    let i = u32::try_from(self.memo.len()).map_err(|_| "pickle memo overflow".to_string())?;
-                    self.memo_put(i)?;
-                }
-                b'h' => {
-                    let i = self.u8()?;
-                    let v = self.memo_get(i.into())?;
-                    self.stack.push(v);
-                }
-                b'j' => {
-                    let i = self.u32()?;
-                    let v = self.memo_get(i)?;
-                    self.stack.push(v);
-                }
-                b'c' => {
-                    let module = self.line()?;
-                    let name = self.line()?;
-                    let v = self.arena.push(Node::Global { module, name });
-                    self.stack.push(v);
-                }
-                0x93 => {
-                    let name = self.pop()?;
-                    let module = self.pop()?;
-                    let (Some(module), Some(name)) = (as_str(&module), as_str(&name)) else {
-                        return Err(format!("pickle STACK_GLOBAL without strings at byte {at}"));
-                    };
-                    let v = self.arena.push(Node::Global { module: module.to_string(), name: name.to_string() });
-                    self.stack.push(v);
-                }
-                b'Q' => {
-                    let pid = self.pop()?;
-                    let storage =
-                        self.persistent_load(&pid).map_err(|e| format!("{e} (persistent id at byte {at})"))?;
-                    let v = self.arena.push(Node::Storage(storage));
-                    self.stack.push(v);
-                }
-                b'R' => {
-                    let args = self.pop()?;
-                    let callable = self.pop()?;
-                    let v = self.reduce(&callable, &args).map_err(|e| format!("{e} (call at byte {at})"))?;
-                    self.stack.push(v);
-                }
-                0x81 => {
-                    // NEWOBJ: cls.__new__(cls, *args) — opaque.
-                    self.pop()?;
-                    self.pop()?;
-                    let v = self.arena.push(Node::Opaque);
-                    self.stack.push(v);
-                }
-                0x92 => {
-                    self.pop()?;
-                    self.pop()?;
-                    self.pop()?;
-                    let v = self.arena.push(Node::Opaque);
-                    self.stack.push(v);
-                }
-                b'b' => {
-                    // BUILD sets attributes (e.g. an OrderedDict's `_metadata`); tensors
-                    // never depend on them.
-                    let _state = self.pop()?;
-                    self.top()?;
-                }
-                _ => return Err(format!("unsupported pickle opcode 0x{op:02x} at byte {at}")),
+            if op == b'.' {
+                let v = self.pop()?;
+                return Ok((v, self.pos));
+            }
+            let known = self.stack_op(op)?
+                || self.scalar_op(op, at)?
+                || self.container_op(op, at)?
+                || self.memo_op(op)?
+                || self.object_op(op, at)?;
+            if !known {
+                return Err(format!("unsupported pickle opcode 0x{op:02x} at byte {at}"));
             }
         }
+    }
+
+    /// Protocol, framing and stack opcodes: PROTO, FRAME, MARK, POP, POP_MARK, DUP. `false`: not one of them.
+    fn stack_op(&mut self, op: u8) -> Result<bool, Problem> {
+        match op {
+            0x80 => {
+                let proto = self.u8()?;
+                if proto > 5 {
+                    return Err(format!("unsupported pickle protocol {proto}"));
+                }
+            }
+            0x95 => {
+                self.take(8)?; // FRAME: a length hint only.
+            }
+            b'(' => self.marks.push(self.stack.len()),
+            b'0' => {
+                self.pop()?;
+            }
+            b'1' => {
+                self.pop_mark()?;
+            }
+            b'2' => {
+                let v = self.top()?.clone();
+                self.stack.push(v);
+            }
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    /// Opcodes that push a scalar: None, booleans, integers, floats (their value is not kept), strings and bytes. `false`: not one of them.
+    fn scalar_op(&mut self, op: u8, at: usize) -> Result<bool, Problem> {
+        match op {
+            b'N' => self.stack.push(Value::None),
+            0x88 => self.stack.push(Value::Bool(true)),
+            0x89 => self.stack.push(Value::Bool(false)),
+            b'J' => {
+                let v = i32::from_le_bytes(self.take_array()?);
+                self.stack.push(Value::Int(v.into()));
+            }
+            b'K' => {
+                let v = self.u8()?;
+                self.stack.push(Value::Int(v.into()));
+            }
+            b'M' => {
+                let v = u16::from_le_bytes(self.take_array()?);
+                self.stack.push(Value::Int(v.into()));
+            }
+            0x8a => {
+                let n = self.u8()? as usize;
+                let v = self.long_value(n)?;
+                self.stack.push(v);
+            }
+            0x8b => {
+                let n = i32::from_le_bytes(self.take_array()?);
+                let n = usize::try_from(n).map_err(|_| format!("negative LONG4 length at byte {at}"))?;
+                let v = self.long_value(n)?;
+                self.stack.push(v);
+            }
+            b'G' => {
+                self.take(8)?;
+                self.stack.push(Value::Float);
+            }
+            b'X' => {
+                let n = self.u32()? as usize;
+                let v = self.str_value(n)?;
+                self.stack.push(v);
+            }
+            0x8c => {
+                let n = self.u8()? as usize;
+                let v = self.str_value(n)?;
+                self.stack.push(v);
+            }
+            0x8d => {
+                let n = self.u64_len()?;
+                let v = self.str_value(n)?;
+                self.stack.push(v);
+            }
+            b'T' => {
+                let n = self.u32()? as usize;
+                let v = self.latin1_value(n)?;
+                self.stack.push(v);
+            }
+            b'U' => {
+                let n = self.u8()? as usize;
+                let v = self.latin1_value(n)?;
+                self.stack.push(v);
+            }
+            b'B' => {
+                let n = self.u32()? as usize;
+                let v = self.bytes_value(n)?;
+                self.stack.push(v);
+            }
+            b'C' => {
+                let n = self.u8()? as usize;
+                let v = self.bytes_value(n)?;
+                self.stack.push(v);
+            }
+            0x8e => {
+                let n = self.u64_len()?;
+                let v = self.bytes_value(n)?;
+                self.stack.push(v);
+            }
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    /// Opcodes that build tuples, lists, dicts and sets, or add to them. `false`: not one of them.
+    fn container_op(&mut self, op: u8, at: usize) -> Result<bool, Problem> {
+        match op {
+            b'}' => {
+                let v = self.arena.push(Node::Dict(Vec::new()));
+                self.stack.push(v);
+            }
+            b']' | 0x8f => {
+                // A set (EMPTY_SET) is kept as a list: only its membership could matter.
+                let v = self.arena.push(Node::List(Vec::new()));
+                self.stack.push(v);
+            }
+            b')' => {
+                let v = self.arena.push(Node::Tuple(Vec::new()));
+                self.stack.push(v);
+            }
+            b't' => {
+                let items = self.pop_mark()?;
+                let v = self.arena.push(Node::Tuple(items));
+                self.stack.push(v);
+            }
+            0x85..=0x87 => {
+                let n = (op - 0x84) as usize;
+                let floor = self.marks.last().copied().unwrap_or(0);
+                if self.stack.len() < floor + n {
+                    return Err(format!("pickle stack underflow in TUPLE{n} at byte {at}"));
+                }
+                let items = self.stack.split_off(self.stack.len() - n);
+                let v = self.arena.push(Node::Tuple(items));
+                self.stack.push(v);
+            }
+            b'l' => {
+                let items = self.pop_mark()?;
+                let v = self.arena.push(Node::List(items));
+                self.stack.push(v);
+            }
+            b'd' => {
+                let items = self.pop_mark()?;
+                let v = self.arena.push(Node::Dict(Vec::new()));
+                self.stack.push(v);
+                self.set_items(items)?;
+            }
+            0x91 => {
+                // FROZENSET: items after the mark.
+                let items = self.pop_mark()?;
+                let v = self.arena.push(Node::List(items));
+                self.stack.push(v);
+            }
+            b's' => {
+                let v = self.pop()?;
+                let k = self.pop()?;
+                self.set_items(vec![k, v])?;
+            }
+            b'u' => {
+                let items = self.pop_mark()?;
+                self.set_items(items)?;
+            }
+            b'a' => {
+                let v = self.pop()?;
+                self.append_items(vec![v])?;
+            }
+            b'e' | 0x90 => {
+                let items = self.pop_mark()?;
+                self.append_items(items)?;
+            }
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    /// Memo opcodes: PUT, BINPUT, LONG_BINPUT, MEMOIZE, GET, BINGET, LONG_BINGET. `false`: not one of them.
+    fn memo_op(&mut self, op: u8) -> Result<bool, Problem> {
+        match op {
+            b'q' => {
+                let i = self.u8()?;
+                self.memo_put(i.into())?;
+            }
+            b'r' => {
+                let i = self.u32()?;
+                self.memo_put(i)?;
+            }
+            0x94 => {
+                let i = u32::try_from(self.memo.len()).map_err(|_| "pickle memo overflow".to_string())?;
+                self.memo_put(i)?;
+            }
+            b'h' => {
+                let i = self.u8()?;
+                let v = self.memo_get(i.into())?;
+                self.stack.push(v);
+            }
+            b'j' => {
+                let i = self.u32()?;
+                let v = self.memo_get(i)?;
+                self.stack.push(v);
+            }
+            _ => return Ok(false),
+        }
+        Ok(true)
+    }
+
+    /// Opcodes of objects: GLOBAL, STACK_GLOBAL, persistent ids (tensor storages), REDUCE, NEWOBJ, NEWOBJ_EX, BUILD. `false`: not one of them.
+    fn object_op(&mut self, op: u8, at: usize) -> Result<bool, Problem> {
+        match op {
+            b'c' => {
+                let module = self.line()?;
+                let name = self.line()?;
+                let v = self.arena.push(Node::Global { module, name });
+                self.stack.push(v);
+            }
+            0x93 => {
+                let name = self.pop()?;
+                let module = self.pop()?;
+                let (Some(module), Some(name)) = (as_str(&module), as_str(&name)) else {
+                    return Err(format!("pickle STACK_GLOBAL without strings at byte {at}"));
+                };
+                let v = self.arena.push(Node::Global { module: module.to_string(), name: name.to_string() });
+                self.stack.push(v);
+            }
+            b'Q' => {
+                let pid = self.pop()?;
+                let storage = self.persistent_load(&pid).map_err(|e| format!("{e} (persistent id at byte {at})"))?;
+                let v = self.arena.push(Node::Storage(storage));
+                self.stack.push(v);
+            }
+            b'R' => {
+                let args = self.pop()?;
+                let callable = self.pop()?;
+                let v = self.reduce(&callable, &args).map_err(|e| format!("{e} (call at byte {at})"))?;
+                self.stack.push(v);
+            }
+            0x81 => {
+                // NEWOBJ: cls.__new__(cls, *args) — opaque.
+                self.pop()?;
+                self.pop()?;
+                let v = self.arena.push(Node::Opaque);
+                self.stack.push(v);
+            }
+            0x92 => {
+                self.pop()?;
+                self.pop()?;
+                self.pop()?;
+                let v = self.arena.push(Node::Opaque);
+                self.stack.push(v);
+            }
+            b'b' => {
+                // BUILD sets attributes (e.g. an OrderedDict's `_metadata`); tensors
+                // never depend on them.
+                let _state = self.pop()?;
+                self.top()?;
+            }
+
+            _ => return Ok(false),
+        }
+        Ok(true)
     }
 
     /// Torch's storage persistent id: `('storage', storage_type, key, location, numel)`,

@@ -275,91 +275,15 @@ pub fn run(args: StrandsArgs) -> Result<()> {
         return run_sequence(&s);
     }
     let r = nst3d_groom::stylize_groom_file(&s, &mut Console::default())?;
-    println!(
-        "{}: {} strands ({} control points, as in the input) stylized ({}, {} proxies, {} iterations at {}px); \
-         NNST loss {:.4e} -> {:.4e} ({:+.1}%; re-matched on the result {:.4e}); \
-         {}; max length change {:.3}% vs input ({:.4}% vs rest); {}; wrote {}",
-        r.groom.display(),
-        r.strands,
-        r.points,
-        r.preset,
-        r.proxies,
-        r.iterations,
-        r.render_size,
-        r.eval_before,
-        r.eval_after,
-        -100.0 * r.loss_drop(),
-        r.eval_after_rematched,
-        held_out_line(&r.held_out),
-        100.0 * r.checks.vs_input,
-        100.0 * r.checks.vs_rest,
-        inside_line(s.mesh.is_some(), r.checks.inside),
-        r.out.display()
-    );
+    println!("{}", r.summary(s.mesh.is_some()));
     Ok(())
-}
-
-/// The held-out measurement of the summary line.
-fn held_out_line(h: &nst3d_strands::pipeline::HeldOut) -> String {
-    if h.angles.is_empty() {
-        return "no held-out views".into();
-    }
-    format!(
-        "hair-only NNST loss from {} held-out views {:.4e} -> {:.4e} ({:+.1}%; re-matched {:.4e})",
-        h.angles.len(),
-        h.before,
-        h.after,
-        -100.0 * h.drop(),
-        h.after_rematched
-    )
-}
-
-/// The collision check of the summary line.
-fn inside_line(has_mesh: bool, inside: usize) -> String {
-    if has_mesh {
-        format!("{inside} control points inside the mesh")
-    } else {
-        "no mesh, no collision check".into()
-    }
 }
 
 /// `nst3d strands --frames`: the animated groom, then the sequence's mean
 /// losses and flicker.
 fn run_sequence(s: &StrandSettings) -> Result<()> {
     let r = nst3d_groom::stylize_groom_sequence(s, &mut Console::default())?;
-    let t = r.temporal;
-    let mode = match r.mode {
-        Temporal::EmaOneEuro => format!(
-            "EMA sigma {} nu {} + 1-euro alpha {} beta {} f_min {} Hz at {} fps",
-            t.ema_sigma, t.ema_nu, t.blend_alpha, t.beta, t.min_cutoff_hz, t.fps
-        ),
-        Temporal::Ema => format!("EMA sigma {} nu {}", t.ema_sigma, t.ema_nu),
-        Temporal::OneEuro => {
-            format!("1-euro alpha {} beta {} f_min {} Hz at {} fps", t.blend_alpha, t.beta, t.min_cutoff_hz, t.fps)
-        }
-        Temporal::Off => "per-frame, no temporal filtering".into(),
-    };
-    let q = &r.sequence;
-    println!(
-        "sequence: {} frames ({}; {}, {} iterations/frame at {}px); mean NNST loss {:.4e} -> {:.4e} \
-         (output {:.4e}, re-matched {:.4e}); flicker {:.5} (motion-compensated), raw frame difference {:.5} \
-         (input {:.5}); max length change {:.3}% vs input ({:.4}% vs rest); {}",
-        q.frames,
-        mode,
-        r.preset,
-        r.iterations,
-        r.render_size,
-        q.eval_before,
-        q.eval_optimized,
-        q.eval_output,
-        q.eval_output_rematched,
-        q.flicker,
-        q.flicker_raw,
-        q.flicker_input_raw,
-        100.0 * r.worst.vs_input,
-        100.0 * r.worst.vs_rest,
-        inside_line(s.mesh.is_some(), r.worst.inside)
-    );
+    println!("{}", r.summary(s.mesh.is_some()));
     Ok(())
 }
 
@@ -388,16 +312,7 @@ fn generate(g: GenerateArgs) -> Result<()> {
             frequency_hz: g.wind_frequency,
         },
     };
-    let r = nst3d_groom::generate(&settings)?;
-    let w = &r.written;
-    println!(
-        "wrote {} strands x {} points to {}{}{}",
-        r.strands,
-        r.points,
-        w.first().map_or(String::new(), |p| p.display().to_string()),
-        if w.len() > 1 { format!(" .. {} ({} frames)", w[w.len() - 1].display(), w.len()) } else { String::new() },
-        r.mesh.as_ref().map_or(String::new(), |m| format!("; mesh {}", m.display()))
-    );
+    println!("{}", nst3d_groom::generate(&settings)?.summary());
     Ok(())
 }
 

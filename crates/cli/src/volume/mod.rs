@@ -10,9 +10,9 @@ use clap::Args;
 use nst3d_features::VggLayer;
 use nst3d_render::Projection;
 use nst3d_stylize::Mode;
-use nst3d_volume::{ModelSettings, SequenceReport, SequenceSettings, UpAxis, Upsample, VolumeReport, VolumeSettings};
+use nst3d_volume::{ModelSettings, SequenceSettings, UpAxis, Upsample, VolumeSettings};
 
-use crate::console::{plural, Console};
+use crate::console::Console;
 
 /// Arguments of `nst3d volume`.
 #[derive(Args)]
@@ -235,63 +235,9 @@ pub fn run(args: VolumeArgs) -> Result<()> {
         anyhow::bail!("--ema must be in [0, 1), got {ema}");
     }
     let settings = args.settings();
-    match nst3d_volume::stylize(&settings, &mut Console::default())? {
-        VolumeReport::Frame(r) => {
-            if let Some(h) = &r.held_out {
-                let cams = settings.eval_cameras.as_deref().unwrap_or("");
-                let (before, after) = h.means();
-                println!("held-out cameras {cams}: mean style loss {before:.4e} -> {after:.4e}");
-                let (worst, view) = h.worst();
-                let each: Vec<String> =
-                    h.before.iter().zip(&h.after).map(|(b, a)| format!("{b:.4e}->{a:.4e}")).collect();
-                println!(
-                    "held-out cameras {cams}: per view {}; worst view {} of {}, ratio {worst:.3}",
-                    each.join(" "),
-                    view + 1,
-                    h.before.len()
-                );
-            }
-            println!(
-                "{}: grid '{}' {}x{}x{} stylized ({:?} mode, {} camera{}); style loss {:.4e} -> {:.4e} ({:.0}% lower); wrote {}",
-                r.input.display(),
-                r.grid,
-                r.dims[0],
-                r.dims[1],
-                r.dims[2],
-                r.mode,
-                r.cameras,
-                plural(r.cameras),
-                r.loss_before,
-                r.loss_after,
-                100.0 * r.loss_drop(),
-                r.out.display()
-            );
-        }
-        VolumeReport::Model(r) => println!(
-            "{} frame{} stylized by the {:?}-mode model ({:.2} Mvoxels/s of the frames' boxes){}{}; wrote {}",
-            r.frames,
-            plural(r.frames),
-            r.mode,
-            r.voxels as f64 / r.seconds.max(1e-9) / 1e6,
-            if r.skipped > 0 { format!(", {} kept or copied unchanged", r.skipped) } else { String::new() },
-            r.flicker.map_or(String::new(), |f| format!("; flicker {f:.5}")),
-            r.out
-        ),
-        VolumeReport::Sequence(SequenceReport::NothingToDo { frames, start, end }) => {
-            println!("all {frames} frames {start}-{end} already exist; nothing to do (--force redoes them)");
-        }
-        VolumeReport::Sequence(SequenceReport::Done(s)) => println!(
-            "{} frames stylized ({:?} mode, EMA {}, {} camera{}); mean style loss {:.4e}; flicker {:.5}; {}wrote {}",
-            s.stylized,
-            s.mode,
-            s.ema,
-            s.cameras,
-            plural(s.cameras),
-            s.mean_loss,
-            s.flicker,
-            if s.unchanged > 0 { format!("{} empty frames copied unchanged; ", s.unchanged) } else { String::new() },
-            s.output
-        ),
+    let report = nst3d_volume::stylize(&settings, &mut Console::default())?;
+    for line in report.lines(settings.eval_cameras.as_deref()) {
+        println!("{line}");
     }
     Ok(())
 }

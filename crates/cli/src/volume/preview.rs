@@ -97,7 +97,9 @@ pub fn run(args: PreviewArgs) -> Result<()> {
         let r = nst3d_groom::preview_groom(&settings)?;
         let n = r.pictures;
         println!("wrote {n} preview picture{} of the groom ({})", plural(n), settings.out.display());
-        print_judgement(&r);
+        for line in r.judgement() {
+            println!("{line}");
+        }
         return Ok(());
     }
     if args.mesh.is_some() || args.style.is_some() {
@@ -129,39 +131,4 @@ pub fn run(args: PreviewArgs) -> Result<()> {
         r.absorption
     );
     Ok(())
-}
-
-/// The judge's lines: the loss of each picture, and with a comparison the
-/// ratio per picture (lower: nearer the painting) and its median and worst;
-/// in colour, the grey judge of the pictures' luminance too.
-fn print_judgement(r: &nst3d_groom::GroomPreviewReport) {
-    if r.input_loss.is_empty() {
-        return;
-    }
-    let color = !r.input_grey_loss.is_empty();
-    let what = if color { "colour style loss" } else { "style loss" };
-    let list = |v: &[f32], f: &dyn Fn(f32) -> String| v.iter().map(|x| f(*x)).collect::<Vec<_>>().join(" ");
-    println!("{what} per picture: input {}", list(&r.input_loss, &|x| format!("{x:.4e}")));
-    if r.compare_loss.is_empty() {
-        return;
-    }
-    println!("{what} per picture: compare {}", list(&r.compare_loss, &|x| format!("{x:.4e}")));
-    let line = |name: &str, ratios: Vec<f32>| {
-        let worst = ratios.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-        println!(
-            "{name}compare/input per picture {}; median {:.3}, worst {:.3}",
-            list(&ratios, &|x| format!("{x:.3}")),
-            nst3d_groom::judge::median(&ratios),
-            worst
-        );
-    };
-    if color {
-        line("colour: ", r.ratios());
-        line("colour, hair only: ", r.hair_ratios());
-        line("grey: ", r.grey_ratios());
-    } else {
-        line("", r.ratios());
-        line("hair only: ", r.hair_ratios());
-        line("hair only, tone matched: ", r.toned_ratios());
-    }
 }

@@ -29,6 +29,10 @@
 //!   to the painting's luminance, over the whole picture as the grey judge
 //!   sees it, which keeps the grey look the shape gave.
 //!
+//! The schedule (views in turn, one step each), the view count and the
+//! guard's weight are the smoke's too ([`nst3d_optim::color_stage`]); this
+//! module is the hair's step, through the splat renderer.
+//!
 //! The chain: offsets → layer (clamped) → splat render in colour → VGG-19
 //! → masked Gram loss, and beside it render → luminance → VGG-19 → Gram
 //! loss, and back; each link has its own finite-difference check, and
@@ -38,17 +42,19 @@ use nst3d_core::{FeatureView, Image};
 use nst3d_features::{Vgg19, VggLayer};
 use nst3d_io::image::resize_to_height;
 use nst3d_loss::{cell_mask, style_loss, style_loss_masked, StyleTarget};
-use nst3d_optim::Adam;
+use nst3d_optim::{optimise_in_turn, Adam};
 use nst3d_splat::{render, render_backward_all, SplatCamera, Strands};
 
-use super::multiscale::hair_pixels;
 use super::step::{flatten, unflatten};
+use super::views::hair_pixels;
 use super::{ColorCarry, PipelineError, StrandScene, StylizeParams};
 use crate::color::COLOR_LEARNING_RATE;
 use crate::strands::FlatStrands;
 
-/// Cameras of the colour stage, evenly spaced in azimuth around the up axis.
-pub const COLOR_VIEWS: usize = 16;
+/// Cameras of the colour stage, evenly spaced in azimuth around the up
+/// axis, and the grey guard's weight: the smoke's colour stage's
+/// ([`nst3d_optim::color_stage`], where the guard's measurements are).
+pub use nst3d_optim::color_stage::{COLOR_VIEWS, GREY_GUARD};
 
 /// Elevations (polar angles, degrees) the colour cameras alternate between:
 /// level with the groom and from above, where a head of hair is seen.
@@ -59,26 +65,6 @@ pub const COLOR_LAYERS: [VggLayer; 4] = [VggLayer::Relu1_1, VggLayer::Relu2_1, V
 
 /// Passes over the [`COLOR_VIEWS`] cameras the stage makes by default.
 pub const COLOR_PASSES: u32 = 4;
-
-/// Weight of the grey guard: the whole picture's luminance Gram loss to the
-/// painting's luminance, added to the hair's colour loss. Free in
-/// brightness, the colour darkens the hair towards a painting's dark
-/// colours, and the grey judge of the pictures' luminance rose. Measured on
-/// monkey_curly (`nst3d preview --color`, 8 views; hair-only colour / grey
-/// judge, median against the grey result; docs/design/strands.md):
-///
-/// | guard | Woman with a Hat | Starry Night | Shipwreck |
-/// | --- | --- | --- | --- |
-/// | none | 0.565 / 1.004 | | |
-/// | hair only, 1 | 0.560 / 1.009 | | |
-/// | **whole picture, 1** | **0.587 / 0.999** | **0.543 / 1.032** | **0.417 / 0.916** |
-/// | whole picture, 3 | 0.638 / 0.993 | | |
-/// | whole picture, only above the view's start, 3 | 0.642 / 0.993 | 0.563 / 1.015 | 0.416 / 0.917 |
-/// | whole picture, only above the view's start, 10 | 0.692 / 0.995 | 0.600 / 1.011 | |
-///
-/// Weight 1 is the one that takes every painting 40 % nearer on the hair;
-/// no weight measured keeps Starry Night's grey judge at 1.
-pub const GREY_GUARD: f32 = 1.0;
 
 /// `(elevation, azimuth)` in degrees of each colour camera; the azimuths are
 /// offset half a step from the front so no camera sits on the turntable
@@ -251,9 +237,9 @@ pub struct ColorStageResult {
     pub delta: Vec<[f32; 3]>,
     /// The colour of every point of the strands (guides, then proxies).
     pub colors: Vec<[f32; 3]>,
-    /// Mean colour loss over the views in the first pass over them.
+    /// Mean colour loss over the first pass over the views.
     pub loss_first_pass: f32,
-    /// The same in the last pass.
+    /// The same over the last as many iterations.
     pub loss_last_pass: f32,
 }
 
@@ -291,24 +277,13 @@ pub fn stylize_color(
         return Ok(ColorStageResult { delta: unflatten(&raw), colors, loss_first_pass: 0.0, loss_last_pass: 0.0 });
     }
     let mut adam = Adam::new(raw.len(), COLOR_LEARNING_RATE);
-    let iterations = color_iterations();
-    let n = views.len() as u32;
-    let (mut first, mut last, mut pass) = (0.0f64, 0.0f64, 0.0f64);
-    for i in 0..iterations {
-        let view = &views[(i % n) as usize];
+    let sweeps = optimise_in_turn(&views, color_iterations() as usize, |i, view: &ColorView| {
         let (loss, grad) = color_view_loss(scene, vgg, &targets, &groom, view, &unflatten(&raw))?;
         adam.step(&mut raw, &flatten(&grad));
-        pass += loss as f64;
-        if (i + 1) % n == 0 {
-            if i + 1 == n {
-                first = pass / n as f64;
-            }
-            last = pass / n as f64;
-            pass = 0.0;
-        }
-        progress(i + 1, loss)?;
-    }
+        progress(i as u32 + 1, loss)?;
+        Ok::<f32, PipelineError>(loss)
+    })?;
     let delta = unflatten(&raw);
     let colors = layer.forward(&delta);
-    Ok(ColorStageResult { delta, colors, loss_first_pass: first as f32, loss_last_pass: last as f32 })
+    Ok(ColorStageResult { delta, colors, loss_first_pass: sweeps.first, loss_last_pass: sweeps.last })
 }

@@ -6,7 +6,6 @@ use std::collections::HashMap;
 
 use nst3d_core::Image;
 use nst3d_features::{Vgg19, VggLayer};
-use nst3d_loss::cell_mask;
 use nst3d_loss::nnst::{nnst_loss_matched, nnst_loss_over, NnstMatch, NnstTarget};
 use nst3d_optim::Adam;
 use nst3d_splat::SplatCamera;
@@ -17,7 +16,7 @@ use crate::StrandError;
 use super::color_stage::{color_iterations, stylize_color};
 use super::orientation::{OrientationView, StrokeField};
 use super::step::{flatten, iteration_with, loss_and_gradient_with, unflatten, OrientationTerm};
-use super::views::{match_view_on, poisson_view_angles, style_target};
+use super::views::{hair_columns, hair_pixels, match_view_on, poisson_view_angles, style_target};
 use super::{PipelineError, StrandScene, StylizeParams, NNST_LAYERS};
 
 /// What one optimization iteration reports.
@@ -131,27 +130,6 @@ pub fn held_out_loss(
     })
 }
 
-/// Hyper-columns (row-major on `grid`) whose cell of the image holds a
-/// pixel that differs from the background in any of `renders`.
-pub fn hair_columns(renders: &[&Image], background: [f32; 3], grid: (usize, usize)) -> Vec<bool> {
-    let mut mask = vec![false; grid.0 * grid.1];
-    for img in renders {
-        let cells = cell_mask(&hair_pixels(img, background), img.height, img.width, grid.0, grid.1);
-        mask.iter_mut().zip(cells).for_each(|(m, c)| *m |= c);
-    }
-    mask
-}
-
-/// Pixels of `img` (row-major) that hold hair: a channel off `background`
-/// by more than 0.02 (the held-out loss, the colour stage and the judge
-/// all count hair so).
-pub fn hair_pixels(img: &Image, background: [f32; 3]) -> Vec<bool> {
-    let plane = img.plane();
-    (0..plane)
-        .map(|i| (0..img.channels.min(3)).any(|c| (img.data[c * plane + i] - background[c]).abs() > 0.02))
-        .collect()
-}
-
 impl StylizeResult {
     /// Relative drop of the evaluation loss, `1 − after / before`.
     pub fn loss_drop(&self) -> f32 {
@@ -190,6 +168,27 @@ fn orientation_view(
     let hair = hair_pixels(&img, scene.style.background);
     let s = scene.strands(strands, None);
     Ok(OrientationView::new(field.size(), &s, &hair, &scene.style, cam))
+}
+
+/// The orientation term of a view (none without a stroke field or with no
+/// hair in sight), its `λ` from [`orientation_weight`].
+#[allow(clippy::too_many_arguments)]
+fn orientation_term<'a>(
+    lambda: &mut Option<f32>,
+    scene: &StrandScene,
+    vgg: &Vgg19,
+    cam: &SplatCamera,
+    matched: &NnstMatch,
+    field_and_view: Option<(&'a StrokeField, &'a OrientationView)>,
+    params: &StylizeParams,
+    v: &[f32],
+) -> Result<Option<OrientationTerm<'a>>, PipelineError> {
+    let Some((field, view)) = field_and_view else {
+        return Ok(None);
+    };
+    let unit = OrientationTerm { field, view, weight: 1.0 };
+    let weight = orientation_weight(lambda, scene, vgg, cam, matched, unit, params, v)?;
+    Ok(Some(OrientationTerm { weight, ..unit }))
 }
 
 /// The orientation term's `λ`: `params.orientation` times
@@ -262,6 +261,18 @@ pub struct FrameHooks<'a> {
     pub before_iteration: Option<&'a mut dyn FnMut(IterationClock, &mut [[f32; 3]]) -> Result<(), PipelineError>>,
 }
 
+impl FrameHooks<'_> {
+    /// Runs [`FrameHooks::before_iteration`], if any, on the flat velocities `v`.
+    fn before(&mut self, clock: IterationClock, v: &mut Vec<f32>) -> Result<(), PipelineError> {
+        if let Some(hook) = self.before_iteration.as_mut() {
+            let mut vv = unflatten(v);
+            hook(clock, &mut vv)?;
+            *v = flatten(&vv);
+        }
+        Ok(())
+    }
+}
+
 /// [`stylize`] with a sequence's per-frame [`FrameHooks`].
 pub fn stylize_with(
     scene: &StrandScene,
@@ -272,37 +283,21 @@ pub fn stylize_with(
     progress: &mut dyn FnMut(&IterationReport),
 ) -> Result<StylizeResult, PipelineError> {
     params.validate()?;
-    if style.channels != 3 || style.height < 16 || style.width < 16 {
-        return Err(PipelineError::Parameter(format!(
-            "style image is {}x{}x{}, need 3 channels and at least 16x16",
-            style.channels, style.height, style.width
-        )));
-    }
+    check_style(style)?;
     let p = params.preset;
     vgg.prepare(VggLayer::Relu4_1);
 
     let n = scene.field.sample_count();
-    let mut v = match hooks.initial {
-        Some(v0) if v0.len() != n => {
-            return Err(StrandError::Mismatch { what: "initial velocities", expected: n, got: v0.len() }.into())
-        }
-        Some(v0) => flatten(v0),
-        None => vec![0.0f32; 3 * n],
-    };
+    let mut v = initial_velocities(hooks.initial, n)?;
     let (mut done, total) = (0u32, params.iterations.iter().sum::<u32>());
     let mut adam = Adam::adamw(3 * n, 0.0, params.weight_decay);
     let mut history = Vec::new();
 
     // Camera angles for all scales from one Poisson sequence, so the
     // scales see different views.
-    let per_scale: Vec<usize> = params
-        .iterations
-        .iter()
-        .map(|&it| if params.views_per_scale == 0 { it as usize } else { params.views_per_scale.min(it as usize) })
-        .collect();
+    let per_scale = views_per_scale(params);
     let angles = poisson_view_angles(&scene.frame, p.polar_deg, p.azimuth_deg, per_scale.iter().sum(), params.seed);
-    let mut first = 0;
-    let mut finest = None;
+    let (mut first, mut finest) = (0, None);
     // λ of the orientation term, set at its first iteration.
     let mut lambda: Option<f32> = None;
     for (l, &iters) in params.iterations.iter().enumerate() {
@@ -319,40 +314,20 @@ pub fn stylize_with(
         let base = if params.rematch && l > 0 && iters > 0 { Some(scene.deform(&unflatten(&v))?.0) } else { None };
         if iters > 0 {
             adam.lr = scale_learning_rate(scene, params, l);
-            let mut cache: HashMap<usize, (SplatCamera, NnstMatch, Option<OrientationView>)> = HashMap::new();
+            let mut cache: HashMap<usize, ScaleView> = HashMap::new();
             for m in 0..iters {
                 let k = m as usize % views.len();
                 if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(k) {
-                    let cam = scene.camera(views[k].0, views[k].1)?;
                     let strands = base.as_ref().unwrap_or(&scene.undeformed);
-                    let (matched, _) = match_view_on(scene, strands, vgg, &sstyle, &cam)?;
-                    let view = match &strokes {
-                        Some(f) => orientation_view(scene, strands, f, &cam)?,
-                        None => None,
-                    };
-                    e.insert((cam, matched, view));
+                    e.insert(scale_view(scene, vgg, &sstyle, strokes.as_ref(), strands, views[k])?);
                 }
                 let (cam, matched, view) = &cache[&k];
-                let term = match (&strokes, view) {
-                    (Some(field), Some(view)) => {
-                        let unit = OrientationTerm { field, view, weight: 1.0 };
-                        let weight = orientation_weight(&mut lambda, scene, vgg, cam, matched, unit, params, &v)?;
-                        Some(OrientationTerm { weight, ..unit })
-                    }
-                    _ => None,
-                };
-                if let Some(hook) = hooks.before_iteration.as_mut() {
-                    let mut vv = unflatten(&v);
-                    hook(IterationClock { scale: l, iteration: m, iterations: iters, done, total }, &mut vv)?;
-                    v = flatten(&vv);
-                }
+                let unit = strokes.as_ref().zip(view.as_ref());
+                let term = orientation_term(&mut lambda, scene, vgg, cam, matched, unit, params, &v)?;
+                hooks.before(IterationClock { scale: l, iteration: m, iterations: iters, done, total }, &mut v)?;
                 done += 1;
-                let step = iteration_with(scene, vgg, cam, matched, term, &mut v, &mut adam).map_err(|e| match e {
-                    PipelineError::Diverged(why) => {
-                        PipelineError::Diverged(format!("{why} at scale {} iteration {}", l + 1, m + 1))
-                    }
-                    e => e,
-                })?;
+                let step = iteration_with(scene, vgg, cam, matched, term, &mut v, &mut adam)
+                    .map_err(|e| at_iteration(e, l, m))?;
                 history.push(step.loss);
                 progress(&IterationReport {
                     scale: l,
@@ -373,10 +348,121 @@ pub fn stylize_with(
     if strands.points.iter().any(|p| p.iter().any(|c| !c.is_finite())) {
         return Err(PipelineError::Diverged("non-finite control points".into()));
     }
-    // The first `eval_views` of the finest scale's cached views (the
-    // optimized views; each costs two matches, a tenth of a Short Hair
-    // frame for all eight); with a fresh camera per iteration, a fixed set
-    // drawn from the same distribution.
+    let eval = evaluate(scene, vgg, params, (&angles, &per_scale), &finest, &strands)?;
+    let held_out = if params.held_out_views > 0 {
+        held_out_loss(scene, vgg, &finest, &strands, params)?
+    } else {
+        HeldOut::default()
+    };
+    // Colour: a stage of its own on the finished strands.
+    let colors = match params.color {
+        true => Some(color_stage(scene, style, vgg, &strands, params, progress)?),
+        false => None,
+    };
+    let (guides, proxies) = split_guides(scene, &strands);
+    Ok(StylizeResult {
+        guides,
+        proxies,
+        strands,
+        velocities: unflatten(&v),
+        colors,
+        loss_history: history,
+        eval_before: eval.before,
+        eval_after: eval.after,
+        eval_after_rematched: eval.after_rematched,
+        eval_angles: eval.angles,
+        held_out,
+    })
+}
+
+/// The painting must be RGB and at least 16 pixels a side (VGG's taps).
+fn check_style(style: &Image) -> Result<(), PipelineError> {
+    if style.channels != 3 || style.height < 16 || style.width < 16 {
+        return Err(PipelineError::Parameter(format!(
+            "style image is {}x{}x{}, need 3 channels and at least 16x16",
+            style.channels, style.height, style.width
+        )));
+    }
+    Ok(())
+}
+
+/// The flat velocities a frame starts from: the hook's (a sequence's
+/// previous frame) or zero (Alg. 1 line 5).
+fn initial_velocities(initial: Option<&[[f32; 3]]>, n: usize) -> Result<Vec<f32>, PipelineError> {
+    Ok(match initial {
+        Some(v0) if v0.len() != n => {
+            return Err(StrandError::Mismatch { what: "initial velocities", expected: n, got: v0.len() }.into())
+        }
+        Some(v0) => flatten(v0),
+        None => vec![0.0f32; 3 * n],
+    })
+}
+
+/// Cached views of each scale: the scale's iterations, or
+/// [`StylizeParams::views_per_scale`] when fewer.
+fn views_per_scale(params: &StylizeParams) -> Vec<usize> {
+    params
+        .iterations
+        .iter()
+        .map(|&it| if params.views_per_scale == 0 { it as usize } else { params.views_per_scale.min(it as usize) })
+        .collect()
+}
+
+/// A cached view of a scale: its camera, the NNST targets matched there
+/// and the orientation term's view.
+type ScaleView = (SplatCamera, NnstMatch, Option<OrientationView>);
+
+/// The view at `angle` of `strands` (where the scale's targets are
+/// matched) with the scale's targets and orientation view.
+fn scale_view(
+    scene: &StrandScene,
+    vgg: &Vgg19,
+    sstyle: &NnstTarget,
+    strokes: Option<&StrokeField>,
+    strands: &FlatStrands,
+    angle: (f32, f32),
+) -> Result<ScaleView, PipelineError> {
+    let cam = scene.camera(angle.0, angle.1)?;
+    let (matched, _) = match_view_on(scene, strands, vgg, sstyle, &cam)?;
+    let view = match strokes {
+        Some(f) => orientation_view(scene, strands, f, &cam)?,
+        None => None,
+    };
+    Ok((cam, matched, view))
+}
+
+/// A diverged iteration says where it diverged.
+fn at_iteration(e: PipelineError, l: usize, m: u32) -> PipelineError {
+    match e {
+        PipelineError::Diverged(why) => {
+            PipelineError::Diverged(format!("{why} at scale {} iteration {}", l + 1, m + 1))
+        }
+        e => e,
+    }
+}
+
+/// The mean NNST losses of [`StylizeResult`] over the evaluation views.
+struct Evaluation {
+    angles: Vec<(f32, f32)>,
+    before: f32,
+    after: f32,
+    after_rematched: f32,
+}
+
+/// The NNST loss of the rest groom and of the stylized `strands` against
+/// the finest scale's targets, from the first `eval_views` of the finest
+/// scale's cached views (the optimized views; each costs two matches, a
+/// tenth of a Short Hair frame for all eight); with a fresh camera per
+/// iteration, a fixed set drawn from the same distribution.
+fn evaluate(
+    scene: &StrandScene,
+    vgg: &Vgg19,
+    params: &StylizeParams,
+    (angles, per_scale): (&[(f32, f32)], &[usize]),
+    finest: &NnstTarget,
+    strands: &FlatStrands,
+) -> Result<Evaluation, PipelineError> {
+    let p = params.preset;
     let eval_angles = if params.views_per_scale > 0 && params.iterations[2] > 0 {
         let finest = &angles[angles.len() - per_scale[2]..];
         finest[..params.eval_views.min(finest.len())].to_vec()
@@ -386,30 +472,43 @@ pub fn stylize_with(
     let (mut before, mut after, mut rematched) = (0.0f64, 0.0f64, 0.0f64);
     for &(psi, delta) in &eval_angles {
         let cam = scene.camera(psi, delta)?;
-        let (matched, l0) = match_view_on(scene, &scene.undeformed, vgg, &finest, &cam)?;
-        let img = scene.render(&strands, &cam)?;
+        let (matched, l0) = match_view_on(scene, &scene.undeformed, vgg, finest, &cam)?;
+        let img = scene.render(strands, &cam)?;
         let feats = vgg.forward(&img, &NNST_LAYERS, false);
         before += l0 as f64;
         after += nnst_loss_matched(feats.taps(), &matched)?.0 as f64;
         rematched += nnst_loss_matched(feats.taps(), &finest.match_content(feats.taps())?)?.0 as f64;
     }
     let k = eval_angles.len() as f64;
-    let held_out = if params.held_out_views > 0 {
-        held_out_loss(scene, vgg, &finest, &strands, params)?
-    } else {
-        HeldOut::default()
-    };
-    // Colour: a stage of its own on the finished strands.
-    let colors = if params.color {
-        let iterations = color_iterations();
-        let stage = stylize_color(scene, style, vgg, &strands, params, &mut |i, loss| {
-            progress(&IterationReport { scale: 2, iteration: i, iterations, loss, inside: 0, color: true });
-            Ok(nst3d_core::stop::check()?)
-        })?;
-        Some(stage.colors)
-    } else {
-        None
-    };
+    Ok(Evaluation {
+        angles: eval_angles,
+        before: (before / k) as f32,
+        after: (after / k) as f32,
+        after_rematched: (rematched / k) as f32,
+    })
+}
+
+/// The colour stage on the finished strands, its iterations reported as
+/// the finest scale's with `color` set.
+fn color_stage(
+    scene: &StrandScene,
+    style: &Image,
+    vgg: &Vgg19,
+    strands: &FlatStrands,
+    params: &StylizeParams,
+    progress: &mut dyn FnMut(&IterationReport),
+) -> Result<Vec<[f32; 3]>, PipelineError> {
+    let iterations = color_iterations();
+    let stage = stylize_color(scene, style, vgg, strands, params, &mut |i, loss| {
+        progress(&IterationReport { scale: 2, iteration: i, iterations, loss, inside: 0, color: true });
+        Ok(nst3d_core::stop::check()?)
+    })?;
+    Ok(stage.colors)
+}
+
+/// The guides (the groom to write) and the proxies of `strands` (layout of
+/// [`StrandScene::rest`]).
+fn split_guides(scene: &StrandScene, strands: &FlatStrands) -> (FlatStrands, FlatStrands) {
     let g = scene.guide_count;
     let split = strands.offsets[g];
     let guides = FlatStrands { points: strands.points[..split].to_vec(), offsets: strands.offsets[..=g].to_vec() };
@@ -417,17 +516,5 @@ pub fn stylize_with(
         points: strands.points[split..].to_vec(),
         offsets: strands.offsets[g..].iter().map(|o| o - split).collect(),
     };
-    Ok(StylizeResult {
-        guides,
-        proxies,
-        strands,
-        velocities: unflatten(&v),
-        colors,
-        loss_history: history,
-        eval_before: (before / k) as f32,
-        eval_after: (after / k) as f32,
-        eval_after_rematched: (rematched / k) as f32,
-        eval_angles,
-        held_out,
-    })
+    (guides, proxies)
 }

@@ -6,6 +6,7 @@ use nst3d_core::math::{add, cross, dot, norm, normalize, scale, sub, V3};
 use nst3d_core::mesh::TriMesh;
 use nst3d_core::Image;
 use nst3d_features::Vgg19;
+use nst3d_loss::cell_mask;
 use nst3d_loss::nnst::{nnst_loss_matched, NnstMatch, NnstParams, NnstTarget};
 use nst3d_splat::SplatCamera;
 
@@ -259,4 +260,25 @@ mod tests {
         assert!(close(f.direction(90.0, 0.0), f.up));
         assert!(close(f.direction(0.0, 90.0), f.side));
     }
+}
+
+/// Hyper-columns (row-major on `grid`) whose cell of the image holds a
+/// pixel that differs from the background in any of `renders`.
+pub fn hair_columns(renders: &[&Image], background: [f32; 3], grid: (usize, usize)) -> Vec<bool> {
+    let mut mask = vec![false; grid.0 * grid.1];
+    for img in renders {
+        let cells = cell_mask(&hair_pixels(img, background), img.height, img.width, grid.0, grid.1);
+        mask.iter_mut().zip(cells).for_each(|(m, c)| *m |= c);
+    }
+    mask
+}
+
+/// Pixels of `img` (row-major) that hold hair: a channel off `background`
+/// by more than 0.02 (the held-out loss, the colour stage and the judge
+/// all count hair so).
+pub fn hair_pixels(img: &Image, background: [f32; 3]) -> Vec<bool> {
+    let plane = img.plane();
+    (0..plane)
+        .map(|i| (0..img.channels.min(3)).any(|c| (img.data[c * plane + i] - background[c]).abs() > 0.02))
+        .collect()
 }

@@ -48,39 +48,9 @@ pub(super) fn tokenize(text: &str) -> Result<Vec<Token>, ErrorKind> {
                 }
             }
             b'"' | b'\'' => {
-                let triple = b.len() >= i + 3 && b[i + 1] == c && b[i + 2] == c;
-                let q = if triple { 3 } else { 1 };
                 let start_line = line;
-                let mut j = i + q;
-                let mut s = Vec::new();
-                loop {
-                    if j >= b.len() {
-                        return Err(corrupt(format!("line {start_line}: unterminated string")));
-                    }
-                    if b[j] == b'\\' && j + 1 < b.len() {
-                        let e = b[j + 1];
-                        s.push(match e {
-                            b'n' => b'\n',
-                            b't' => b'\t',
-                            other => other,
-                        });
-                        j += 2;
-                        continue;
-                    }
-                    if b[j] == c && (!triple || (j + 2 < b.len() && b[j + 1] == c && b[j + 2] == c)) {
-                        j += q;
-                        break;
-                    }
-                    if b[j] == b'\n' {
-                        if !triple {
-                            return Err(corrupt(format!("line {start_line}: newline in string")));
-                        }
-                        line += 1;
-                    }
-                    s.push(b[j]);
-                    j += 1;
-                }
-                toks.push((Tok::Str(String::from_utf8_lossy(&s).into_owned()), start_line));
+                let (s, j) = string(b, i, &mut line)?;
+                toks.push((Tok::Str(s), start_line));
                 i = j;
             }
             b'<' => {
@@ -141,4 +111,43 @@ pub(super) fn tokenize(text: &str) -> Result<Vec<Token>, ErrorKind> {
         }
     }
     Ok(toks.into_iter().zip(spans).map(|((tok, line), span)| Token { tok, line, span }).collect())
+}
+
+/// The string literal (quoted by `'`, `"` or either tripled) starting at
+/// `b[i]`: its text, escapes resolved, and the index after it; `line`
+/// moves past the newlines of a triple-quoted one.
+fn string(b: &[u8], i: usize, line: &mut usize) -> Result<(String, usize), ErrorKind> {
+    let (c, start_line) = (b[i], *line);
+    let triple = b.len() >= i + 3 && b[i + 1] == c && b[i + 2] == c;
+    let q = if triple { 3 } else { 1 };
+    let mut j = i + q;
+    let mut s = Vec::new();
+    loop {
+        if j >= b.len() {
+            return Err(corrupt(format!("line {start_line}: unterminated string")));
+        }
+        if b[j] == b'\\' && j + 1 < b.len() {
+            let e = b[j + 1];
+            s.push(match e {
+                b'n' => b'\n',
+                b't' => b'\t',
+                other => other,
+            });
+            j += 2;
+            continue;
+        }
+        if b[j] == c && (!triple || (j + 2 < b.len() && b[j + 1] == c && b[j + 2] == c)) {
+            j += q;
+            break;
+        }
+        if b[j] == b'\n' {
+            if !triple {
+                return Err(corrupt(format!("line {start_line}: newline in string")));
+            }
+            *line += 1;
+        }
+        s.push(b[j]);
+        j += 1;
+    }
+    Ok((String::from_utf8_lossy(&s).into_owned(), j))
 }

@@ -152,9 +152,6 @@ pub(super) fn gather(text: &str, read: &[CurvesPrim]) -> UsdPrimvars {
     let drop = |kept: &mut UsdPrimvars, name: &str, why: String| {
         kept.dropped.push(format!("{name} is not kept: {why}"));
     };
-    let varying_on_cubic = |g: &Group, c: &CurvesPrim| c.cubic && g.interpolation() == Some("varying");
-    const CUBIC: &str = "varying on cubic curves (one value per segment end) means nothing on the linear curves \
-                         nst3d writes";
 
     if let ([c], [groups]) = (read, per_prim.as_slice()) {
         for g in groups {
@@ -194,56 +191,63 @@ pub(super) fn gather(text: &str, read: &[CurvesPrim]) -> UsdPrimvars {
             drop(&mut kept, name, format!("declared on {} of the {} curves prims", found.len(), read.len()));
             continue;
         }
-        if indexed(name) {
-            drop(&mut kept, name, "indexed primvars of several curves prims are not merged".into());
-            continue;
+        match merge(text, name, &found, indexed(name)) {
+            Ok(primvar) => kept.primvars.push(primvar),
+            Err(why) => drop(&mut kept, name, why),
         }
-        let single: Option<Vec<&Attr>> =
-            found.iter().map(|(g, _)| (g.attrs.len() == 1 && g.attrs[0].name == name).then_some(g.attrs[0])).collect();
-        let Some(attrs) = single.filter(|a| a.iter().all(|a| a.value_span.is_some())) else {
-            drop(&mut kept, name, "time-sampled, connected or declared more than once on several curves prims".into());
-            continue;
-        };
-        if found.iter().any(|(g, c)| varying_on_cubic(g, c)) {
-            drop(&mut kept, name, CUBIC.into());
-            continue;
-        }
-        let slice = |r: &Option<std::ops::Range<usize>>| r.clone().map_or("", |r| &text[r]);
-        let head = normalized(&text[attrs[0].head.clone()]);
-        let meta = normalized(slice(&attrs[0].meta_span));
-        if attrs.iter().any(|a| normalized(&text[a.head.clone()]) != head || normalized(slice(&a.meta_span)) != meta) {
-            drop(&mut kept, name, "the curves prims declare it differently".into());
-            continue;
-        }
-        let (group, _) = found[0];
-        let interpolation = group.interpolation().map(str::to_string);
-        let declaration = if matches!(interpolation.as_deref(), None | Some("constant")) {
-            let value = normalized(slice(&attrs[0].value_span));
-            if attrs.iter().any(|a| normalized(slice(&a.value_span)) != value) {
-                drop(&mut kept, name, "constant, with different values on different curves prims".into());
-                continue;
-            }
-            text[attrs[0].span.clone()].to_string()
-        } else {
-            let Some(elements) =
-                attrs.iter().map(|a| array_elements(slice(&a.value_span))).collect::<Option<Vec<Vec<&str>>>>()
-            else {
-                drop(&mut kept, name, "not an array on every curves prim".into());
-                continue;
-            };
-            let mut d = format!("{} = [{}]", &text[attrs[0].head.clone()], elements.concat().join(", "));
-            if let Some(m) = &attrs[0].meta_span {
-                d.push(' ');
-                d.push_str(&text[m.clone()]);
-            }
-            d
-        };
-        kept.primvars.push(UsdPrimvar {
-            name: name.to_string(),
-            type_name: group.type_name(),
-            interpolation,
-            declaration,
-        });
     }
     kept
+}
+
+/// Why a primvar of cubic curves is dropped when it is varying.
+const CUBIC: &str = "varying on cubic curves (one value per segment end) means nothing on the linear curves \
+                     nst3d writes";
+
+fn varying_on_cubic(g: &Group, c: &CurvesPrim) -> bool {
+    c.cubic && g.interpolation() == Some("varying")
+}
+
+/// The primvar `name` of several curves prims merged into one declaration
+/// (`found`: its group on each prim; `indexed`: it has indices), or why it
+/// is not kept.
+fn merge(text: &str, name: &str, found: &[(&Group, &CurvesPrim)], indexed: bool) -> Result<UsdPrimvar, String> {
+    if indexed {
+        return Err("indexed primvars of several curves prims are not merged".into());
+    }
+    let single: Option<Vec<&Attr>> =
+        found.iter().map(|(g, _)| (g.attrs.len() == 1 && g.attrs[0].name == name).then_some(g.attrs[0])).collect();
+    let Some(attrs) = single.filter(|a| a.iter().all(|a| a.value_span.is_some())) else {
+        return Err("time-sampled, connected or declared more than once on several curves prims".into());
+    };
+    if found.iter().any(|(g, c)| varying_on_cubic(g, c)) {
+        return Err(CUBIC.into());
+    }
+    let slice = |r: &Option<std::ops::Range<usize>>| r.clone().map_or("", |r| &text[r]);
+    let head = normalized(&text[attrs[0].head.clone()]);
+    let meta = normalized(slice(&attrs[0].meta_span));
+    if attrs.iter().any(|a| normalized(&text[a.head.clone()]) != head || normalized(slice(&a.meta_span)) != meta) {
+        return Err("the curves prims declare it differently".into());
+    }
+    let (group, _) = found[0];
+    let interpolation = group.interpolation().map(str::to_string);
+    let declaration = if matches!(interpolation.as_deref(), None | Some("constant")) {
+        let value = normalized(slice(&attrs[0].value_span));
+        if attrs.iter().any(|a| normalized(slice(&a.value_span)) != value) {
+            return Err("constant, with different values on different curves prims".into());
+        }
+        text[attrs[0].span.clone()].to_string()
+    } else {
+        let Some(elements) =
+            attrs.iter().map(|a| array_elements(slice(&a.value_span))).collect::<Option<Vec<Vec<&str>>>>()
+        else {
+            return Err("not an array on every curves prim".into());
+        };
+        let mut d = format!("{} = [{}]", &text[attrs[0].head.clone()], elements.concat().join(", "));
+        if let Some(m) = &attrs[0].meta_span {
+            d.push(' ');
+            d.push_str(&text[m.clone()]);
+        }
+        d
+    };
+    Ok(UsdPrimvar { name: name.to_string(), type_name: group.type_name(), interpolation, declaration })
 }

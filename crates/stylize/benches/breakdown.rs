@@ -1,6 +1,6 @@
 //! Where one `volume-iter` iteration spends its time, stage by stage
-//! (profiling aid for docs/design/performance.md). `cargo run --release -p
-//! nst3d-stylize --example breakdown [N]`.
+//! (profiling aid for docs/design/performance.md). `cargo bench -p
+//! nst3d-stylize --bench breakdown -- [N]`.
 
 use std::time::Instant;
 

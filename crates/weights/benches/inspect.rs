@@ -1,5 +1,5 @@
 //! Lists a checkpoint's tensors and times reading it:
-//! `cargo run --release -p nst3d-weights --example inspect -- [path]` (default: the
+//! `cargo bench -p nst3d-weights --bench inspect -- [path]` (default: the
 //! installed VGG-19 weights).
 
 use std::path::PathBuf;

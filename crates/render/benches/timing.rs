@@ -1,5 +1,5 @@
 //! Times the per-iteration transport and render work at N = 128 (2M voxels):
-//! `cargo run --release -p nst3d-render --example timing [N]`. Prints wall
+//! `cargo bench -p nst3d-render --bench timing -- [N]`. Prints wall
 //! time and CPU time summed over threads (busy-waiting rayon workers inflate the latter).
 
 use nst3d_core::{gradcheck::pseudo_random, Grid3, Image};
