@@ -12,7 +12,7 @@
 //!   `σ` = [`STRUCTURE_SIGMA`] pixels); the stroke runs along the smaller
 //!   eigenvector, with weight `c = ((λ₁ − λ₂)/(λ₁ + λ₂ + ε))² · E/(E + E₀)`,
 //!   the coherence times a gate on the gradient energy `E = λ₁ + λ₂`
-//!   ([`STROKE_ENERGY`]) so that only visible strokes have a direction. Kept in
+//!   ([`STROKE_GRADIENT`]) so that only visible strokes have a direction. Kept in
 //!   doubled-angle form `(c cos 2θ, c sin 2θ, c)` so bilinear sampling
 //!   averages headless directions correctly.
 //! - **Placement.** The painting is laid over the rest hair's box in each
@@ -44,13 +44,14 @@ use crate::strands::FlatStrands;
 /// Structure-tensor smoothing, pixels at the scale's style size.
 pub const STRUCTURE_SIGMA: f32 = 3.0;
 
-/// Gradient energy `|∇I|²` (luminance per pixel, squared) at which a
-/// place of the painting counts half as a stroke: a grey step of 1 % per
-/// pixel. Coherence alone is scale-free, so a smooth ramp (0.2 → 0.7
-/// across the picture, 0.002 per pixel) would be a perfect vertical stroke
-/// and comb the hair; weighted by `E/(E + this)` it counts 4 %, where the
-/// edges of stripes count over 99 %.
-pub const STROKE_ENERGY: f32 = 1e-4;
+/// The luminance gradient, per picture height, at which a place of the
+/// painting counts half as a stroke: its energy `E₀ = (this / h)²` per
+/// pixel at height `h`. Coherence alone is scale-free, so a smooth ramp
+/// (0.2 → 0.7 across the picture, 0.5 per height) would be a perfect
+/// vertical stroke and comb the hair; weighted by `E/(E + E₀)` it counts
+/// 1.5 % at any size, where the edges of stripes count over 95 % (an edge
+/// is steep in pixels whatever the size).
+pub const STROKE_GRADIENT: f32 = 4.0;
 
 /// A painting's stroke directions in doubled-angle form, row-major.
 #[derive(Clone, Debug)]
@@ -94,6 +95,7 @@ impl StrokeField {
         let j = blur(&t, w, h, STRUCTURE_SIGMA);
         let mean_trace = j.iter().map(|v| (v[0] + v[2]) as f64).sum::<f64>() / (w * h).max(1) as f64;
         let eps = 1e-2 * mean_trace as f32 + 1e-12;
+        let stroke_energy = (STROKE_GRADIENT / h.max(1) as f32).powi(2);
         let (mut gated, mut coherent) = (0.0f64, 0.0f64);
         let data = j
             .iter()
@@ -101,7 +103,7 @@ impl StrokeField {
                 let disc = ((jxx - jyy).powi(2) + 4.0 * jxy * jxy).max(0.0).sqrt();
                 let energy = jxx + jyy;
                 let coherence = (disc / (energy + eps)).powi(2);
-                let c = coherence * energy / (energy + STROKE_ENERGY);
+                let c = coherence * energy / (energy + stroke_energy);
                 (gated, coherent) = (gated + c as f64, coherent + coherence as f64);
                 // The gradient's doubled angle is atan2(2 jxy, jxx − jyy);
                 // the stroke is perpendicular: its doubled angle is opposite.
@@ -114,10 +116,10 @@ impl StrokeField {
     }
 
     /// How much of the painting's coherent structure is visible strokes
-    /// (`Σ c / Σ coherence`, in `[0, 1]`): the orientation weight is
-    /// scaled by it, since setting `λ` from gradient norms would otherwise
-    /// undo the energy gate (a ramp's faint field would be scaled up to a
-    /// stroked painting's strength).
+    /// (`Σ c / Σ coherence`, in `[0, 1]`): each scale's orientation weight
+    /// is scaled by its field's, since setting `λ` from gradient norms
+    /// would otherwise undo the energy gate (a ramp's faint field would be
+    /// scaled up to a stroked painting's strength).
     pub fn strength(&self) -> f32 {
         self.strength
     }
@@ -363,6 +365,9 @@ mod tests {
         let c = StrokeField::from_grey(&ramp).data[100 * n + 100][2];
         assert!(c < 0.1, "ramp weight {c}");
         assert!(StrokeField::from_grey(&ramp).strength() < 0.1);
+        // The same ramp at a coarse scale's 16 pixels, 0.03 per pixel.
+        let small = Image::from_vec(1, 16, 16, (0..256).map(|i| 0.2 + 0.5 * (i % 16) as f32 / 16.0).collect());
+        assert!(StrokeField::from_grey(&small).strength() < 0.1, "{}", StrokeField::from_grey(&small).strength());
         let edge = StrokeField::from_grey(&stripes(48)).data[24 * 48 + 24][2];
         assert!(edge > 0.9, "stripes weight {edge}");
         assert!(StrokeField::from_grey(&stripes(48)).strength() > 0.9);
