@@ -171,9 +171,8 @@ mod tests {
         let d = Grid3::from_vec([4, 2, 1], vec![0.2, 0.4, 0.6, 0.8, 0.1, 0.0, 0.3, 0.5]);
         write_vdb(&input, &[VdbGrid::from_dense("density", t.clone(), [0, 0, 0], &d, 0.0)]).unwrap();
         let file = read_vdb(&input).unwrap();
-        let c: Vec<Grid3> = (0..3)
-            .map(|ch| Grid3::from_vec(d.dims, (0..8).map(|i| 0.25 * ((i + ch) % 9) as f32).collect()))
-            .collect();
+        let c: Vec<Grid3> =
+            (0..3).map(|ch| Grid3::from_vec(d.dims, (0..8).map(|i| 0.25 * ((i + ch) % 9) as f32).collect())).collect();
         write_stylized(&out, &file, "density", &t, [0, 0, 0], &d, Some(("Cd", &c))).unwrap();
         let back = read_vdb(&out).unwrap();
         let (_, density) = back.grid("density").unwrap().to_dense().unwrap();
