@@ -237,9 +237,10 @@ def test_slurm_groom_array_stylizes_one_groom_a_task(tmp_path, fur):
                        f"{fur / 'fur.ply'} {fur / 'sphere.ply'} {STYLE} {tmp_path / 'a.usda'}\n"
                        f"{fur / 'fur.ply'} {fur / 'sphere.ply'} {STYLE} {tmp_path / 'b.usda'}\n")
     env = dict(os.environ, LIST=str(listing), NST3D=str(NST3D), SETTINGS=" ".join(GROOM_FAST))
-    job = subprocess.run(["sbatch", "--parsable", "--wait", "--array=0-1", *sbatch_overrides(),
+    job = subprocess.run(["sbatch", "--parsable", "--array=0-1", *sbatch_overrides(),
                           str(REPO / "farm" / "slurm" / "nst3d-groom.sbatch")], env=env, cwd=tmp_path,
                          check=True, capture_output=True, text=True).stdout.strip()
+    wait_for(job)  # polls squeue every second, quicker than sbatch --wait here
     for i, name in enumerate("ab"):
         log = (tmp_path / f"nst3d-groom-{job}_{i}.log").read_text()
         assert f"wrote {tmp_path / (name + '.usda')}" in log, log[-2000:]
