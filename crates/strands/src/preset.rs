@@ -147,7 +147,9 @@ pub struct PresetParams {
     /// can be combed into the picture (grass, a fur ball): there NNST alone
     /// left the groom alike for every style and the term makes stripes,
     /// spirals and paintings tell apart; 0 on the heads, where it was not
-    /// shown to help (a spiky head crinkled).
+    /// shown to help (a spiky head crinkled). Sequences run without it
+    /// unless asked (the groom crate's settings: it is not yet temporally
+    /// coherent).
     pub orientation: f32,
     /// Collision threshold `τ` as a fraction of the collider's bounding-box
     /// diagonal. Not in the paper: 0.5 %, a few strand widths on a head.
