@@ -143,11 +143,12 @@ pub struct PresetParams {
     pub neighbors: usize,
     /// Weight of the orientation term beside NNST
     /// ([`crate::pipeline::StylizeParams::orientation`]). Not in the paper
-    /// (its future work): 1 where strands are seen along their length or
-    /// can be combed into the picture (grass, a fur ball): there NNST alone
-    /// left the groom alike for every style and the term makes stripes,
-    /// spirals and paintings tell apart; 0 on the heads, where it was not
-    /// shown to help (a spiky head crinkled). Sequences run without it
+    /// (its future work): 1 for the fur ball, which NNST alone left alike
+    /// for every style and which the term combs along each style's strokes;
+    /// 0 elsewhere: on grass it swirls, latticed and parted the blades for a
+    /// spiral, triangles and checks but gathered them into one tuft for
+    /// stripes and Starry Night, and on a spiky head it was not shown to
+    /// help. Sequences run without it
     /// unless asked (the groom crate's settings: it is not yet temporally
     /// coherent).
     pub orientation: f32,
@@ -303,7 +304,6 @@ impl Preset {
                 sampling_density: 0.666,
                 temporal: temporal(0.6, 0.34, 0.3, 9.0),
                 runtime_s_per_frame: 26.0,
-                orientation: 1.0,
                 ..BASE
             },
         }
