@@ -21,7 +21,10 @@
 # grass, 15 for the fur ball). Needs the PyTorch environment of
 # tools/bench_common.sh (.venv-torch, made on first use). Runs two jobs at a
 # time on one thread each; finished pieces are kept, so a rerun with the
-# same OUTDIR resumes. Set STYLES to judge a subset.
+# same OUTDIR resumes. Set STYLES to judge a subset. With a mesh the judge
+# draws, as nst3d does, only strands whose root faces the camera: CULL is
+# the preset's visibility threshold (0.3 by default, Table 1's short hair;
+# 0.5 for the fur ball and grass).
 set -euo pipefail
 [ $# -ge 5 ] || { echo "usage: $0 OUTDIR GROOM MESH|- y|z ANGLE [nst3d strands options...]" >&2; exit 2; }
 OUT=$(realpath -m "$1"); GROOM=$(realpath -m "$2"); MESH=$3; UP=$4; ANGLE=$5; shift 5
@@ -40,6 +43,7 @@ mkdir -p "$OUT/styles"
 "$PY" tools/strand_ref/styles.py "$OUT/styles"
 style_of() { [ -f "$OUT/styles/$1.png" ] && echo "$OUT/styles/$1.png" || echo "../shared/data/styles/$1.jpg"; }
 mesh_args=(); [ "$MESH" = - ] || mesh_args=(--mesh "$MESH")
+cull_args=(); [ "$MESH" = - ] || cull_args=(--cull "${CULL:-0.3}")
 stylize() {
   local s=$1; shift
   [ -f "$OUT/$s.ply" ] && return 0
@@ -59,7 +63,7 @@ for s in "${ALL[@]}"; do [ "$s" = ramp ] || args+=(--style "$s=$(style_of "$s")"
 # stroke-direction histograms (which way the strands and strokes run).
 for judge in gram orient; do
   echo "== judge: $judge"
-  "$PY" tools/strand_ref/judge.py --judge "$judge" --rest "$GROOM" "${args[@]}" --up "$UP" --ang "$ANGLE" --crop \
+  "$PY" tools/strand_ref/judge.py --judge "$judge" --rest "$GROOM" "${args[@]}" --up "$UP" --ang "$ANGLE" --crop "${cull_args[@]}" \
     --painting-margin 0.05 --paintings "$(IFS=,; echo "${PAINTINGS[*]}")" \
     --sheet "$OUT/sheet.png" --json "$OUT/judge_$judge.json" | tee "$OUT/judge_$judge.txt"
 done

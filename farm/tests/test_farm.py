@@ -1,9 +1,12 @@
-"""nst3d on real farm engines: Open Job Description templates run by
-`openjd run`, and a Slurm array job on the single-node cluster
-tools/slurm_up.sh starts. Each stylizes plume48 frames 1-40 in 4 chunks and
-is compared with one process doing the whole range (chunks meet at their
-seams within docs/guide/farm.md's tolerance); a Slurm task requeued mid-chunk
-ends with the same bytes. Missing tools or data fail loudly."""
+"""nst3d on real farm engines: Open Job Description templates checked by
+`openjd check` and run by `openjd run`, and Slurm array jobs on the
+single-node cluster tools/slurm_up.sh starts. The volume jobs stylize plume48
+frames 1-40 in 4 chunks and are compared with one process doing the whole
+range (chunks meet at their seams within docs/guide/farm.md's tolerance); a
+Slurm task requeued mid-chunk ends with the same bytes; the feed-forward
+template's chunks give the bytes of one run with the model the training
+template wrote; a groom template and array job stylize a tiny fur ball as the
+command line does. Missing tools or data fail loudly."""
 
 import os
 import pathlib
@@ -22,6 +25,10 @@ PLUME = SHARED / "data" / "volumes" / "plume48" / "fluid_data_####.vdb"
 STYLE = SHARED / "data" / "styles" / "starry_night.jpg"
 NST3D = pathlib.Path(os.environ.get("NST3D_BIN", REPO / "target" / "release" / "nst3d"))
 FAST = ["--iters", "4", "--octaves", "1", "--upsample", "1"]
+# A tiny groom's stylization, seconds long.
+GROOM_FAST = ["--preset", "fur-ball", "--render-size", "48", "--iters", "3", "--proxies", "20",
+              "--views-per-scale", "1"]
+TEMPLATES = ["volume-sequence", "feedforward", "train", "groom"]
 FRAMES = range(1, 41)
 # docs/guide/farm.md: with 8 warm-up frames a seam frame is within 0.09-0.13 of
 # the single run (relative to the stylization itself); 0.25 is the bound.
@@ -84,37 +91,78 @@ def single(tmp_path_factory):
     return out
 
 
-def test_openjd_template_runs_the_chunks(tmp_path, single):
-    openjd = tool("openjd")
-    template = REPO / "farm" / "openjd" / "volume-sequence.yaml"
-    subprocess.run([openjd, "check", str(template)], check=True, capture_output=True)
-    out = tmp_path / "s_####.vdb"
-    r = subprocess.run([openjd, "run", str(template), "-p", f"Input={PLUME}", "-p", f"Output={out}",
-                        "-p", f"Style={STYLE}", "-p", "FrameStart=1", "-p", "FrameEnd=40", "-p", "ChunkSize=10",
-                        "-p", f"Nst3d={NST3D}", "-p", "Settings=" + " ".join(FAST)],
-                       capture_output=True, text=True, cwd=tmp_path)
+def openjd_run(template, params, cwd, extra=()):
+    r = subprocess.run([tool("openjd"), "run", str(REPO / "farm" / "openjd" / f"{template}.yaml"), *extra,
+                        *[a for k, v in params.items() for a in ("-p", f"{k}={v}")]],
+                       capture_output=True, text=True, cwd=cwd)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    assert "Chunks run: 4" in r.stdout, r.stdout[-2000:]
-    rel, f = assert_matches_single(out, single)
+    return r.stdout
+
+
+def test_openjd_templates_pass_the_check_as_a_td_writes_them():
+    """Paths are PATH parameters (path mapping, job attachments) with their
+    object type and data flow; every step says what host it needs."""
+    import yaml
+
+    for name in TEMPLATES:
+        template = REPO / "farm" / "openjd" / f"{name}.yaml"
+        subprocess.run([tool("openjd"), "check", str(template)], check=True, capture_output=True)
+        t = yaml.safe_load(template.read_text())
+        for p in t["parameterDefinitions"]:
+            if p["name"].endswith("Dir") or p["name"] in ("Style", "Model", "Mesh"):
+                assert p["type"] == "PATH" and p.get("objectType") and p.get("dataFlow"), (name, p)
+        for step in t["steps"]:
+            amounts = {a["name"]: a["min"] for a in step["hostRequirements"]["amounts"]}
+            assert amounts["amount.worker.vcpu"] >= 1 and amounts["amount.worker.memory"] >= 1024, (name, amounts)
+
+
+def test_openjd_template_runs_the_chunks(tmp_path, single):
+    out = tmp_path / "out"
+    stdout = openjd_run("volume-sequence", {
+        "InputDir": PLUME.parent, "InputFrames": PLUME.name, "OutputDir": out, "OutputFrames": "s_####.vdb",
+        "Style": STYLE, "FrameStart": 1, "FrameEnd": 40, "ChunkSize": 10, "Nst3d": NST3D,
+        "Settings": " ".join(FAST)}, tmp_path)
+    assert "Chunks run: 4" in stdout, stdout[-2000:]
+    rel, f = assert_matches_single(out / "s_####.vdb", single)
     print(f"openjd: worst seam frame {f}: {rel:.3f}")
 
 
-def test_openjd_feedforward_trains_once_then_stylizes_in_chunks(tmp_path):
-    openjd = tool("openjd")
-    template = REPO / "farm" / "openjd" / "feedforward.yaml"
-    subprocess.run([openjd, "check", str(template)], check=True, capture_output=True)
-    model, out = tmp_path / "m.safetensors", tmp_path / "ff" / "s_####.vdb"
-    r = subprocess.run([openjd, "run", str(template), "--run-dependencies", "--step", "Stylize",
-                        "-p", f"Input={PLUME}", "-p", f"Output={out}", "-p", f"Style={STYLE}", "-p", f"Model={model}",
-                        "-p", "TrainFrames=1-40", "-p", "TrainSettings=--steps 4 --patch 16 --channels 4",
-                        "-p", f"Nst3d={NST3D}"], capture_output=True, text=True, cwd=tmp_path)
-    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    assert "Chunks run: 5" in r.stdout, r.stdout[-2000:]  # train + 4 chunks
+def test_openjd_train_then_feedforward_in_chunks(tmp_path):
+    model, out = tmp_path / "m.safetensors", tmp_path / "ff"
+    stdout = openjd_run("train", {
+        "InputDir": PLUME.parent, "InputFrames": PLUME.name, "TrainFrames": "1-40", "Style": STYLE, "Model": model,
+        "TrainSettings": "--steps 4 --patch 16 --channels 4", "Nst3d": NST3D}, tmp_path)
+    assert "Chunks run: 1" in stdout and model.exists(), stdout[-2000:]
+    stdout = openjd_run("feedforward", {
+        "InputDir": PLUME.parent, "InputFrames": PLUME.name, "OutputDir": out, "OutputFrames": "s_####.vdb",
+        "Model": model, "FrameStart": 1, "FrameEnd": 40, "Nst3d": NST3D}, tmp_path)
+    assert "Chunks run: 4" in stdout, stdout[-2000:]
     one = tmp_path / "one" / "s_####.vdb"
     subprocess.run([str(NST3D), "volume", "--model", str(model), "--input", str(PLUME), "--out", str(one),
                     "--frames", "1-40"], check=True, capture_output=True)
     for f in FRAMES:  # frames are independent: chunks change nothing
-        assert frame(out, f).read_bytes() == frame(one, f).read_bytes(), f"frame {f}"
+        assert frame(out / "s_####.vdb", f).read_bytes() == frame(one, f).read_bytes(), f"frame {f}"
+
+
+@pytest.fixture(scope="session")
+def fur(tmp_path_factory):
+    """A 30-strand fur ball and its sphere, and the command line's result."""
+    d = tmp_path_factory.mktemp("fur")
+    subprocess.run([str(NST3D), "strands", "generate", "fur-ball", "--strands", "30", "--points", "5",
+                    "--out", str(d / "fur.ply"), "--mesh-out", str(d / "sphere.ply")], check=True, capture_output=True)
+    subprocess.run([str(NST3D), "--threads", "2", "strands", "--groom", str(d / "fur.ply"),
+                    "--mesh", str(d / "sphere.ply"), "--style", str(STYLE), "--out", str(d / "direct.usda"),
+                    *GROOM_FAST], check=True, capture_output=True)
+    return d
+
+
+def test_openjd_groom_template_stylizes_as_the_command_line(tmp_path, fur):
+    out = tmp_path / "out"
+    stdout = openjd_run("groom", {
+        "GroomDir": fur, "Groom": "fur.ply", "Mesh": fur / "sphere.ply", "OutputDir": out, "Output": "fur.usda",
+        "Style": STYLE, "Nst3d": NST3D, "Settings": "--threads 2 " + " ".join(GROOM_FAST)}, tmp_path)
+    assert "Chunks run: 1" in stdout, stdout[-2000:]
+    assert (out / "fur.usda").read_bytes() == (fur / "direct.usda").read_bytes()
 
 
 def slurm_env(out):
@@ -130,22 +178,43 @@ def wait_for(job, timeout=600):
         time.sleep(1)
 
 
+def sbatch_overrides():
+    """The scripts ask for 8G; a CI node with less gets what it has."""
+    node_mb = int(subprocess.run(["sinfo", "-h", "-o", "%m"], capture_output=True, text=True).stdout.split()[0])
+    return [] if node_mb >= 8192 else [f"--mem={node_mb}M"]
+
+
+def job_fields(job):
+    """`scontrol show job`'s Key=Value pairs of an array's first task."""
+    text = subprocess.run(["scontrol", "show", "job", f"{job}_0"], capture_output=True, text=True).stdout
+    return dict(kv.split("=", 1) for kv in text.split() if "=" in kv)
+
+
 def test_slurm_array_runs_the_chunks_and_a_requeued_task_ends_the_same(tmp_path, single):
     tool("sbatch")
     submit = REPO / "farm" / "slurm" / "submit.sh"
+    # One core a task: two chunks side by side on a 2-core CI node.
+    one_core = ["--cpus-per-task=1"]
     out = tmp_path / "a" / "s_####.vdb"
-    job = subprocess.run(["bash", str(submit), "--wait", "-o", str(tmp_path / "a_%a.log")], env=slurm_env(out),
+    job = subprocess.run(["bash", str(submit), "--wait", *one_core, *sbatch_overrides()], env=slurm_env(out), cwd=tmp_path,
                          check=True, capture_output=True, text=True).stdout.strip()
-    logs = "".join((tmp_path / f"a_{i}.log").read_text() for i in range(4))
+    # The script's own log name, memory, time limit and warning signal.
+    logs = "".join((tmp_path / f"nst3d-volume-{job}_{i}.log").read_text() for i in range(4))
     assert logs.count("10 frames stylized") == 4, logs[-3000:]
+    fields = job_fields(job)
+    assert fields["TimeLimit"] == "12:00:00", fields
+    if not sbatch_overrides():
+        assert fields.get("MinMemoryNode") == "8G", fields
+    script = (REPO / "farm" / "slurm" / "nst3d-volume.sbatch").read_text()
+    assert "#SBATCH --signal=B:TERM@60" in script and "#SBATCH --output=%x-%A_%a.log" in script
     rel, f = assert_matches_single(out, single)
     print(f"slurm job {job}: worst seam frame {f}: {rel:.3f}")
 
     # The same job again; task 1 is requeued (killed and restarted) mid-chunk.
     out2 = tmp_path / "b" / "s_####.vdb"
-    log = tmp_path / "b_1.log"
-    job2 = subprocess.run(["bash", str(submit), "-o", str(tmp_path / "b_%a.log")], env=slurm_env(out2),
+    job2 = subprocess.run(["bash", str(submit), *one_core, *sbatch_overrides()], env=slurm_env(out2), cwd=tmp_path,
                           check=True, capture_output=True, text=True).stdout.strip()
+    log = tmp_path / f"nst3d-volume-{job2}_1.log"
     t0 = time.time()
     while not (log.exists() and "sweep 2/4" in log.read_text()):
         assert time.time() - t0 < 300, "task 1 never reached sweep 2"
@@ -159,3 +228,21 @@ def test_slurm_array_runs_the_chunks_and_a_requeued_task_ends_the_same(tmp_path,
     assert text.count("10 frames stylized") == 1, text[-3000:]
     for f in FRAMES:
         assert frame(out2, f).read_bytes() == frame(out, f).read_bytes(), f"frame {f} differs after the requeue"
+
+
+def test_slurm_groom_array_stylizes_one_groom_a_task(tmp_path, fur):
+    tool("sbatch")
+    listing = tmp_path / "grooms.txt"
+    listing.write_text("# groom mesh style out [frames]\n"
+                       f"{fur / 'fur.ply'} {fur / 'sphere.ply'} {STYLE} {tmp_path / 'a.usda'}\n"
+                       f"{fur / 'fur.ply'} {fur / 'sphere.ply'} {STYLE} {tmp_path / 'b.usda'}\n")
+    env = dict(os.environ, LIST=str(listing), NST3D=str(NST3D), SETTINGS=" ".join(GROOM_FAST))
+    job = subprocess.run(["sbatch", "--parsable", "--array=0-1", *sbatch_overrides(),
+                          str(REPO / "farm" / "slurm" / "nst3d-groom.sbatch")], env=env, cwd=tmp_path,
+                         check=True, capture_output=True, text=True).stdout.strip()
+    wait_for(job)  # polls squeue every second, quicker than sbatch --wait here
+    for i, name in enumerate("ab"):
+        log = (tmp_path / f"nst3d-groom-{job}_{i}.log").read_text()
+        assert f"wrote {tmp_path / (name + '.usda')}" in log, log[-2000:]
+        # --cpus-per-task=2 becomes --threads 2: the command line's bytes.
+        assert (tmp_path / f"{name}.usda").read_bytes() == (fur / "direct.usda").read_bytes()

@@ -28,9 +28,12 @@ from __future__ import annotations
 
 import logging
 import os
-from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
+from typing import TYPE_CHECKING, Any, Callable, Dict, List, Literal, Optional, Sequence, Tuple, Union
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from numpy.typing import NDArray
 
 from . import _nst3d
 from ._nst3d import Nst3dError, __version__, precision, set_precision, set_threads, threads
@@ -56,6 +59,17 @@ __all__ = [
 
 PathLike = Union[str, "os.PathLike[str]"]
 Progress = Callable[[int, int, str], Any]
+# The command line's choices, as the type checker sees them.
+Mode = Literal["velocity", "density"]
+Up = Literal["y", "z"]
+Camera = Literal["perspective", "orthographic"]
+Strength = Union[Literal["subtle", "default", "strong"], float]
+Upsample = Union[Literal["auto"], int]
+Preset = Literal["short-hair", "short-hair-360", "long-hair", "cat", "fur-ball", "grass"]
+Temporal = Literal["ema-one-euro", "ema", "one-euro", "off"]
+EmaClock = Literal["scale", "frame"]
+Layer = Literal["relu1_1", "relu1_2", "relu2_1", "relu2_2", "relu3_1", "relu3_2", "relu3_3", "relu3_4",
+                "relu4_1", "relu4_2", "relu4_3", "relu4_4", "relu5_1"]
 
 _log = logging.getLogger("nst3d")
 _LEVELS = {"note": logging.INFO, "status": logging.INFO, "result": logging.INFO, "warning": logging.WARNING}
@@ -73,7 +87,7 @@ def print_progress(done: int, total: int, message: str) -> None:
         print(f"[{done}/{total}] {message}", file=sys.stderr, flush=True)
 
 
-def _options(**kw: Any) -> Dict[str, Any]:
+def _options(**kw: Any) -> Any:
     """The options the caller gave, paths as strings, sequences as lists."""
     out: Dict[str, Any] = {}
     for k, v in kw.items():
@@ -87,7 +101,7 @@ def _options(**kw: Any) -> Dict[str, Any]:
     return out
 
 
-def _camera(camera: Optional[str], projection: Optional[str]) -> Optional[str]:
+def _camera(camera: Optional[Camera], projection: Optional[Camera]) -> Optional[Camera]:
     """``camera`` (the command line's ``--camera``), or its old name ``projection``."""
     if projection is not None:
         import warnings
@@ -98,7 +112,7 @@ def _camera(camera: Optional[str], projection: Optional[str]) -> Optional[str]:
     return camera
 
 
-def _grid_bytes(density: "np.ndarray") -> Tuple[bytes, Tuple[int, int, int]]:
+def _grid_bytes(density: "NDArray[Any]") -> Tuple[bytes, Tuple[int, int, int]]:
     a = np.asarray(density)
     if a.ndim != 3:
         raise ValueError(f"density must be a 3D array, got shape {a.shape}")
@@ -109,16 +123,16 @@ def _grid_bytes(density: "np.ndarray") -> Tuple[bytes, Tuple[int, int, int]]:
     return raw, (int(a.shape[0]), int(a.shape[1]), int(a.shape[2]))
 
 
-def _grid_array(raw: bytes, dims: Sequence[int]) -> "np.ndarray":
+def _grid_array(raw: bytes, dims: Sequence[int]) -> "NDArray[Any]":
     nx, ny, nz = (int(d) for d in dims)
     return np.ascontiguousarray(np.frombuffer(raw, dtype="<f4").reshape(nz, ny, nx).transpose(2, 1, 0))
 
 
 def stylize_volume(
-    density: "np.ndarray",
+    density: "NDArray[Any]",
     style: PathLike,
     *,
-    mode: Optional[str] = None,
+    mode: Optional[Mode] = None,
     octaves: Optional[int] = None,
     iters: Optional[int] = None,
     lr: Optional[float] = None,
@@ -126,24 +140,24 @@ def stylize_volume(
     smin: Optional[float] = None,
     smax: Optional[float] = None,
     style_scale: Optional[float] = None,
-    strength: Union[str, float, None] = None,
+    strength: Optional[Strength] = None,
     style_color: Optional[bool] = None,
-    layers: Optional[Sequence[str]] = None,
+    layers: Optional[Sequence[Layer]] = None,
     absorption: Optional[float] = None,
     equalize: Optional[bool] = None,
-    camera: Optional[str] = None,
+    camera: Optional[Camera] = None,
     fov: Optional[float] = None,
-    up: Optional[str] = None,
+    up: Optional[Up] = None,
     weights: Optional[PathLike] = None,
     cameras: Optional[str] = None,
     camera_seed: Optional[int] = None,
     eval_cameras: Optional[str] = None,
-    upsample: Union[str, int, None] = None,
+    upsample: Optional[Upsample] = None,
     preview: Optional[PathLike] = None,
     progress: Optional[Progress] = None,
     report: Optional[Dict[str, Any]] = None,
-    projection: Optional[str] = None,
-) -> "np.ndarray":
+    projection: Optional[Camera] = None,
+) -> "NDArray[Any]":
     """Stylizes one density grid with a painting (volumetric paper, Sec. 3).
 
     ``density`` is a 3D float array indexed ``[x, y, z]`` (see the module
@@ -191,7 +205,7 @@ def stylize_vdb(
     model: Optional[PathLike] = None,
     tile: Optional[int] = None,
     tile_margin: Optional[int] = None,
-    mode: Optional[str] = None,
+    mode: Optional[Mode] = None,
     octaves: Optional[int] = None,
     iters: Optional[int] = None,
     lr: Optional[float] = None,
@@ -199,25 +213,25 @@ def stylize_vdb(
     smin: Optional[float] = None,
     smax: Optional[float] = None,
     style_scale: Optional[float] = None,
-    strength: Union[str, float, None] = None,
+    strength: Optional[Strength] = None,
     style_color: Optional[bool] = None,
     color: Optional[bool] = None,
     color_grid: Optional[str] = None,
-    layers: Optional[Sequence[str]] = None,
+    layers: Optional[Sequence[Layer]] = None,
     absorption: Optional[float] = None,
     equalize: Optional[bool] = None,
-    camera: Optional[str] = None,
+    camera: Optional[Camera] = None,
     fov: Optional[float] = None,
-    up: Optional[str] = None,
+    up: Optional[Up] = None,
     weights: Optional[PathLike] = None,
     cameras: Optional[str] = None,
     camera_file: Optional[PathLike] = None,
     camera_seed: Optional[int] = None,
     eval_cameras: Optional[str] = None,
-    upsample: Union[str, int, None] = None,
+    upsample: Optional[Upsample] = None,
     preview: Optional[PathLike] = None,
     progress: Optional[Progress] = None,
-    projection: Optional[str] = None,
+    projection: Optional[Camera] = None,
 ) -> Dict[str, Any]:
     """Stylizes an OpenVDB file into ``out``, exactly as ``nst3d volume``.
 
@@ -246,17 +260,17 @@ def stylize_vdb(
 
 
 def stylize_groom(
-    points: "np.ndarray",
-    counts: Sequence[int],
+    points: "NDArray[Any]",
+    counts: Union[Sequence[int], "NDArray[Any]"],
     style: PathLike,
     *,
-    mesh: Union[PathLike, Tuple["np.ndarray", "np.ndarray"], None] = None,
-    preset: Optional[str] = None,
+    mesh: Union[PathLike, Tuple["NDArray[Any]", "NDArray[Any]"], None] = None,
+    preset: Optional[Preset] = None,
     iters: Optional[int] = None,
     scale_iters: Optional[Sequence[int]] = None,
     render_size: Optional[int] = None,
     proxies: Optional[int] = None,
-    up: Optional[str] = None,
+    up: Optional[Up] = None,
     seed: Optional[int] = None,
     lr_scale: Optional[float] = None,
     style_scale: Optional[float] = None,
@@ -269,10 +283,10 @@ def stylize_groom(
     weights: Optional[PathLike] = None,
     preview: Optional[PathLike] = None,
     color: Optional[bool] = None,
-    colors: Optional["np.ndarray"] = None,
+    colors: Optional["NDArray[Any]"] = None,
     progress: Optional[Progress] = None,
     report: Optional[Dict[str, Any]] = None,
-) -> Union["np.ndarray", Tuple["np.ndarray", "np.ndarray"]]:
+) -> Union["NDArray[Any]", Tuple["NDArray[Any]", "NDArray[Any]"]]:
     """Stylizes a groom (strand paper, Alg. 1) and returns its new points.
 
     ``points`` is an ``(N, 3)`` float array of every control point, strand
@@ -336,14 +350,14 @@ def stylize_groom_file(
     style: PathLike,
     *,
     mesh: Optional[PathLike] = None,
-    preset: Optional[str] = None,
+    preset: Optional[Preset] = None,
     frames: Optional[str] = None,
     force: Optional[bool] = None,
     work_dir: Optional[PathLike] = None,
-    temporal: Optional[str] = None,
+    temporal: Optional[Temporal] = None,
     ema_sigma: Optional[float] = None,
     ema_nu: Optional[float] = None,
-    ema_clock: Optional[str] = None,
+    ema_clock: Optional[EmaClock] = None,
     one_euro_alpha: Optional[float] = None,
     one_euro_beta: Optional[float] = None,
     one_euro_fmin: Optional[float] = None,
@@ -353,7 +367,7 @@ def stylize_groom_file(
     scale_iters: Optional[Sequence[int]] = None,
     render_size: Optional[int] = None,
     proxies: Optional[int] = None,
-    up: Optional[str] = None,
+    up: Optional[Up] = None,
     seed: Optional[int] = None,
     lr_scale: Optional[float] = None,
     style_scale: Optional[float] = None,
@@ -398,7 +412,7 @@ def train(
     out: PathLike,
     *,
     frames: Union[str, Sequence[str], None] = None,
-    mode: Optional[str] = None,
+    mode: Optional[Mode] = None,
     grid: Optional[str] = None,
     channels: Optional[int] = None,
     patch: Optional[int] = None,
@@ -448,8 +462,8 @@ class Model:
         *,
         tile: Optional[int] = None,
         tile_margin: Optional[int] = None,
-        mode: Optional[str] = None,
-        strength: Union[str, float, None] = None,
+        mode: Optional[Mode] = None,
+        strength: Optional[Strength] = None,
     ) -> "Model":
         """Reads and checks ``path``; ``tile`` and ``tile_margin`` (voxels)
         bound the memory of one pass as ``nst3d volume --model`` does;
@@ -461,7 +475,7 @@ class Model:
     @property
     def mode(self) -> str:
         """``"density"`` or ``"velocity"``."""
-        return self._m.mode
+        return str(self._m.mode)
 
     @property
     def info(self) -> Dict[str, str]:
@@ -470,11 +484,11 @@ class Model:
 
     def stylize(
         self,
-        density: "np.ndarray",
+        density: "NDArray[Any]",
         *,
         origin: Sequence[int] = (0, 0, 0),
         progress: Optional[Progress] = None,
-    ) -> "np.ndarray":
+    ) -> "NDArray[Any]":
         """Stylizes a density array (indexed ``[x, y, z]``) in one pass, tile
         by tile; returns an array of the same shape. ``origin`` is the
         OpenVDB index of ``density[0, 0, 0]``: the network's tiles are fixed
@@ -485,20 +499,20 @@ class Model:
         return _grid_array(self._m.stylize(raw, dims, o, progress, _to_log), dims)
 
 
-def read_groom(path: PathLike) -> Tuple["np.ndarray", "np.ndarray"]:
+def read_groom(path: PathLike) -> Tuple["NDArray[Any]", "NDArray[Any]"]:
     """Reads a groom file (``.hair .data .ply .usda .abc``): ``(points (N, 3)
     float32, counts (S,) int64)``, the arrays :func:`stylize_groom` takes."""
     raw, counts = _nst3d.read_groom(os.fspath(path))
     return np.frombuffer(raw, dtype="<f4").reshape(-1, 3).copy(), np.asarray(counts, dtype=np.int64)
 
 
-def read_mesh(path: PathLike) -> Tuple["np.ndarray", "np.ndarray"]:
+def read_mesh(path: PathLike) -> Tuple["NDArray[Any]", "NDArray[Any]"]:
     """Reads a triangle mesh (``.ply`` or ``.obj``): ``(vertices (V, 3)
     float32, triangles (T, 3) int64)``."""
     raw, tris = _nst3d.read_mesh(os.fspath(path))
     return np.frombuffer(raw, dtype="<f4").reshape(-1, 3).copy(), np.asarray(tris, dtype=np.int64).reshape(-1, 3)
 
 
-def bench_volume_iter(n: int = 128, mode: str = "velocity", iters: int = 6) -> Tuple[list, float]:
+def bench_volume_iter(n: int = 128, mode: Mode = "velocity", iters: int = 6) -> Tuple[List[float], float]:
     """``nst3d bench volume-iter``'s work: milliseconds of each iteration and their median."""
     return _nst3d.bench_volume_iter(n, mode, iters)

@@ -86,6 +86,9 @@ def main():
     ap.add_argument('--json')
     ap.add_argument('--up', default='y')
     ap.add_argument('--crop', action='store_true', help='judge only the rest hair\'s box of each view')
+    ap.add_argument('--cull', type=float, default=None,
+                    help='draw only strands whose root faces the camera (cos of the rest root direction and the '
+                         'view >= CULL), as nst3d draws a groom on a mesh; default: every strand')
     ap.add_argument('--judge', default='gram', choices=['gram', 'orient'],
                     help='gram: VGG-19 Gram loss; orient: distance of stroke-direction histograms')
     a = ap.parse_args()
@@ -105,13 +108,25 @@ def main():
             styles.append((name, grams(img), img))
         shist[name] = orient_hist(img)
     cams = [Cam(center, R, az * a.ang, el * a.ang, a.size) for az, el in VIEWS]
+    # Root normals from the rest groom's first segments (strands grow along
+    # their root normal), for --cull.
+    P0 = results[0][1]
+    normals = P0[:, 1] - P0[:, 0]
+    normals = normals / normals.norm(dim=1, keepdim=True).clamp(min=1e-12)
+
+    def visible(cam):
+        if a.cull is None:
+            return None
+        v = cam.eye[None, :] - P0[:, 0]
+        return ((normals * v).sum(1) / v.norm(dim=1).clamp(min=1e-12) >= a.cull).float()
+    vis = [visible(cam) for cam in cams]
     dist = {}
     edges = {}
     renders = {}
     boxes = []
     with torch.no_grad():
         for cam in cams:
-            m = render(results[0][1], cam) > 0.02
+            m = render(results[0][1], cam, vis=vis[cams.index(cam)]) > 0.02
             ys, xs = torch.nonzero(m, as_tuple=True)
             pad = 6
             boxes.append((max(0, ys.min().item() - pad), min(a.size, ys.max().item() + pad + 1),
@@ -120,7 +135,7 @@ def main():
             per = {s: [] for s, _, _ in styles}
             ed = []
             for ci, cam in enumerate(cams):
-                img = render(P, cam)
+                img = render(P, cam, vis=vis[ci])
                 if a.crop:
                     y0, y1, x0, x1 = boxes[ci]
                     img = img[y0:y1, x0:x1]

@@ -133,8 +133,28 @@ pub fn read_groom_file(path: &Path) -> Result<GroomFile, Error> {
     read_groom_file_bytes(path, &bytes)
 }
 
+/// Binary USD, which the readers do not take yet: a crate file (magic
+/// `PXR-USDC`, as `.usdc` or `.usd`) or a `.usdz` package. The error says
+/// how to get the text layer the USD reader does take.
+fn refuse_binary_usd(path: &Path, bytes: &[u8]) -> Result<(), Error> {
+    let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
+    if bytes.starts_with(b"PXR-USDC") || matches!(ext.as_deref(), Some("usdc") | Some("usdz")) {
+        return Err(Error::new(
+            path,
+            ErrorKind::UnknownFormat {
+                what: "groom",
+                reason: "binary USD (a .usdc/.usd crate file or .usdz) is not read yet; save the layer as \
+                         text first, e.g. with usd-core: Sdf.Layer.FindOrOpen(path).Export('groom.usda')"
+                    .into(),
+            },
+        ));
+    }
+    Ok(())
+}
+
 /// [`read_groom_file`] on bytes already in memory.
 pub fn read_groom_file_bytes(path: &Path, bytes: &[u8]) -> Result<GroomFile, Error> {
+    refuse_binary_usd(path, bytes)?;
     match detect_groom_format(path, bytes) {
         Some(GroomFormat::Usda) => read_usda_curves_file_bytes(path, bytes),
         _ => Ok(GroomFile { groom: read_groom_bytes(path, bytes)?, usd_primvars: UsdPrimvars::default() }),
@@ -144,6 +164,7 @@ pub fn read_groom_file_bytes(path: &Path, bytes: &[u8]) -> Result<GroomFile, Err
 /// [`read_groom`] on bytes already in memory; `path` names them in errors
 /// and its extension helps detection.
 pub fn read_groom_bytes(path: &Path, bytes: &[u8]) -> Result<Groom, Error> {
+    refuse_binary_usd(path, bytes)?;
     match detect_groom_format(path, bytes) {
         Some(GroomFormat::CyHair) => read_cyhair_bytes(path, bytes),
         Some(GroomFormat::HairSalon) => read_hairsalon_bytes(path, bytes),

@@ -227,7 +227,7 @@ pub fn apply_strands(s: &mut StrandSettings, mut o: Options<'_>) -> PyResult<()>
     set!(o.f32("strand_width") => Some s.strand_width);
     set!(o.bool("rematch") => Some s.rematch);
     set!(o.usize("field_neighbors") => Some s.field_neighbors);
-    set!(o.f32("orientation") => s.orientation);
+    set!(o.f32("orientation") => Some s.orientation);
     set!(o.bool("color") => s.color);
     set!(o.path("weights") => Some s.weights);
     o.finish("stylize_groom")

@@ -141,6 +141,17 @@ pub struct PresetParams {
     /// and the NNST loss rose on a curly head (+10.9 %); 48 reach across
     /// strands and along them, and the same run descends (−1.8 %).
     pub neighbors: usize,
+    /// Weight of the orientation term beside NNST
+    /// ([`crate::pipeline::StylizeParams::orientation`]). Not in the paper
+    /// (its future work): 1 for the fur ball, which NNST alone left alike
+    /// for every style and which the term combs along each style's strokes;
+    /// 0 elsewhere: on grass it swirls, latticed and parted the blades for a
+    /// spiral, triangles and checks but gathered them into one tuft for
+    /// stripes and Starry Night, and on a spiky head it was not shown to
+    /// help. Sequences run without it
+    /// unless asked (the groom crate's settings: it is not yet temporally
+    /// coherent).
+    pub orientation: f32,
     /// Collision threshold `τ` as a fraction of the collider's bounding-box
     /// diagonal. Not in the paper: 0.5 %, a few strand widths on a head.
     pub collision_tau_rel: f32,
@@ -186,6 +197,7 @@ const BASE: PresetParams = PresetParams {
     runtime_s_per_frame: 0.0,
     kernel: Kernel::Cubic,
     neighbors: 48,
+    orientation: 0.0,
     collision_tau_rel: 0.005,
     collision_kappa: 0.5,
 };
@@ -275,6 +287,7 @@ impl Preset {
                 sampling_density: 1.0,
                 temporal: temporal(0.6, 0.34, 0.2, 9.0),
                 runtime_s_per_frame: 53.0,
+                orientation: 1.0,
                 ..BASE
             },
             Preset::Grass => PresetParams {

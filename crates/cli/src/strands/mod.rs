@@ -7,7 +7,6 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand, ValueEnum};
 use nst3d_groom::{GenerateKind, GenerateSettings, StrandSettings, Temporal, UpAxis};
-use nst3d_strands::pipeline::StylizeParams;
 use nst3d_strands::{EmaClock, Preset, Wind};
 
 use crate::console::Console;
@@ -128,9 +127,11 @@ pub struct StrandsArgs {
     #[arg(long)]
     field_neighbors: Option<usize>,
     /// Weight of the orientation term: the painting's stroke directions as targets for
-    /// the strands' directions, relative to the NNST loss (0: the paper's NNST alone).
-    #[arg(long, default_value_t = StylizeParams::DEFAULT_ORIENTATION)]
-    orientation: f32,
+    /// the strands' directions, relative to the NNST loss (0: the paper's NNST alone;
+    /// default: the preset's, 1 for fur-ball, 0 for the others and for --frames,
+    /// where it flickers more).
+    #[arg(long)]
+    orientation: Option<f32>,
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).
     #[arg(long)]
     weights: Option<PathBuf>,

@@ -191,8 +191,10 @@ fn orientation_term<'a>(
     Ok(Some(OrientationTerm { weight, ..unit }))
 }
 
-/// The orientation term's `λ`: `params.orientation` times
-/// [`orientation_scale`] at its first iteration, then the same.
+/// The orientation term's `λ` for this scale's field: `params.orientation`
+/// times [`orientation_scale`] measured at the first iteration (kept in
+/// `lambda`), times the field's [`StrokeField::strength`], so a field with
+/// few strokes pulls little however its gradient compares.
 #[allow(clippy::too_many_arguments)]
 fn orientation_weight(
     lambda: &mut Option<f32>,
@@ -204,10 +206,11 @@ fn orientation_weight(
     params: &StylizeParams,
     v: &[f32],
 ) -> Result<f32, PipelineError> {
-    match *lambda {
-        Some(w) => Ok(w),
-        None => Ok(*lambda.insert(params.orientation * orientation_scale(scene, vgg, cam, matched, unit, v)?)),
-    }
+    let ratio = match *lambda {
+        Some(r) => r,
+        None => *lambda.insert(params.orientation * orientation_scale(scene, vgg, cam, matched, unit, v)?),
+    };
+    Ok(ratio * unit.field.strength())
 }
 
 /// `|∇ NNST| / |∇ orientation|` at `v` (both through the whole chain to

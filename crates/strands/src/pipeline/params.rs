@@ -49,7 +49,8 @@ pub struct StylizeParams {
     /// targets for the strands' projected directions, see
     /// [`super::orientation`]) relative to the NNST loss: `λ` is set at the
     /// first iteration so that its gradient is this times the NNST
-    /// gradient's norm. 0 runs the paper's NNST loss alone.
+    /// gradient's norm. 0 runs the paper's NNST loss alone; the preset's
+    /// [`PresetParams::orientation`] by default.
     pub orientation: f32,
     /// Stylize the strands' colour with their shape: per-point
     /// colours ([`StrandColorLayer`](crate::StrandColorLayer)) optimized
@@ -58,12 +59,6 @@ pub struct StylizeParams {
 }
 
 impl StylizeParams {
-    /// The orientation term's default weight: off. It gives grass and
-    /// strands seen from the side their style's directions, but on a
-    /// spiky head whose strands point at the camera it crinkles them into
-    /// frizz (NNST loss +6 % toward stripes, +45 % toward a spiral).
-    pub const DEFAULT_ORIENTATION: f32 = 0.0;
-
     /// The preset's settings at its own render size, with proxies scaled to
     /// keep Table 1's proxy/guide ratio for `guides` guide strands.
     pub fn from_preset(preset: PresetParams, guides: usize) -> Self {
@@ -82,7 +77,7 @@ impl StylizeParams {
             held_out_views: 4,
             strand_width_px: 0.5,
             rematch: false,
-            orientation: Self::DEFAULT_ORIENTATION,
+            orientation: preset.orientation,
             color: false,
         }
     }

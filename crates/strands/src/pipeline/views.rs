@@ -85,8 +85,20 @@ pub(super) fn view_frame(
         }
     }
     let mean: V3 = mean.map(|c| (c / guide_normals.len().max(1) as f64) as f32);
+    // Where the roots sit on the head: the roots never move, so a groom
+    // and its stylization get the same front (the strands' box moves with
+    // the stylization, and on a fur ball it once turned the preview of a
+    // result half-way round from the views it was optimised from).
+    let roots = rest.offsets[..rest.offsets.len().saturating_sub(1)].iter().map(|&o| rest.points[o]);
+    let mut root_sum = [0.0f64; 3];
+    let mut root_count = 0usize;
+    for r in roots {
+        (0..3).for_each(|a| root_sum[a] += r[a] as f64);
+        root_count += 1;
+    }
+    let root_centre: V3 = root_sum.map(|c| (c / root_count.max(1) as f64) as f32);
     let head_centre =
-        head.and_then(|h| h.bbox()).map(|(l, h)| std::array::from_fn(|a| 0.5 * (l[a] + h[a]))).unwrap_or(centre);
+        head.and_then(|h| h.bbox()).map(|(l, h)| std::array::from_fn(|a| 0.5 * (l[a] + h[a]))).unwrap_or(root_centre);
     // The scene is y-up (the groom crate turns a z-up file into this frame),
     // and the cameras go around that axis: the front is the horizontal part
     // of the direction the groom faces, so polar 0 is the horizon and the
@@ -101,7 +113,7 @@ pub(super) fn view_frame(
         }
     };
     let front = horizontal(mean, 0.2)
-        .or_else(|| horizontal(sub(centre, head_centre), 0.05 * radius))
+        .or_else(|| horizontal(sub(root_centre, head_centre), 0.05 * radius))
         .unwrap_or([0.0, 0.0, 1.0]);
     let side = cross(front, up);
     Ok(ViewFrame { centre, radius, front, up, side })
@@ -205,6 +217,42 @@ mod tests {
 
     fn frame() -> ViewFrame {
         ViewFrame { centre: [0.0; 3], radius: 1.0, front: [0.0, 0.0, 1.0], up: [0.0, 1.0, 0.0], side: [-1.0, 0.0, 0.0] }
+    }
+
+    /// A fur ball on a sphere has no facing of its own (its root normals
+    /// cancel), so its front falls back to where the roots sit on the head;
+    /// a stylization that combs one side flat moves the strands' box but
+    /// not the roots, and must keep the same front.
+    #[test]
+    fn a_stylized_fur_ball_keeps_the_front_of_its_rest_groom() {
+        let n = 400;
+        let dirs: Vec<V3> = (0..n)
+            .map(|i| {
+                let phi = (1.0 - 2.0 * (i as f32 + 0.5) / n as f32).acos();
+                let th = std::f32::consts::PI * (1.0 + 5f32.sqrt()) * (i as f32 + 0.5);
+                [th.cos() * phi.sin(), phi.cos(), th.sin() * phi.sin()]
+            })
+            .collect();
+        let groom = |tip: &dyn Fn(V3) -> V3| {
+            let mut points = Vec::new();
+            let mut offsets = vec![0];
+            for &d in &dirs {
+                points.extend([d, tip(d)]);
+                offsets.push(points.len());
+            }
+            FlatStrands { points, offsets }
+        };
+        let rest = groom(&|d| scale(d, 1.4));
+        // The +z side combed flat: its tips pulled back onto the sphere.
+        let combed = groom(&|d| if d[2] > 0.5 { add(d, [0.3, 0.0, 0.0]) } else { scale(d, 1.4) });
+        let head = TriMesh {
+            vertices: vec![[-1.0, -1.0, -1.0], [1.0, -1.0, -1.0], [0.0, 1.0, -1.0], [0.0, 0.0, 1.0]],
+            triangles: vec![[0, 1, 2], [0, 1, 3], [1, 2, 3], [2, 0, 3]],
+            normals: None,
+        };
+        let a = view_frame(&rest, &dirs, Some(&head)).unwrap();
+        let b = view_frame(&combed, &dirs, Some(&head)).unwrap();
+        assert_eq!(a.front, b.front);
     }
 
     #[test]
