@@ -35,17 +35,21 @@ mod alembic;
 mod cyhair;
 mod hairsalon;
 pub(crate) mod ply;
+mod usd;
 mod usda;
+mod usdc;
+mod usdz;
 
 pub use alembic::{read_alembic_curves, read_alembic_curves_bytes};
 pub use cyhair::{read_cyhair, read_cyhair_bytes};
 pub use hairsalon::{read_hairsalon, read_hairsalon_bytes};
 pub use nst3d_core::groom::{Groom, GroomError, Strand, StrandSpline};
 pub use ply::{read_ply_strands, read_ply_strands_bytes, write_ply_strands};
-pub use usda::{
-    read_usda_curves, read_usda_curves_bytes, read_usda_curves_file, read_usda_curves_file_bytes, write_usda_curves,
-    write_usda_curves_with, UsdPrimvar, UsdPrimvars,
+pub use usd::{
+    read_usd_curves_file, read_usd_curves_file_bytes, read_usda_curves, read_usda_curves_bytes, read_usda_curves_file,
+    read_usda_curves_file_bytes, usdc_unwritable, write_usdc_curves_with, write_usdz_curves_with, UsdAssets,
 };
+pub use usda::{write_usda_curves, write_usda_curves_with, UsdPrimvar, UsdPrimvars};
 
 use crate::bytes::read_file;
 use crate::{Error, ErrorKind};

@@ -100,7 +100,7 @@ impl Lerp for [f32; 3] {
 }
 
 /// A `BasisCurves` prim the walk read strands from.
-pub(super) struct CurvesPrim<'a> {
+pub(crate) struct CurvesPrim<'a> {
     pub(super) prim: &'a Prim,
     /// Points per curve.
     pub(super) counts: Vec<usize>,
@@ -179,13 +179,13 @@ fn curves_of<'a>(prim: &'a Prim, world: &Mat4, out: &mut Vec<Strand>) -> Result<
 /// Appends the strands of every defined, active `BasisCurves` prim under
 /// `prim` (itself included), with `parent` its inherited transform, and
 /// those prims to `read`.
-pub(super) fn walk<'a>(
+pub(crate) fn walk<'a>(
     prim: &'a Prim,
     parent: &Mat4,
     out: &mut Vec<Strand>,
     read: &mut Vec<CurvesPrim<'a>>,
 ) -> Result<(), ErrorKind> {
-    if prim.specifier != "def" || !prim.active {
+    if prim.specifier != "def" || prim.active == Some(false) {
         return Ok(());
     }
     let (local, reset) = local_xform(prim)?;

@@ -12,7 +12,7 @@ use crate::ErrorKind;
 
 /// An attribute or metadata value.
 #[derive(Clone, Debug, PartialEq)]
-pub(super) enum Val {
+pub(crate) enum Val {
     Num(f64),
     Str(String),
     Ident(String),
@@ -20,33 +20,40 @@ pub(super) enum Val {
     List(Vec<Val>),
     /// `timeSamples` dictionaries: `(time, value)`.
     Samples(Vec<(f64, Val)>),
-    /// Anything the curves reader never looks at (paths, assets, dicts).
+    /// `@asset@`.
+    Asset(String),
+    /// `</prim>` or `</prim.property>`.
+    Path(String),
+    /// A reference or payload `@asset@</prim>`: layer and prim (a bare
+    /// asset or path is an [`Val::Asset`] or [`Val::Path`]).
+    Arc(String, String),
+    /// Anything the curves reader never looks at (dictionaries).
     Other,
 }
 
 impl Val {
-    pub(super) fn as_f64(&self) -> Option<f64> {
+    pub(crate) fn as_f64(&self) -> Option<f64> {
         match self {
             Val::Num(x) => Some(*x),
             _ => None,
         }
     }
 
-    pub(super) fn as_str(&self) -> Option<&str> {
+    pub(crate) fn as_str(&self) -> Option<&str> {
         match self {
             Val::Str(s) | Val::Ident(s) => Some(s),
             _ => None,
         }
     }
 
-    pub(super) fn as_list(&self) -> Option<&[Val]> {
+    pub(crate) fn as_list(&self) -> Option<&[Val]> {
         match self {
             Val::List(v) => Some(v),
             _ => None,
         }
     }
 
-    pub(super) fn as_vec3(&self) -> Option<[f64; 3]> {
+    pub(crate) fn as_vec3(&self) -> Option<[f64; 3]> {
         match self.as_list()? {
             [a, b, c] => Some([a.as_f64()?, b.as_f64()?, c.as_f64()?]),
             _ => None,
@@ -60,20 +67,31 @@ const MAX_DEPTH: usize = 64;
 struct Parser {
     toks: Vec<Token>,
     i: usize,
+    /// The layer index given to every attribute.
+    layer: usize,
 }
 
 /// An attribute: value (if authored) and its `interpolation` metadata, and
 /// the byte ranges of its statement in the layer's text.
-#[derive(Debug)]
-pub(super) struct Attr {
-    pub(super) name: String,
-    value: Option<Val>,
-    pub(super) interpolation: Option<String>,
+#[derive(Clone, Debug)]
+pub(crate) struct Attr {
+    pub(crate) name: String,
+    pub(crate) value: Option<Val>,
+    pub(crate) interpolation: Option<String>,
+    /// Declared `uniform`.
+    pub(crate) uniform: bool,
+    /// Declared `custom`.
+    pub(crate) custom: bool,
+    /// Every `( key = value )` metadata entry it could read.
+    pub(crate) meta: Vec<(String, Val)>,
+    /// Which layer of a composed stage the statement comes from (an index
+    /// into the texts the spans below point into).
+    pub(crate) layer: usize,
     /// The declared type (`float[]`, `color3f`), `None` for a bare
     /// `name = value` statement.
-    pub(super) type_name: Option<String>,
+    pub(crate) type_name: Option<String>,
     /// The whole statement, qualifiers to metadata.
-    pub(super) span: Range<usize>,
+    pub(crate) span: Range<usize>,
     /// Qualifiers, type and name.
     pub(super) head: Range<usize>,
     /// The value after `=`, if authored.
@@ -83,21 +101,25 @@ pub(super) struct Attr {
 }
 
 /// A prim and its subtree.
-#[derive(Debug)]
-pub(super) struct Prim {
+#[derive(Clone, Debug)]
+pub(crate) struct Prim {
     /// `def`, `over` or `class`.
-    pub(super) specifier: String,
-    pub(super) type_name: Option<String>,
-    pub(super) name: String,
-    /// False when the prim's metadata says `active = false`.
-    pub(super) active: bool,
-    pub(super) attrs: Vec<Attr>,
-    pub(super) children: Vec<Prim>,
+    pub(crate) specifier: String,
+    pub(crate) type_name: Option<String>,
+    pub(crate) name: String,
+    /// The prim's `active` metadata, if authored.
+    pub(crate) active: Option<bool>,
+    /// Its references and payloads, strongest first: [`Val::Arc`],
+    /// [`Val::Asset`] (the layer's default prim) or [`Val::Path`] (a prim of
+    /// the same layer).
+    pub(crate) arcs: Vec<Val>,
+    pub(crate) attrs: Vec<Attr>,
+    pub(crate) children: Vec<Prim>,
 }
 
 impl Prim {
     /// Authored default value of `name`, else its earliest time sample.
-    pub(super) fn value(&self, name: &str) -> Option<&Val> {
+    pub(crate) fn value(&self, name: &str) -> Option<&Val> {
         if let Some(v) = self.attrs.iter().rev().find(|a| a.name == name).and_then(|a| a.value.as_ref()) {
             return Some(v);
         }
@@ -109,7 +131,7 @@ impl Prim {
     }
 
     /// The `interpolation` metadata of attribute `name`, if authored.
-    pub(super) fn interpolation(&self, name: &str) -> Option<&str> {
+    pub(crate) fn interpolation(&self, name: &str) -> Option<&str> {
         self.attrs
             .iter()
             .rev()
@@ -196,7 +218,15 @@ impl Parser {
             Tok::Num(x) => Ok(Val::Num(x)),
             Tok::Str(s) => Ok(Val::Str(s)),
             Tok::Ident(s) => Ok(Val::Ident(s)),
-            Tok::Path(_) | Tok::Asset(_) => Ok(Val::Other),
+            Tok::Path(p) => Ok(Val::Path(p)),
+            Tok::Asset(a) => match self.peek() {
+                Some(Tok::Path(p)) => {
+                    let p = p.clone();
+                    self.i += 1;
+                    Ok(Val::Arc(a, p))
+                }
+                _ => Ok(Val::Asset(a)),
+            },
             Tok::Punct(open @ ('(' | '[')) => {
                 let close = if open == '(' { ')' } else { ']' };
                 let mut items = Vec::new();
@@ -206,6 +236,10 @@ impl Parser {
                         break;
                     }
                     items.push(self.value(depth + 1)?);
+                    // A reference's layer offset or custom data.
+                    if self.is_punct('(') {
+                        self.skip_item(depth + 1)?;
+                    }
                     if self.is_punct(',') {
                         self.i += 1;
                     } else if !self.is_punct(close) {
@@ -301,16 +335,19 @@ impl Parser {
             Tok::Str(s) => s,
             other => return Err(self.err(format!("expected a prim name string, found {other:?}"))),
         };
-        let mut active = true;
+        let (mut active, mut arcs) = (None, Vec::new());
         if self.is_punct('(') {
             for (k, v) in self.metadata(depth)? {
-                if k == "active" && v.as_str() == Some("false") {
-                    active = false;
+                match (k.as_str(), v) {
+                    ("active", v) => active = v.as_str().map(|a| a != "false").or(v.as_f64().map(|x| x != 0.0)),
+                    ("references" | "payload", Val::List(items)) => arcs.extend(items),
+                    ("references" | "payload", v) => arcs.push(v),
+                    _ => {}
                 }
             }
         }
         self.expect('{')?;
-        let mut prim = Prim { specifier, type_name, name, active, attrs: Vec::new(), children: Vec::new() };
+        let mut prim = Prim { specifier, type_name, name, active, arcs, attrs: Vec::new(), children: Vec::new() };
         self.body(&mut prim, depth)?;
         Ok(prim)
     }
@@ -351,12 +388,15 @@ impl Parser {
     /// name = value` for list edits like `reorder nameChildren = [...]`.
     fn attribute(&mut self, depth: usize) -> Result<Attr, ErrorKind> {
         let start = self.here();
+        let (mut uniform, mut custom) = (false, false);
         while let Some(Tok::Ident(q)) = self.peek() {
             if matches!(
                 q.as_str(),
                 "uniform" | "custom" | "varying" | "config" | "prepend" | "append" | "delete" | "add" | "reorder"
             ) && matches!(self.peek_at(1), Some(Tok::Ident(_)))
             {
+                uniform |= q == "uniform";
+                custom |= q == "custom";
                 self.i += 1;
             } else {
                 break;
@@ -387,6 +427,10 @@ impl Parser {
             name,
             value: None,
             interpolation: None,
+            uniform,
+            custom,
+            meta: Vec::new(),
+            layer: self.layer,
             type_name,
             span: head.clone(),
             head,
@@ -401,11 +445,9 @@ impl Parser {
         }
         if self.is_punct('(') {
             let from = self.here();
-            for (k, v) in self.metadata(depth)? {
-                if k == "interpolation" {
-                    attr.interpolation = v.as_str().map(str::to_string);
-                }
-            }
+            attr.meta = self.metadata(depth)?;
+            attr.interpolation =
+                attr.meta.iter().rev().find(|m| m.0 == "interpolation").and_then(|m| m.1.as_str()).map(str::to_string);
             attr.meta_span = Some(from..self.consumed_end());
         }
         attr.span.end = self.consumed_end();
@@ -416,14 +458,15 @@ impl Parser {
 /// Parses a whole layer (header already checked) into a root prim holding
 /// the layer's prims as children, and the layer's own `( ... )` metadata
 /// (`upAxis`, `metersPerUnit`, ...).
-pub(super) fn layer(text: &str) -> Result<(Prim, Vec<(String, Val)>), ErrorKind> {
-    let mut p = Parser { toks: tokenize(text)?, i: 0 };
+pub(crate) fn layer(text: &str, layer: usize) -> Result<(Prim, Vec<(String, Val)>), ErrorKind> {
+    let mut p = Parser { toks: tokenize(text)?, i: 0, layer };
     let meta = if p.is_punct('(') { p.metadata(0)? } else { Vec::new() };
     let mut root = Prim {
         specifier: "def".into(),
         type_name: None,
         name: "/".into(),
-        active: true,
+        active: None,
+        arcs: Vec::new(),
         attrs: Vec::new(),
         children: Vec::new(),
     };
@@ -437,4 +480,11 @@ pub(super) fn layer(text: &str) -> Result<(Prim, Vec<(String, Val)>), ErrorKind>
         }
     }
     Ok((root, meta))
+}
+
+/// The attribute statements of a prim body (`text` as it would stand
+/// between a prim's braces), each with its qualifiers, value and metadata.
+pub(crate) fn statements(text: &str) -> Result<Vec<Attr>, ErrorKind> {
+    let (mut root, _) = layer(&format!("def \"P\"\n{{\n{text}\n}}\n"), 0)?;
+    Ok(root.children.pop().map(|p| p.attrs).unwrap_or_default())
 }

@@ -143,9 +143,9 @@ fn array_elements(text: &str) -> Option<Vec<&str>> {
     (depth == 0).then_some(out)
 }
 
-/// The primvars of the curves prims `read` (module notes); `text` is the
-/// layer they were parsed from.
-pub(super) fn gather(text: &str, read: &[CurvesPrim]) -> UsdPrimvars {
+/// The primvars of the curves prims `read` (module notes); `texts` are the
+/// layers they were parsed from (each attribute names its own).
+pub(crate) fn gather(texts: &[String], read: &[CurvesPrim]) -> UsdPrimvars {
     let curve_points = read.iter().flat_map(|c| c.counts.iter().copied()).collect();
     let mut kept = UsdPrimvars { curve_points, ..Default::default() };
     let per_prim: Vec<Vec<Group>> = read.iter().map(groups).collect();
@@ -163,7 +163,7 @@ pub(super) fn gather(text: &str, read: &[CurvesPrim]) -> UsdPrimvars {
                 name: g.name.to_string(),
                 type_name: g.type_name(),
                 interpolation: g.interpolation().map(str::to_string),
-                declaration: g.attrs.iter().map(|a| &text[a.span.clone()]).collect::<Vec<_>>().join("\n"),
+                declaration: g.attrs.iter().map(|a| &texts[a.layer][a.span.clone()]).collect::<Vec<_>>().join("\n"),
             });
         }
         return kept;
@@ -191,7 +191,7 @@ pub(super) fn gather(text: &str, read: &[CurvesPrim]) -> UsdPrimvars {
             drop(&mut kept, name, format!("declared on {} of the {} curves prims", found.len(), read.len()));
             continue;
         }
-        match merge(text, name, &found, indexed(name)) {
+        match merge(texts, name, &found, indexed(name)) {
             Ok(primvar) => kept.primvars.push(primvar),
             Err(why) => drop(&mut kept, name, why),
         }
@@ -210,7 +210,7 @@ fn varying_on_cubic(g: &Group, c: &CurvesPrim) -> bool {
 /// The primvar `name` of several curves prims merged into one declaration
 /// (`found`: its group on each prim; `indexed`: it has indices), or why it
 /// is not kept.
-fn merge(text: &str, name: &str, found: &[(&Group, &CurvesPrim)], indexed: bool) -> Result<UsdPrimvar, String> {
+fn merge(texts: &[String], name: &str, found: &[(&Group, &CurvesPrim)], indexed: bool) -> Result<UsdPrimvar, String> {
     if indexed {
         return Err("indexed primvars of several curves prims are not merged".into());
     }
@@ -222,30 +222,32 @@ fn merge(text: &str, name: &str, found: &[(&Group, &CurvesPrim)], indexed: bool)
     if found.iter().any(|(g, c)| varying_on_cubic(g, c)) {
         return Err(CUBIC.into());
     }
-    let slice = |r: &Option<std::ops::Range<usize>>| r.clone().map_or("", |r| &text[r]);
-    let head = normalized(&text[attrs[0].head.clone()]);
-    let meta = normalized(slice(&attrs[0].meta_span));
-    if attrs.iter().any(|a| normalized(&text[a.head.clone()]) != head || normalized(slice(&a.meta_span)) != meta) {
+    // Each statement's text lies in the layer it was read from.
+    let span = |a: &Attr, r: &std::ops::Range<usize>| &texts[a.layer][r.clone()];
+    let slice = |a: &Attr, r: &Option<std::ops::Range<usize>>| r.as_ref().map_or("", |r| span(a, r));
+    let head = normalized(span(attrs[0], &attrs[0].head));
+    let meta = normalized(slice(attrs[0], &attrs[0].meta_span));
+    if attrs.iter().any(|a| normalized(span(a, &a.head)) != head || normalized(slice(a, &a.meta_span)) != meta) {
         return Err("the curves prims declare it differently".into());
     }
     let (group, _) = found[0];
     let interpolation = group.interpolation().map(str::to_string);
     let declaration = if matches!(interpolation.as_deref(), None | Some("constant")) {
-        let value = normalized(slice(&attrs[0].value_span));
-        if attrs.iter().any(|a| normalized(slice(&a.value_span)) != value) {
+        let value = normalized(slice(attrs[0], &attrs[0].value_span));
+        if attrs.iter().any(|a| normalized(slice(a, &a.value_span)) != value) {
             return Err("constant, with different values on different curves prims".into());
         }
-        text[attrs[0].span.clone()].to_string()
+        span(attrs[0], &attrs[0].span).to_string()
     } else {
         let Some(elements) =
-            attrs.iter().map(|a| array_elements(slice(&a.value_span))).collect::<Option<Vec<Vec<&str>>>>()
+            attrs.iter().map(|a| array_elements(slice(a, &a.value_span))).collect::<Option<Vec<Vec<&str>>>>()
         else {
             return Err("not an array on every curves prim".into());
         };
-        let mut d = format!("{} = [{}]", &text[attrs[0].head.clone()], elements.concat().join(", "));
+        let mut d = format!("{} = [{}]", span(attrs[0], &attrs[0].head), elements.concat().join(", "));
         if let Some(m) = &attrs[0].meta_span {
             d.push(' ');
-            d.push_str(&text[m.clone()]);
+            d.push_str(span(attrs[0], m));
         }
         d
     };

@@ -41,35 +41,7 @@ pub fn write_usda_curves(path: &Path, groom: &Groom) -> Result<(), Error> {
 /// attribute. The declarations are not otherwise checked:
 /// they are the input layer's text.
 pub fn write_usda_curves_with(path: &Path, groom: &Groom, primvars: &UsdPrimvars) -> Result<(), Error> {
-    validate_for(groom, path)?;
-    let mismatch = |reason: String| Error::new(path, ErrorKind::TopologyMismatch { reason });
-    if !primvars.primvars.is_empty() {
-        let counts: Vec<usize> = groom.strands.iter().map(|st| st.points.len()).collect();
-        if counts.len() != primvars.curve_points.len() {
-            return Err(mismatch(format!(
-                "{} strands, the layer its primvars come from has {} curves",
-                counts.len(),
-                primvars.curve_points.len()
-            )));
-        }
-        if let Some(i) = counts.iter().zip(&primvars.curve_points).position(|(a, b)| a != b) {
-            return Err(mismatch(format!(
-                "strand {i} has {} points, curve {i} of the layer its primvars come from has {}",
-                counts[i], primvars.curve_points[i]
-            )));
-        }
-    }
-    if let Some(p) =
-        primvars.primvars.iter().find(|p| !p.name.starts_with("primvars:") || HELD.contains(&p.name.as_str()))
-    {
-        return Err(Error::new(
-            path,
-            ErrorKind::Write(std::io::Error::new(
-                std::io::ErrorKind::InvalidInput,
-                format!("'{}' is not a primvar the writer can pass through", p.name),
-            )),
-        ));
-    }
+    check(path, groom, primvars)?;
     let mut s = String::with_capacity(64 + groom.point_count() * 40);
     let f3 = |s: &mut String, p: &[f32; 3]| {
         let _ = write!(s, "({}, {}, {})", p[0], p[1], p[2]);
@@ -133,4 +105,40 @@ pub fn write_usda_curves_with(path: &Path, groom: &Groom, primvars: &UsdPrimvars
     }
     s.push_str("}\n");
     crate::atomic::write_atomic(path, |w| w.write_all(s.as_bytes())).map_err(|e| Error::new(path, ErrorKind::Write(e)))
+}
+
+/// What every USD writer checks before writing: a valid groom, the
+/// primvars' curves are the groom's, and no primvar is one the writer
+/// writes from the strands or not a primvar at all.
+pub(crate) fn check(path: &Path, groom: &Groom, primvars: &UsdPrimvars) -> Result<(), Error> {
+    validate_for(groom, path)?;
+    let mismatch = |reason: String| Error::new(path, ErrorKind::TopologyMismatch { reason });
+    if !primvars.primvars.is_empty() {
+        let counts: Vec<usize> = groom.strands.iter().map(|st| st.points.len()).collect();
+        if counts.len() != primvars.curve_points.len() {
+            return Err(mismatch(format!(
+                "{} strands, the layer its primvars come from has {} curves",
+                counts.len(),
+                primvars.curve_points.len()
+            )));
+        }
+        if let Some(i) = counts.iter().zip(&primvars.curve_points).position(|(a, b)| a != b) {
+            return Err(mismatch(format!(
+                "strand {i} has {} points, curve {i} of the layer its primvars come from has {}",
+                counts[i], primvars.curve_points[i]
+            )));
+        }
+    }
+    if let Some(p) =
+        primvars.primvars.iter().find(|p| !p.name.starts_with("primvars:") || HELD.contains(&p.name.as_str()))
+    {
+        return Err(Error::new(
+            path,
+            ErrorKind::Write(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!("'{}' is not a primvar the writer can pass through", p.name),
+            )),
+        ));
+    }
+    Ok(())
 }

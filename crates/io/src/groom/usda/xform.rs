@@ -6,10 +6,10 @@ use crate::bytes::{corrupt, unsupported};
 use crate::ErrorKind;
 
 /// Column-vector affine transform (`p' = M p`).
-pub(super) type Mat4 = [[f64; 4]; 4];
+pub(crate) type Mat4 = [[f64; 4]; 4];
 
 /// The transform of a prim with no ops.
-pub(super) const IDENTITY: Mat4 =
+pub(crate) const IDENTITY: Mat4 =
     [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
 
 /// `a b`: apply `b`, then `a`.
