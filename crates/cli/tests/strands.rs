@@ -117,7 +117,11 @@ fn bad_grooms_give_one_line_errors() {
     assert_fails(&strands(&one_path, &out, &[]), &out, "strand 1 has 1 point(s)");
 
     let bad_out = dir.path().join("out.abc");
-    assert_fails(&strands(&shared("grooms/Bangs_100.hair"), &bad_out, &[]), &bad_out, ".usda or .ply");
+    assert_fails(
+        &strands(&shared("grooms/Bangs_100.hair"), &bad_out, &[]),
+        &bad_out,
+        ".usda or .usdc or .usdz or .ply",
+    );
 }
 
 #[test]

@@ -12,7 +12,7 @@ use nst3d_io::groom::GroomFile;
 use nst3d_strands::FlatStrands;
 
 /// The axis a job on `input` runs with: `flag` when given (`--up`), else
-/// the `.usda` layer's `upAxis`, else y (USD's default, and the hair formats'
+/// the USD layer's `upAxis`, else y (USD's default, and the hair formats'
 /// cyHair, USC-HairSalon). The note says when the flag overrides the layer.
 pub fn resolve(flag: Option<UpAxis>, input: &GroomFile) -> (UpAxis, Option<String>) {
     let layer = input.usd_primvars.up_axis.as_deref().and_then(UpAxis::from_usd);

@@ -27,7 +27,7 @@ pub enum GenerateKind {
 pub struct GenerateSettings {
     /// Which groom.
     pub kind: GenerateKind,
-    /// Output groom (.ply or .usda); with `frames` a pattern.
+    /// Output groom (.ply, .usda, .usdc or .usdz); with `frames` a pattern.
     pub out: PathBuf,
     /// The mesh the strands grow from (.ply).
     pub mesh_out: Option<PathBuf>,

@@ -5,7 +5,10 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use nst3d_io::groom::{write_ply_strands, write_usda_curves_with, GroomFile, UsdPrimvars};
+use nst3d_io::groom::{
+    usdc_unwritable, write_ply_strands, write_usda_curves_with, write_usdc_curves_with, write_usdz_curves_with,
+    GroomFile, UsdPrimvars,
+};
 use nst3d_strands::FlatStrands;
 
 use crate::settings::OutFormat;
@@ -13,8 +16,9 @@ use crate::settings::OutFormat;
 /// Writes `strands` to `path` in `format`, atomically. With `input` (the
 /// groom file the strands were made from, in its topology: same strands,
 /// same points each) the output keeps the input's attributes unchanged:
-/// per-point widths and colours, and in `.usda` the input layer's other
-/// primvars ([`attribute_notes`] says what a format cannot hold). Fails,
+/// per-point widths and colours, and in USD (`.usda`, `.usdc`, `.usdz`)
+/// the input layer's other primvars ([`attribute_notes`] says what a
+/// format cannot hold). Fails,
 /// writing nothing, when the topologies differ. Without `input` (generated
 /// grooms) only points are written. `colors` (one list per strand, one
 /// colour per point: a stylization with colour) replace the input's.
@@ -44,6 +48,8 @@ pub fn write_groom(
     }
     match format {
         OutFormat::Usda => write_usda_curves_with(path, &g, primvars)?,
+        OutFormat::Usdc => write_usdc_curves_with(path, &g, primvars)?,
+        OutFormat::Usdz => write_usdz_curves_with(path, &g, primvars)?,
         OutFormat::Ply => write_ply_strands(path, &g)?,
     }
     Ok(())
@@ -51,20 +57,29 @@ pub fn write_groom(
 
 /// What of `input`'s attributes an output in `format` will not hold, one
 /// line each (for the job to say once, before the slow part): primvars the
-/// reader could not keep, any primvar at all in `.ply`, a z-up layer's axis
-/// in `.ply`, and colours finer than the 8 bits per channel of `.ply`.
+/// reader could not keep, those a crate file cannot hold in `.usdc` and
+/// `.usdz`, any primvar at all in `.ply`, a z-up layer's axis in `.ply`,
+/// and colours finer than the 8 bits per channel of `.ply`.
 pub fn attribute_notes(input: &GroomFile, format: OutFormat) -> Vec<String> {
     let mut notes = input.usd_primvars.dropped.clone();
+    if matches!(format, OutFormat::Usdc | OutFormat::Usdz) {
+        for why in usdc_unwritable(&input.usd_primvars) {
+            notes.push(format!("a binary USD output cannot hold {why}: write .usda to keep it"));
+        }
+    }
     if format == OutFormat::Ply {
         let names: Vec<&str> = input.usd_primvars.primvars.iter().map(|p| p.name.as_str()).collect();
         if !names.is_empty() {
-            notes.push(format!("a .ply output cannot hold {}: write .usda to keep them", names.join(", ")));
+            notes.push(format!(
+                "a .ply output cannot hold {}: write USD (.usda, .usdc, .usdz) to keep them",
+                names.join(", ")
+            ));
         }
         // Y is what a reader of the .ply will assume anyway.
         if let Some(axis) = input.usd_primvars.up_axis.as_deref().filter(|&a| a != "Y") {
             notes.push(format!(
                 "a .ply output has no up axis (the input layer is {axis}-up; its points are written as they are): \
-                 write .usda to keep it"
+                 write USD (.usda, .usdc, .usdz) to keep it"
             ));
         }
         let fine = |c: f32| {
@@ -73,7 +88,7 @@ pub fn attribute_notes(input: &GroomFile, format: OutFormat) -> Vec<String> {
         };
         if input.groom.strands.iter().flat_map(|s| s.colors.iter().flatten()).flatten().any(|&c| fine(c)) {
             notes.push(
-                "colours are rounded to 8 bits per channel in a .ply output: write .usda to keep them exactly".into(),
+                "colours are rounded to 8 bits per channel in a .ply output: write USD to keep them exactly".into(),
             );
         }
     }

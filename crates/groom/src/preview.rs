@@ -45,7 +45,7 @@ pub fn write_preview(
 /// What `nst3d preview` draws of a groom.
 #[derive(Clone, Debug)]
 pub struct GroomPreviewSettings {
-    /// The groom (.hair, .data, .ply, .usda, .abc).
+    /// The groom (.hair, .data, .ply, .abc, or USD: .usda, .usdc, .usd, .usdz).
     pub input: PathBuf,
     /// A second groom with the same strands (e.g. the stylized result),
     /// drawn to the right of `input` from the same cameras.
@@ -60,7 +60,7 @@ pub struct GroomPreviewSettings {
     pub elevation: f32,
     /// Picture height in pixels.
     pub height: usize,
-    /// Which axis points up (`--up`); `None`: a `.usda` layer's `upAxis`,
+    /// Which axis points up (`--up`); `None`: a USD groom's `upAxis`,
     /// else y. The turntable circles it.
     pub up: Option<UpAxis>,
     /// A painting to judge every picture against ([`GramJudge`]).

@@ -32,7 +32,7 @@ nst3d_core::named_enum!(Temporal, "a temporal filter", {
 /// Everything `nst3d strands` can be asked, for one groom or an animation.
 #[derive(Clone, Debug)]
 pub struct StrandSettings {
-    /// Input groom (.hair, .data, .ply, .usda, .abc); with `frames` a pattern.
+    /// Input groom (.hair, .data, .ply, .usda, .usdc, .usd, .usdz, .abc); with `frames` a pattern.
     pub groom: PathBuf,
     /// Head or body mesh the strands grow from (.ply or .obj); with
     /// `frames` it may be a pattern too (a moving head). `None`: the groom
@@ -40,7 +40,7 @@ pub struct StrandSettings {
     pub mesh: Option<PathBuf>,
     /// Style painting (PNG or JPEG); its luminance is matched.
     pub style: PathBuf,
-    /// Output groom, .usda or .ply (written atomically); with `frames` a pattern.
+    /// Output groom, .usda, .usdc, .usdz or .ply (written atomically); with `frames` a pattern.
     pub out: PathBuf,
     /// Before | after | painting preview PNG; with `frames` a pattern.
     pub preview: Option<PathBuf>,
@@ -79,7 +79,7 @@ pub struct StrandSettings {
     /// Proxy strands to grow (default: the preset's proxy/guide ratio).
     pub proxies: Option<usize>,
     /// Which axis of the groom and mesh points up (`--up`); `None`: a
-    /// `.usda` layer's `upAxis`, else y ([`crate::axis::resolve`]). The
+    /// USD layer's `upAxis`, else y ([`crate::axis::resolve`]). The
     /// cameras circle it, the previews stand on it, the output keeps it.
     pub up: Option<UpAxis>,
     /// Seed of densification and camera sampling.
@@ -208,7 +208,7 @@ impl StrandSettings {
     }
 
     /// The outputs checked before any work (`io::atomic::check_output`): a
-    /// `.usda`/`.ply` that is not the input groom and whose folder takes a
+    /// groom file that is not the input groom and whose folder takes a
     /// file, and a `.png` preview; for a sequence those of `frame`.
     pub fn check_outputs(&self, frame: Option<i64>) -> Result<()> {
         use nst3d_io::atomic::check_output;
@@ -219,7 +219,7 @@ impl StrandSettings {
             }
         };
         let (groom, out) = (at(&self.groom, "--groom")?, at(&self.out, "--out")?);
-        check_output("--out", &out, &["usda", "ply"], &[&groom]).map_err(anyhow::Error::msg)?;
+        check_output("--out", &out, &["usda", "usdc", "usdz", "ply"], &[&groom]).map_err(anyhow::Error::msg)?;
         if let Some(p) = &self.preview {
             check_output("--preview", &at(p, "--preview")?, &["png"], &[]).map_err(anyhow::Error::msg)?;
         }
@@ -322,6 +322,10 @@ impl StrandSettings {
 pub enum OutFormat {
     /// USD BasisCurves, text.
     Usda,
+    /// USD BasisCurves, a binary crate file.
+    Usdc,
+    /// USD BasisCurves, a crate file in a `.usdz` package.
+    Usdz,
     /// PLY strand points, the layout the readers take.
     Ply,
 }
@@ -331,8 +335,10 @@ impl OutFormat {
     pub fn of(path: &Path) -> Result<Self> {
         match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
             Some("usda") => Ok(Self::Usda),
+            Some("usdc") => Ok(Self::Usdc),
+            Some("usdz") => Ok(Self::Usdz),
             Some("ply") => Ok(Self::Ply),
-            _ => bail!("--out {}: the output groom must end in .usda or .ply", path.display()),
+            _ => bail!("--out {}: the output groom must end in .usda, .usdc, .usdz or .ply", path.display()),
         }
     }
 }

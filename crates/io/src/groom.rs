@@ -4,9 +4,12 @@
 //!
 //! Readers: cyHair `.hair` ([`read_cyhair`]), USC-HairSalon `.data`
 //! ([`read_hairsalon`]), strand PLY as written by hapPLY/hairutil
-//! ([`read_ply_strands`]), text USD `BasisCurves` ([`read_usda_curves`]),
+//! ([`read_ply_strands`]), USD `BasisCurves` in text, crate files or `.usdz`
+//! packages, following sublayers and references ([`read_usd_curves_file`]),
 //! Alembic Ogawa curves ([`read_alembic_curves`]) and [`read_groom`], which
-//! picks one by content. Writers: [`write_usda_curves`], [`write_ply_strands`].
+//! picks one by content. Writers: [`write_usda_curves`],
+//! [`write_usdc_curves_with`], [`write_usdz_curves_with`],
+//! [`write_ply_strands`].
 //!
 //! Attributes: per-point widths and colours travel in [`Strand`] (cyHair
 //! thickness and colour, PLY `thickness`/`width` and `red`/`green`/`blue`,
@@ -15,8 +18,10 @@
 //! ([`read_groom_file`], [`GroomFile`], [`UsdPrimvars`]). A tool that moves
 //! the points and keeps the strands (as stylization does) gives the result
 //! the input's attributes with [`Groom::copy_attributes_from`] and writes
-//! the primvars back with [`write_usda_curves_with`]. What each writer can
-//! hold: `.usda` everything above (widths and colours per point); `.ply`
+//! the primvars back with [`write_usda_curves_with`] (or the `.usdc` and
+//! `.usdz` writers). What each writer can hold: `.usda` everything above
+//! (widths and colours per point); `.usdc` and `.usdz` the same, but for
+//! primvars whose type has no crate form here ([`usdc_unwritable`]); `.ply`
 //! widths and colours (8 bits per channel), no primvars.
 //!
 //! Conventions: points are taken as stored, in file units and axes. None of
@@ -90,6 +95,10 @@ pub enum GroomFormat {
     Ply,
     /// Text USD (magic `#usda`).
     Usda,
+    /// Binary USD, a crate file (magic `PXR-USDC`; `.usdc`, or `.usd`).
+    Usdc,
+    /// A `.usdz` package (a zip archive) whose first file is a USD layer.
+    Usdz,
     /// Alembic Ogawa (magic `Ogawa`).
     Alembic,
 }
@@ -107,6 +116,12 @@ pub fn detect_groom_format(path: &Path, bytes: &[u8]) -> Option<GroomFormat> {
     if bytes.starts_with(b"#usda") {
         return Some(GroomFormat::Usda);
     }
+    if bytes.starts_with(usdc::MAGIC) {
+        return Some(GroomFormat::Usdc);
+    }
+    if usdz::first_name(bytes).is_some_and(|n| n.ends_with(".usd") || n.ends_with(".usda") || n.ends_with(".usdc")) {
+        return Some(GroomFormat::Usdz);
+    }
     if bytes.starts_with(b"Ogawa") {
         return Some(GroomFormat::Alembic);
     }
@@ -116,6 +131,8 @@ pub fn detect_groom_format(path: &Path, bytes: &[u8]) -> Option<GroomFormat> {
         Some("hair") => return Some(GroomFormat::CyHair),
         Some("ply") => return Some(GroomFormat::Ply),
         Some("usda") | Some("usd") => return Some(GroomFormat::Usda),
+        Some("usdc") => return Some(GroomFormat::Usdc),
+        Some("usdz") => return Some(GroomFormat::Usdz),
         Some("abc") => return Some(GroomFormat::Alembic),
         _ => {}
     }
@@ -137,30 +154,12 @@ pub fn read_groom_file(path: &Path) -> Result<GroomFile, Error> {
     read_groom_file_bytes(path, &bytes)
 }
 
-/// Binary USD, which the readers do not take yet: a crate file (magic
-/// `PXR-USDC`, as `.usdc` or `.usd`) or a `.usdz` package. The error says
-/// how to get the text layer the USD reader does take.
-fn refuse_binary_usd(path: &Path, bytes: &[u8]) -> Result<(), Error> {
-    let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
-    if bytes.starts_with(b"PXR-USDC") || matches!(ext.as_deref(), Some("usdc") | Some("usdz")) {
-        return Err(Error::new(
-            path,
-            ErrorKind::UnknownFormat {
-                what: "groom",
-                reason: "binary USD (a .usdc/.usd crate file or .usdz) is not read yet; save the layer as \
-                         text first, e.g. with usd-core: Sdf.Layer.FindOrOpen(path).Export('groom.usda')"
-                    .into(),
-            },
-        ));
-    }
-    Ok(())
-}
-
 /// [`read_groom_file`] on bytes already in memory.
 pub fn read_groom_file_bytes(path: &Path, bytes: &[u8]) -> Result<GroomFile, Error> {
-    refuse_binary_usd(path, bytes)?;
     match detect_groom_format(path, bytes) {
-        Some(GroomFormat::Usda) => read_usda_curves_file_bytes(path, bytes),
+        Some(GroomFormat::Usda | GroomFormat::Usdc | GroomFormat::Usdz) => {
+            read_usd_curves_file_bytes(path, bytes, UsdAssets::Files)
+        }
         _ => Ok(GroomFile { groom: read_groom_bytes(path, bytes)?, usd_primvars: UsdPrimvars::default() }),
     }
 }
@@ -168,18 +167,20 @@ pub fn read_groom_file_bytes(path: &Path, bytes: &[u8]) -> Result<GroomFile, Err
 /// [`read_groom`] on bytes already in memory; `path` names them in errors
 /// and its extension helps detection.
 pub fn read_groom_bytes(path: &Path, bytes: &[u8]) -> Result<Groom, Error> {
-    refuse_binary_usd(path, bytes)?;
     match detect_groom_format(path, bytes) {
         Some(GroomFormat::CyHair) => read_cyhair_bytes(path, bytes),
         Some(GroomFormat::HairSalon) => read_hairsalon_bytes(path, bytes),
         Some(GroomFormat::Ply) => read_ply_strands_bytes(path, bytes),
-        Some(GroomFormat::Usda) => read_usda_curves_bytes(path, bytes),
+        Some(GroomFormat::Usda | GroomFormat::Usdc | GroomFormat::Usdz) => {
+            read_usd_curves_file_bytes(path, bytes, UsdAssets::Files).map(|f| f.groom)
+        }
         Some(GroomFormat::Alembic) => read_alembic_curves_bytes(path, bytes),
         None => Err(Error::new(
             path,
             ErrorKind::UnknownFormat {
                 what: "groom",
-                reason: "no known magic number or extension (.hair, .data, .ply, .usda, .abc)".into(),
+                reason: "no known magic number or extension (.hair, .data, .ply, .usda, .usdc, .usd, .usdz, .abc)"
+                    .into(),
             },
         )),
     }

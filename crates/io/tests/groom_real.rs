@@ -325,22 +325,3 @@ fn random_and_corrupted_bytes_never_panic() {
         }
     }
 }
-
-/// Binary USD is not read yet: a crate file (by its magic, whatever the
-/// extension) or a `.usdz` is refused in one line that says how to get the
-/// text layer the reader takes, not taken for a broken `.usda`.
-#[test]
-fn binary_usd_is_refused_with_the_way_to_text() {
-    let dir = tempfile::tempdir().unwrap();
-    let mut crate_file = b"PXR-USDC".to_vec();
-    crate_file.extend_from_slice(&[0, 8, 0, 0, 0, 0, 0, 0]);
-    crate_file.resize(88, 0);
-    for (name, bytes) in [("g.usdc", &crate_file[..]), ("g.usd", &crate_file[..]), ("g.usdz", &b"PK\x03\x04"[..])] {
-        let path = dir.path().join(name);
-        std::fs::write(&path, bytes).unwrap();
-        for err in [read_groom(&path).unwrap_err().to_string(), read_groom_file(&path).unwrap_err().to_string()] {
-            assert_eq!(err.lines().count(), 1, "{err}");
-            assert!(err.contains("binary USD") && err.contains("Export('groom.usda')"), "{name}: {err}");
-        }
-    }
-}

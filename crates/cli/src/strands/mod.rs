@@ -17,8 +17,9 @@ use crate::console::Console;
 pub struct StrandsArgs {
     #[command(subcommand)]
     command: Option<StrandsCommand>,
-    /// Input groom (.hair, .data, .ply, .usda, .abc); with --frames a
-    /// pattern such as `anim/fur_####.ply` or `fur_%04d.ply`.
+    /// Input groom (.hair, .data, .ply, .abc, or USD: .usda, .usdc, .usd,
+    /// .usdz, with their sublayers and references); with --frames a pattern
+    /// such as `anim/fur_####.ply` or `fur_%04d.ply`.
     #[arg(long, required = true)]
     groom: Option<PathBuf>,
     /// Head or body mesh the strands grow from (.ply or .obj); with --frames
@@ -32,7 +33,8 @@ pub struct StrandsArgs {
     /// Table 1 preset.
     #[arg(long, default_value = "short-hair", value_parser = crate::named::<Preset>(Preset::ALL.map(Preset::key)))]
     preset: Preset,
-    /// Output groom, .usda or .ply (written atomically); with --frames a pattern.
+    /// Output groom: USD (.usda text, .usdc binary, .usdz package) or .ply
+    /// (written atomically); with --frames a pattern.
     #[arg(long, required = true)]
     out: Option<PathBuf>,
     /// Before | after | painting preview PNG; with --frames a pattern.
@@ -93,7 +95,7 @@ pub struct StrandsArgs {
     #[arg(long)]
     proxies: Option<usize>,
     /// Which axis of the groom and mesh points up: the cameras circle it and the
-    /// output keeps it (default: a .usda's upAxis, else y; Blender grooms are z-up).
+    /// output keeps it (default: a USD groom's upAxis, else y; Blender grooms are z-up).
     #[arg(long, value_parser = crate::named::<UpAxis>(UpAxis::NAMES.iter().copied()))]
     up: Option<UpAxis>,
     /// Seed of densification and camera sampling.
@@ -138,7 +140,7 @@ pub struct StrandsArgs {
     /// Stylize the strands' colour too: after the shape (the same as without
     /// --color), a colour stage starting from the input's colours (white without)
     /// matches the painting's colours from cameras all around the groom; written as
-    /// the output's colours (.usda displayColor, .ply red/green/blue).
+    /// the output's colours (USD displayColor, .ply red/green/blue).
     #[arg(long)]
     color: bool,
 }
@@ -157,7 +159,7 @@ struct GenerateArgs {
     /// Which groom.
     #[arg(value_enum)]
     kind: GenerateKindArg,
-    /// Output groom (.ply or .usda); with --frames a pattern such as `anim/fur_####.ply`.
+    /// Output groom (.ply, .usda, .usdc or .usdz); with --frames a pattern such as `anim/fur_####.ply`.
     #[arg(long)]
     out: PathBuf,
     /// The mesh the strands grow from (.ply), for `nst3d strands --mesh`.

@@ -16,7 +16,7 @@ use crate::console::plural;
 #[derive(Args)]
 pub struct PreviewArgs {
     /// OpenVDB file to draw (with --frames, a pattern with `####` or `%04d`),
-    /// or a groom (.hair, .data, .ply, .usda, .abc).
+    /// or a groom (.hair, .data, .ply, .abc, .usda, .usdc, .usd, .usdz).
     #[arg(long)]
     pub input: PathBuf,
     /// For a groom: the mesh it grows from (front direction and culling).
@@ -46,7 +46,7 @@ pub struct PreviewArgs {
     #[arg(long, default_value = "perspective", value_parser = crate::named::<Projection>(Projection::NAMES.iter().copied()))]
     pub camera: Projection,
     /// Which axis points up in the file (default: z for a volume, as Blender caches are;
-    /// for a groom a .usda's upAxis, else y)
+    /// for a groom a USD groom's upAxis, else y)
     #[arg(long, value_parser = crate::named::<UpAxis>(UpAxis::NAMES.iter().copied()))]
     pub up: Option<UpAxis>,
     /// Absorption γ per unit density and voxel (default: the densest ray of

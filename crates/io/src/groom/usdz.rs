@@ -17,6 +17,15 @@ pub(crate) fn is_zip(bytes: &[u8]) -> bool {
     bytes.starts_with(&LOCAL.to_le_bytes())
 }
 
+/// The name of the first entry, from the first local header alone.
+pub(crate) fn first_name(bytes: &[u8]) -> Option<String> {
+    if !is_zip(bytes) || bytes.len() < 30 {
+        return None;
+    }
+    let n = u16::from_le_bytes([bytes[26], bytes[27]]) as usize;
+    bytes.get(30..30 + n).map(|b| String::from_utf8_lossy(b).to_ascii_lowercase())
+}
+
 /// The entries of a package, in file order: (name, data).
 pub(crate) fn entries(bytes: &[u8]) -> Result<Vec<(String, &[u8])>, ErrorKind> {
     let mut r = Reader::new(bytes, 0);

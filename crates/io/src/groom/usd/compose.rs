@@ -137,9 +137,12 @@ impl Stage {
             notes: Vec::new(),
             budget,
         };
-        let location =
-            if usdz::is_zip(bytes) { stage.package(bytes.to_vec())? } else { Location::File(path.to_path_buf()) };
-        let root = stage.load_bytes(location, bytes)?;
+        let root = if usdz::is_zip(bytes) {
+            let location = stage.package(bytes.to_vec())?;
+            stage.load_bytes(location, usdz::entries(bytes)?[0].1)?
+        } else {
+            stage.load_bytes(Location::File(path.to_path_buf()), bytes)?
+        };
         Ok((stage, root))
     }
 

@@ -330,8 +330,10 @@ impl Writer<'_, '_> {
         if let Some(v) = value {
             let _ = write!(self.out, " = {v}");
         }
+        // Metadata indented as for a prim at the layer's top, whatever the
+        // depth: a primvar's text is then the same wherever its prim sat.
         if !meta.is_empty() {
-            let _ = write!(self.out, " (\n{pad}        {}\n{pad}    )", meta.join(&format!("\n{pad}        ")));
+            let _ = write!(self.out, " (\n        {}\n    )", meta.join("\n        "));
         }
         self.out.push('\n');
         if let Some(samples) = self.field(s, "timeSamples")?.as_ref().and_then(value_text) {
