@@ -28,13 +28,26 @@ stage, as a Blender or Houdini export of it would.
 import json
 import math
 import os
+import shutil
 import struct
 import subprocess
 import sys
 import time
+import zipfile
 
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdUtils, Vt
 
+# usd-core's checks that apply to a groom layer and a package.
+VALIDATORS = [
+    "usdUtilsValidators:UsdzPackageValidator",
+    "usdUtilsValidators:RootPackageValidator",
+    "usdUtilsValidators:FileExtensionValidator",
+    "usdUtilsValidators:MissingReferenceValidator",
+    "usdGeomValidators:StageMetadataChecker",
+    "usdValidation:AttributeTypeMismatch",
+    "usdValidation:CompositionErrorTest",
+    "usdValidation:StageMetadataChecker",
+]
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BANGS = os.path.join(ROOT, "..", "shared", "data", "grooms", "Bangs_100.hair")
 STYLE = os.path.join(ROOT, "..", "shared", "data", "styles", "starry_night.jpg")
@@ -81,6 +94,20 @@ def author_primvars(curves, counts):
     make("groomName", T.String, "constant", 'bangs "100"')
     make("strandId", T.Int64Array, "uniform", Vt.Int64Array([10**12 + i for i in range(n)]))
     make("pair", T.FloatArray, "vertex", Vt.FloatArray([0.1 * i for i in range(2 * total)]), element_size=2)
+    # Types whose crate form is special: quaternions (stored real part
+    # last), matrices (diagonal ones inlined), asset paths, bools, 64-bit
+    # and small integers, time codes, half vectors.
+    make("orient", T.QuatfArray, "uniform", [Gf.Quatf(1, 0, 0, 0) if i % 2 else Gf.Quatf(0.5, 0.5, 0.5, 0.5) for i in range(n)])
+    make("frame", T.Matrix4d, "constant", Gf.Matrix4d(1, 0, 0, 0, 0, 0.5, 0.25, 0, 0, 0, 2, 0, 3, 4, 5, 1))
+    make("squash", T.Matrix2d, "constant", Gf.Matrix2d(2, 0, 0, -1))
+    make("map", T.Asset, "constant", Sdf.AssetPath("textures/hair_2.png"))
+    make("flag", T.BoolArray, "uniform", Vt.BoolArray([i % 3 == 0 for i in range(n)]))
+    make("seed", T.UInt64, "constant", 18000000000000000000)
+    make("ids", T.UIntArray, "uniform", Vt.UIntArray([4000000000 + i for i in range(n)]))
+    make("shutter", T.TimeCode, "constant", Sdf.TimeCode(24.5))
+    make("level", T.UChar, "constant", 200)
+    make("offset", T.Half3, "constant", Gf.Vec3h(0.5, 1000, -2))
+    make("span", T.Double2, "constant", Gf.Vec2d(1, -2))
     cs = make("cs", T.Color3fArray, "uniform", [Gf.Vec3f(1, 0, 0), Gf.Vec3f(0, 0.5, 1)])
     cs.SetIndices(Vt.IntArray([i % 2 for i in range(n)]))
     wind = pv.CreatePrimvar("wind", T.Float, "constant")
@@ -153,11 +180,17 @@ def primvar_facts(pv, values):
 
 
 def plain(v):
-    """A USD value as nested lists of numbers and strings."""
-    if v is None or isinstance(v, (bool, int, str)):
+    """A USD value as nested lists of numbers and strings (quaternions real
+    part first, as text writes them; asset paths and time codes as their
+    path and number)."""
+    if v is None or isinstance(v, (bool, int, str, float)):
         return v
-    if isinstance(v, float):
-        return v
+    if isinstance(v, (Gf.Quatf, Gf.Quatd, Gf.Quath)):
+        return [float(v.GetReal())] + [float(x) for x in v.GetImaginary()]
+    if isinstance(v, Sdf.AssetPath):
+        return v.path
+    if isinstance(v, Sdf.TimeCode):
+        return v.GetValue()
     if hasattr(v, "__len__") and not isinstance(v, str):
         return [plain(x) for x in v]
     return str(v)
@@ -196,10 +229,23 @@ def facts(path, values=True):
     }
 
 
+# A 1x1 grey PNG: the texture primvars:map names, so that packages find it.
+PNG = bytes.fromhex(
+    "89504e470d0a1a0a0000000d4948445200000001000000010800000000"
+    "3a7e9b550000000a49444154789c6360000000020001e221bc330000000049454e44ae426082"
+)
+
+
+def texture(folder):
+    os.makedirs(os.path.join(folder, "textures"), exist_ok=True)
+    with open(os.path.join(folder, "textures", "hair_2.png"), "wb") as f:
+        f.write(PNG)
+
+
 def fixtures(folder, strands):
-    os.makedirs(folder, exist_ok=True)
-    for name in os.listdir(folder):
-        os.remove(os.path.join(folder, name))
+    shutil.rmtree(folder, ignore_errors=True)
+    os.makedirs(folder)
+    texture(folder)
     write_groom(os.path.join(folder, "groom.usdc"), strands)
     ok = UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(os.path.join(folder, "groom.usdc")), os.path.join(folder, "groom.usdz"))
     assert ok, "groom.usdz"
@@ -261,6 +307,29 @@ def compare(inp, out, what):
     return [f"{what}: {x}" for x in bad]
 
 
+def validation_errors(path):
+    """What usd-core's validators (where this usd-core has them) and the
+    usdz rules (stored entries, data on 64-byte boundaries) find wrong."""
+    errors = []
+    if path.endswith(".usdz"):
+        with zipfile.ZipFile(path) as z:
+            for info in z.infolist():
+                start = info.header_offset + 30 + len(info.filename.encode()) + len(info.extra)
+                if info.compress_type != zipfile.ZIP_STORED or start % 64:
+                    errors.append(f"{info.filename}: compressed or not 64-byte aligned")
+    try:
+        from pxr import UsdValidation
+    except ImportError:
+        return errors
+    registry = UsdValidation.ValidationRegistry()
+    validators = [registry.GetOrLoadValidatorByName(n) for n in VALIDATORS if registry.HasValidator(n)]
+    try:
+        found = UsdValidation.ValidationContext(validators).Validate(Usd.Stage.Open(path))
+    except Exception as e:  # usd-core raises what it cannot open
+        return errors + [str(e).strip()]
+    return errors + [e.GetMessage() for e in found]
+
+
 def round_trip(nst3d, work):
     os.makedirs(work, exist_ok=True)
     source = os.path.join(work, "in.usdc")
@@ -268,6 +337,7 @@ def round_trip(nst3d, work):
         p = os.path.join(work, name)
         if os.path.exists(p):
             os.remove(p)
+    texture(work)
     write_groom(source, 100)
     ok = UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(source), os.path.join(work, "in.usdz"))
     assert ok, "in.usdz"
@@ -285,9 +355,8 @@ def round_trip(nst3d, work):
         found = compare(facts(os.path.join(work, src)), facts(os.path.join(work, out)), f"{src} -> {out}")
         problems += found
         print(f"{'ok  ' if not found else 'FAIL'} {src} -> {out} ({time.time() - start:.1f} s)")
-    checker = UsdUtils.ComplianceChecker(arkit=False, skipARKitRootLayerCheck=True)
-    checker.CheckCompliance(os.path.join(work, "out.usdz"))
-    problems += [f"out.usdz: {e}" for e in checker.GetErrors() + checker.GetFailedChecks()]
+    for out in ("out.usdc", "out.usdz", "out.usda"):
+        problems += [f"{out}: {e}" for e in validation_errors(os.path.join(work, out))]
     for p in problems:
         print(p, file=sys.stderr)
     return 1 if problems else 0

@@ -44,7 +44,8 @@ pub(crate) fn entries(bytes: &[u8]) -> Result<Vec<(String, &[u8])>, ErrorKind> {
         r.take(extra_len as usize, "zip extra field")?;
         if method != 0 || flags & 0x9 != 0 || size != full {
             return Err(unsupported(format!(
-                "usdz entry '{name}' is compressed or encrypted (a usdz package stores its files as they are)"
+                "usdz entry '{}' is compressed or encrypted (a usdz package stores its files as they are)",
+                name.escape_debug()
             )));
         }
         if size == u32::MAX {
@@ -52,7 +53,7 @@ pub(crate) fn entries(bytes: &[u8]) -> Result<Vec<(String, &[u8])>, ErrorKind> {
         }
         let data = r.take(size as usize, "usdz entry data")?;
         if crc32fast::hash(data) != crc {
-            return Err(corrupt(format!("usdz entry '{name}' fails its checksum")));
+            return Err(corrupt(format!("usdz entry '{}' fails its checksum", name.escape_debug())));
         }
         out.push((name, data));
     }
@@ -119,7 +120,7 @@ pub(crate) fn package(files: &[(&str, &[u8])]) -> Vec<u8> {
         out.extend_from_slice(data);
         fixed(CENTRAL, &mut central);
         // No comment, disk 0, no attributes, then where the entry starts.
-        central.extend_from_slice(&[0; 8]);
+        central.extend_from_slice(&[0; 10]);
         central.extend_from_slice(&at.to_le_bytes());
         central.extend_from_slice(name.as_bytes());
         central.extend_from_slice(&extra);
@@ -154,6 +155,23 @@ mod tests {
         for (_, d) in e {
             assert_eq!((d.as_ptr() as usize - z.as_ptr() as usize) % 64, 0, "data 64-byte aligned");
         }
+        // The central directory (what zip tools read) names both entries
+        // at their local headers.
+        let end = z.len() - 22;
+        assert_eq!(&z[end..end + 4], &END.to_le_bytes());
+        let word = |at: usize| u32::from_le_bytes(z[at..at + 4].try_into().unwrap()) as usize;
+        let half = |at: usize| u16::from_le_bytes(z[at..at + 2].try_into().unwrap()) as usize;
+        let (mut at, mut names) = (word(end + 16), Vec::new());
+        for _ in 0..half(end + 10) {
+            assert_eq!(word(at), CENTRAL as usize);
+            let (name, extra, comment) = (half(at + 28), half(at + 30), half(at + 32));
+            let local = word(at + 42);
+            assert_eq!(word(local), LOCAL as usize);
+            names.push(String::from_utf8(z[at + 46..at + 46 + name].to_vec()).unwrap());
+            at += 46 + name + extra + comment;
+        }
+        assert_eq!(names, ["groom.usda", "sub/x.bin"]);
+        assert_eq!(at, end);
     }
 
     #[test]

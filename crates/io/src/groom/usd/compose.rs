@@ -151,7 +151,10 @@ impl Stage {
         let first = usdz::entries(&bytes)?[0].0.clone();
         let ext = first.rsplit_once('.').map(|(_, e)| e.to_ascii_lowercase());
         if !matches!(ext.as_deref(), Some("usd" | "usda" | "usdc")) {
-            return Err(unsupported(format!("usdz package whose first file '{first}' is not a USD layer")));
+            return Err(unsupported(format!(
+                "usdz package whose first file '{}' is not a USD layer",
+                first.escape_debug()
+            )));
         }
         self.packages.push(bytes);
         Ok(Location::Packaged { package: self.packages.len() - 1, inner: first })
@@ -186,7 +189,7 @@ impl Stage {
             Location::Packaged { package, inner } => {
                 let entries = usdz::entries(&self.packages[*package])?;
                 let found = entries.iter().find(|(n, _)| usdz::normalize(n).as_deref() == Some(inner));
-                found.ok_or_else(|| corrupt(format!("no file '{inner}' in the package")))?.1.to_vec()
+                found.ok_or_else(|| corrupt(format!("no file '{}' in the package", inner.escape_debug())))?.1.to_vec()
             }
         };
         if usdz::is_zip(&bytes) {
@@ -208,7 +211,7 @@ impl Stage {
             Location::Packaged { package, inner } => {
                 let dir = inner.rsplit_once('/').map_or("", |(d, _)| d);
                 let inner = usdz::normalize(&format!("{dir}/{asset}"))
-                    .ok_or_else(|| corrupt(format!("'{asset}' points outside the package")))?;
+                    .ok_or_else(|| corrupt(format!("'{}' points outside the package", asset.escape_debug())))?;
                 Ok(Location::Packaged { package: *package, inner })
             }
         }
@@ -257,7 +260,7 @@ impl Stage {
                     let weak = self.composed(s, depth + 1)?;
                     merge_weaker(&mut root, weak);
                 }
-                Err(e) => self.note(format!("sublayer @{sub}@ not read: {e}")),
+                Err(e) => self.note(format!("sublayer @{}@ not read: {e}", sub.escape_debug())),
             }
         }
         Ok(root)
@@ -283,7 +286,11 @@ impl Stage {
             );
             match self.target(layer, asset.as_deref(), path.as_deref(), depth)? {
                 Ok(target) => merge_weaker(prim, target),
-                Err(why) => self.note(format!("reference {named} of prim '{}' not followed: {why}", prim.name)),
+                Err(why) => self.note(format!(
+                    "reference {} of prim '{}' not followed: {why}",
+                    named.escape_debug(),
+                    prim.name.escape_debug()
+                )),
             }
         }
         Ok(())
@@ -323,6 +330,6 @@ impl Stage {
             },
         };
         let tree = self.composed(target, depth + 1)?;
-        Ok(find(&tree, &path).cloned().ok_or_else(|| format!("no prim {path} in the layer")))
+        Ok(find(&tree, &path).cloned().ok_or_else(|| format!("no prim {} in the layer", path.escape_debug())))
     }
 }

@@ -45,16 +45,3 @@ pub(crate) fn layer_text(bytes: &[u8]) -> Result<String, ErrorKind> {
 pub(crate) fn groom_bytes(groom: &Groom, primvars: &UsdPrimvars) -> Result<Vec<u8>, String> {
     pack::pack(&build::groom_specs(groom, primvars))
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn scratch_dump() {
-        if let Ok(p) = std::env::var("NST3D_USDC_DUMP") {
-            let b = std::fs::read(p).unwrap();
-            println!("{}", layer_text(&b).unwrap());
-        }
-    }
-}

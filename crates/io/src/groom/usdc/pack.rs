@@ -8,7 +8,7 @@
 use std::collections::HashMap;
 
 use super::codec::{compress, write_ints};
-use super::toc::{bootstrap, write_toc, Section, BOOTSTRAP_LEN};
+use super::toc::{bootstrap, write_toc, Section, BOOTSTRAP_LEN, TIME_CODE_VERSION, WRITE_VERSION};
 use super::value::{code, Comp, NumType, Nums, Shape, Spec, TextKind, Value};
 
 const ARRAY: u64 = 1 << 63;
@@ -238,6 +238,15 @@ impl Packer {
     }
 }
 
+/// Whether `v` is or holds a time code.
+fn has_time_code(v: &Value) -> bool {
+    match v {
+        Value::Num { ty, .. } => ty.shape == Shape::TimeCode,
+        Value::Samples(s) => s.iter().any(|(_, v)| has_time_code(v)),
+        _ => false,
+    }
+}
+
 /// A path's parent and last element (`None` for the root).
 fn split(path: &str) -> Option<(&str, &str, bool)> {
     if path == "/" {
@@ -371,6 +380,11 @@ pub(super) fn pack(specs: &[Spec]) -> Result<Vec<u8>, String> {
     });
     let toc = p.out.len() as u64;
     write_toc(&mut p.out, &sections);
-    p.out[..BOOTSTRAP_LEN].copy_from_slice(&bootstrap(toc));
+    let version = if specs.iter().flat_map(|s| &s.fields).any(|(_, v)| has_time_code(v)) {
+        TIME_CODE_VERSION
+    } else {
+        WRITE_VERSION
+    };
+    p.out[..BOOTSTRAP_LEN].copy_from_slice(&bootstrap(version, toc));
     Ok(p.out)
 }

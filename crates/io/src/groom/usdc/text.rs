@@ -326,6 +326,12 @@ impl Writer<'_, '_> {
             meta.push(format!("doc = {}", quoted(d)));
         }
         let value = self.field(s, "default")?.as_ref().and_then(value_text);
+        let samples = self.field(s, "timeSamples")?.as_ref().and_then(value_text);
+        // A bare declaration says nothing a time-sampled statement does not.
+        if value.is_none() && meta.is_empty() && samples.is_some() {
+            let _ = writeln!(self.out, "{pad}    {head}.timeSamples = {}", samples.unwrap_or_default());
+            return Ok(());
+        }
         let _ = write!(self.out, "{pad}    {head}");
         if let Some(v) = value {
             let _ = write!(self.out, " = {v}");
@@ -336,7 +342,7 @@ impl Writer<'_, '_> {
             let _ = write!(self.out, " (\n        {}\n    )", meta.join("\n        "));
         }
         self.out.push('\n');
-        if let Some(samples) = self.field(s, "timeSamples")?.as_ref().and_then(value_text) {
+        if let Some(samples) = samples {
             let _ = writeln!(self.out, "{pad}    {head}.timeSamples = {samples}");
         }
         Ok(())

@@ -12,8 +12,12 @@ pub(crate) const MAGIC: &[u8; 8] = b"PXR-USDC";
 pub(super) const BOOTSTRAP_LEN: usize = 88;
 
 /// The version the writer writes: the one the reference library writes by
-/// default, which every reader since 2019 opens.
+/// default, which every reader since 2019 opens...
 pub(super) const WRITE_VERSION: (u8, u8, u8) = (0, 8, 0);
+
+/// ...unless the file holds a time code, which takes 0.9.0 (as the
+/// reference library upgrades such a file).
+pub(super) const TIME_CODE_VERSION: (u8, u8, u8) = (0, 9, 0);
 
 /// One named section.
 #[derive(Clone, Debug, PartialEq)]
@@ -73,17 +77,19 @@ pub(super) fn read_toc(bytes: &[u8]) -> Result<Toc, ErrorKind> {
             .ok()
             .zip(usize::try_from(size).ok())
             .filter(|&(s, z)| s.checked_add(z).is_some_and(|e| e <= bytes.len()));
-        let (start, size) = fits.ok_or_else(|| corrupt(format!("section {name} lies outside the file")))?;
+        let (start, size) =
+            fits.ok_or_else(|| corrupt(format!("section {} lies outside the file", name.escape_debug())))?;
         sections.push(Section { name, start, size });
     }
     Ok(Toc { version, sections })
 }
 
-/// The bootstrap header for a table of contents at `toc_offset`.
-pub(super) fn bootstrap(toc_offset: u64) -> [u8; BOOTSTRAP_LEN] {
+/// The bootstrap header of a file of `version` whose table of contents is
+/// at `toc_offset`.
+pub(super) fn bootstrap(version: (u8, u8, u8), toc_offset: u64) -> [u8; BOOTSTRAP_LEN] {
     let mut b = [0u8; BOOTSTRAP_LEN];
     b[..8].copy_from_slice(MAGIC);
-    (b[8], b[9], b[10]) = WRITE_VERSION;
+    (b[8], b[9], b[10]) = version;
     b[16..24].copy_from_slice(&toc_offset.to_le_bytes());
     b
 }
