@@ -207,6 +207,13 @@ fn our_crate_files_and_packages_read_back_exactly() {
         let names: Vec<_> = back.usd_primvars.primvars.iter().map(|p| &p.name).collect();
         assert_eq!(names, input.usd_primvars.primvars.iter().map(|p| &p.name).collect::<Vec<_>>(), "{ext}");
     }
+    // A package's texture, named by an asset primvar, goes into the package
+    // written from it.
+    let packaged = read_groom_file(&reference().join("groom.usdz")).unwrap();
+    assert_eq!(packaged.usd_primvars.files.len(), 1, "the texture primvars:map names");
+    let out = tmp.path().join("again.usdz");
+    write_usdz_curves_with(&out, &packaged.groom, &packaged.usd_primvars).unwrap();
+    assert_eq!(read_groom_file(&out).unwrap(), packaged);
     // A groom without USD primvars: the same.
     let bangs =
         read_groom(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/grooms/Bangs_100.hair")))

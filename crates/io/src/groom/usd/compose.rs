@@ -206,7 +206,12 @@ impl Stage {
 
     /// Where `asset`, named by layer `from`, is.
     fn locate(&self, from: usize, asset: &str) -> Result<Location, ErrorKind> {
-        match &self.layers[from].location {
+        self.locate_from(&self.layers[from].location, asset)
+    }
+
+    /// Where `asset`, named by a layer at `from`, is.
+    fn locate_from(&self, from: &Location, asset: &str) -> Result<Location, ErrorKind> {
+        match from {
             Location::File(p) => Ok(Location::File(p.parent().unwrap_or(Path::new("")).join(asset))),
             Location::Packaged { package, inner } => {
                 let dir = inner.rsplit_once('/').map_or("", |(d, _)| d);
@@ -229,6 +234,17 @@ impl Stage {
         if self.notes.len() < MAX_NOTES {
             self.notes.push(line);
         }
+    }
+
+    /// The file `asset` names from a layer inside a package, if some
+    /// packaged layer names one that is there.
+    pub(crate) fn packaged_file(&self, asset: &str) -> Option<Vec<u8>> {
+        self.layers.iter().find_map(|l| {
+            let Location::Packaged { package, .. } = &l.location else { return None };
+            let Ok(Location::Packaged { inner, .. }) = self.locate_from(&l.location, asset) else { return None };
+            let entries = usdz::entries(&self.packages[*package]).ok()?;
+            entries.iter().find(|(n, _)| usdz::normalize(n).as_deref() == Some(&inner)).map(|(_, d)| d.to_vec())
+        })
     }
 
     /// The metadata value `key` of layer `layer`.

@@ -14,6 +14,7 @@ use std::path::Path;
 
 pub use compose::UsdAssets;
 
+use super::usda::parse::{self, Val};
 use super::usda::{curves, primvars, write::check, xform};
 use super::{checked, usdc, usdz, Groom, GroomFile, UsdPrimvars};
 use crate::bytes::{corrupt, read_file};
@@ -48,8 +49,31 @@ fn decode(
             .map(str::to_string);
         kept.meters_per_unit =
             stage.meta(root_layer, "metersPerUnit").and_then(|v| v.as_f64()).filter(|m| m.is_finite() && *m > 0.0);
+        kept.files = packaged_assets(&stage, &kept);
     }
     Ok((super::Groom { strands }, kept))
+}
+
+/// The files inside the stage's packages that the asset-valued primvars
+/// of `kept` name.
+fn packaged_assets(stage: &compose::Stage, kept: &UsdPrimvars) -> Vec<(String, Vec<u8>)> {
+    fn assets(v: &Val, out: &mut Vec<String>) {
+        match v {
+            Val::Asset(a) => out.push(a.clone()),
+            Val::List(l) => l.iter().for_each(|x| assets(x, out)),
+            Val::Samples(s) => s.iter().for_each(|(_, x)| assets(x, out)),
+            _ => {}
+        }
+    }
+    let mut names = Vec::new();
+    for p in kept.primvars.iter().filter(|p| p.type_name.starts_with("asset")) {
+        for a in parse::statements(&p.declaration).unwrap_or_default() {
+            a.value.iter().for_each(|v| assets(v, &mut names));
+        }
+    }
+    names.sort();
+    names.dedup();
+    names.into_iter().filter_map(|n| stage.packaged_file(&n).map(|d| (n, d))).collect()
 }
 
 /// Reads the curves of a USD file in any form (text, crate file,
@@ -133,11 +157,21 @@ pub fn write_usdc_curves_with(path: &Path, groom: &Groom, primvars: &UsdPrimvars
     write_bytes(path, &bytes)
 }
 
-/// Writes `groom` as a `.usdz` package whose one file is the crate file
+/// Writes `groom` as a `.usdz` package whose root layer is the crate file
 /// [`write_usdc_curves_with`] writes, named after the package
-/// (`bangs.usdz` holds `bangs.usdc`).
+/// (`bangs.usdz` holds `bangs.usdc`), followed by the files of the input's
+/// package that its asset-valued primvars name ([`UsdPrimvars::files`]).
 pub fn write_usdz_curves_with(path: &Path, groom: &Groom, primvars: &UsdPrimvars) -> Result<(), Error> {
     let bytes = crate_bytes(path, groom, primvars)?;
     let stem = path.file_stem().and_then(|s| s.to_str()).filter(|s| !s.is_empty() && s.is_ascii()).unwrap_or("groom");
-    write_bytes(path, &usdz::package(&[(&format!("{stem}.usdc"), &bytes)]))
+    let layer = format!("{stem}.usdc");
+    let mut files: Vec<(&str, &[u8])> = vec![(&layer, &bytes)];
+    // The input package's files its asset primvars name, where they were
+    // relative to its layer (now the root of this package).
+    for (name, data) in &primvars.files {
+        if usdz::normalize(name).is_some_and(|n| !n.is_empty() && files.iter().all(|f| f.0 != n)) {
+            files.push((name, data));
+        }
+    }
+    write_bytes(path, &usdz::package(&files))
 }

@@ -62,6 +62,10 @@ pub struct UsdPrimvars {
     /// The layer's `metersPerUnit`, if it declares one (points are kept in
     /// the layer's units, so the writer says the same units).
     pub meters_per_unit: Option<f64>,
+    /// Files of the input's `.usdz` package that its asset-valued primvars
+    /// name (the path as the primvar writes it, and the bytes), so that a
+    /// package written with these primvars can carry them too.
+    pub files: Vec<(String, Vec<u8>)>,
 }
 
 /// Primvars the reader turns into strand attributes; the writer writes
