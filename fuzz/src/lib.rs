@@ -11,7 +11,7 @@ use std::path::Path;
 
 use nst3d_io::groom::{
     read_alembic_curves_bytes, read_cyhair_bytes, read_groom_file_bytes, read_hairsalon_bytes,
-    read_usda_curves_file_bytes, Groom,
+    read_usd_curves_file_bytes, Groom, UsdAssets,
 };
 use nst3d_io::mesh::read_mesh_bytes;
 use nst3d_io::vdb::{read_vdb_bytes, write_vdb_bytes, GridValues};
@@ -69,11 +69,28 @@ pub fn strand_ply(data: &[u8]) {
     }
 }
 
-/// Text USD `BasisCurves` with primvars.
-pub fn usda(data: &[u8]) {
-    if let Ok(f) = read_usda_curves_file_bytes(Path::new("fuzz.usda"), data) {
+/// USD `BasisCurves` with primvars, the stage composed from what the
+/// input holds (a package's own files; nothing is read from disk).
+fn usd(data: &[u8], name: &str) {
+    if let Ok(f) = read_usd_curves_file_bytes(Path::new(name), data, UsdAssets::PackageOnly) {
         valid(&f.groom);
+        assert_eq!(f.usd_primvars.curve_points.len(), f.groom.strands.len(), "primvars for other curves");
     }
+}
+
+/// Text USD layers.
+pub fn usda(data: &[u8]) {
+    usd(data, "fuzz.usda");
+}
+
+/// Binary USD crate files: sections, compression, value representations.
+pub fn usdc(data: &[u8]) {
+    usd(data, "fuzz.usdc");
+}
+
+/// `.usdz` packages and the layers in them.
+pub fn usdz(data: &[u8]) {
+    usd(data, "fuzz.usdz");
 }
 
 /// Alembic (Ogawa) curves.
@@ -169,6 +186,8 @@ pub const TARGETS: &[(&str, fn(&[u8]))] = &[
     ("hairsalon", hairsalon),
     ("strand_ply", strand_ply),
     ("usda", usda),
+    ("usdc", usdc),
+    ("usdz", usdz),
     ("alembic", alembic),
     ("mesh_obj", mesh_obj),
     ("mesh_ply", mesh_ply),
