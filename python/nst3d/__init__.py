@@ -382,10 +382,11 @@ def stylize_groom_file(
     color: Optional[bool] = None,
     progress: Optional[Progress] = None,
 ) -> Dict[str, Any]:
-    """Stylizes a groom file (``.hair .data .ply .usda .abc``) into ``out``
-    (``.usda`` or ``.ply``, same topology, colours, widths and USD primvars),
-    exactly as ``nst3d strands``. ``up`` (``"y"`` or ``"z"``) defaults to a
-    ``.usda`` layer's ``upAxis``, else ``"y"``; Blender's grooms are z-up.
+    """Stylizes a groom file (``.hair .data .ply .abc``, USD ``.usda .usdc
+    .usd .usdz``) into ``out`` (``.usda .usdc .usdz`` or ``.ply``, same
+    topology, colours, widths and USD primvars), exactly as ``nst3d
+    strands``. ``up`` (``"y"`` or ``"z"``) defaults to a USD groom's
+    ``upAxis``, else ``"y"``; Blender's grooms are z-up.
 
     With ``frames`` (e.g. ``"1-24"``) ``groom``, ``out`` (and ``mesh``,
     ``preview``) are ``####`` patterns of an animated groom, stylized with
@@ -500,8 +501,9 @@ class Model:
 
 
 def read_groom(path: PathLike) -> Tuple["NDArray[Any]", "NDArray[Any]"]:
-    """Reads a groom file (``.hair .data .ply .usda .abc``): ``(points (N, 3)
-    float32, counts (S,) int64)``, the arrays :func:`stylize_groom` takes."""
+    """Reads a groom file (``.hair .data .ply .abc``, USD ``.usda .usdc .usd
+    .usdz``): ``(points (N, 3) float32, counts (S,) int64)``, the arrays
+    :func:`stylize_groom` takes."""
     raw, counts = _nst3d.read_groom(os.fspath(path))
     return np.frombuffer(raw, dtype="<f4").reshape(-1, 3).copy(), np.asarray(counts, dtype=np.int64)
 
