@@ -45,7 +45,7 @@ impl<'a> Unpacker<'a> {
     pub(super) fn new(bytes: &'a [u8], t: &'a Tables, toc: &'a Toc) -> Self {
         // Real files store each value once and refer to it from many specs;
         // a groom's decoding stays far below this.
-        let budget = bytes.len().saturating_mul(64).saturating_add(1 << 20);
+        let budget = bytes.len().saturating_mul(16).saturating_add(1 << 18);
         Unpacker { bytes, t, toc, budget: Cell::new(budget) }
     }
 
