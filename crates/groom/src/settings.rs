@@ -40,7 +40,7 @@ pub struct StrandSettings {
     pub mesh: Option<PathBuf>,
     /// Style painting (PNG or JPEG); its luminance is matched.
     pub style: PathBuf,
-    /// Output groom, .usda, .usdc, .usdz or .ply (written atomically); with `frames` a pattern.
+    /// Output groom, .usda, .usdc (or .usd, binary), .usdz or .ply (written atomically); with `frames` a pattern.
     pub out: PathBuf,
     /// Before | after | painting preview PNG; with `frames` a pattern.
     pub preview: Option<PathBuf>,
@@ -219,7 +219,7 @@ impl StrandSettings {
             }
         };
         let (groom, out) = (at(&self.groom, "--groom")?, at(&self.out, "--out")?);
-        check_output("--out", &out, &["usda", "usdc", "usdz", "ply"], &[&groom]).map_err(anyhow::Error::msg)?;
+        check_output("--out", &out, &["usda", "usdc", "usd", "usdz", "ply"], &[&groom]).map_err(anyhow::Error::msg)?;
         if let Some(p) = &self.preview {
             check_output("--preview", &at(p, "--preview")?, &["png"], &[]).map_err(anyhow::Error::msg)?;
         }
@@ -322,7 +322,7 @@ impl StrandSettings {
 pub enum OutFormat {
     /// USD BasisCurves, text.
     Usda,
-    /// USD BasisCurves, a binary crate file.
+    /// USD BasisCurves, a binary crate file (`.usdc`, or `.usd`).
     Usdc,
     /// USD BasisCurves, a crate file in a `.usdz` package.
     Usdz,
@@ -335,10 +335,11 @@ impl OutFormat {
     pub fn of(path: &Path) -> Result<Self> {
         match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
             Some("usda") => Ok(Self::Usda),
-            Some("usdc") => Ok(Self::Usdc),
+            // `.usd` is binary, as USD itself writes it by default.
+            Some("usdc") | Some("usd") => Ok(Self::Usdc),
             Some("usdz") => Ok(Self::Usdz),
             Some("ply") => Ok(Self::Ply),
-            _ => bail!("--out {}: the output groom must end in .usda, .usdc, .usdz or .ply", path.display()),
+            _ => bail!("--out {}: the output groom must end in .usda, .usdc, .usd, .usdz or .ply", path.display()),
         }
     }
 }

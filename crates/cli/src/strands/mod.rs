@@ -33,8 +33,8 @@ pub struct StrandsArgs {
     /// Table 1 preset.
     #[arg(long, default_value = "short-hair", value_parser = crate::named::<Preset>(Preset::ALL.map(Preset::key)))]
     preset: Preset,
-    /// Output groom: USD (.usda text, .usdc binary, .usdz package) or .ply
-    /// (written atomically); with --frames a pattern.
+    /// Output groom: USD (.usda text, .usdc or .usd binary, .usdz package)
+    /// or .ply (written atomically); with --frames a pattern.
     #[arg(long, required = true)]
     out: Option<PathBuf>,
     /// Before | after | painting preview PNG; with --frames a pattern.
