@@ -159,7 +159,7 @@ struct GenerateArgs {
     /// Which groom.
     #[arg(value_enum)]
     kind: GenerateKindArg,
-    /// Output groom (.ply, .usda, .usdc or .usdz); with --frames a pattern such as `anim/fur_####.ply`.
+    /// Output groom (.ply, .usda, .usdc, .usd or .usdz); with --frames a pattern such as `anim/fur_####.ply`.
     #[arg(long)]
     out: PathBuf,
     /// The mesh the strands grow from (.ply), for `nst3d strands --mesh`.
