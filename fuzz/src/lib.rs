@@ -88,9 +88,25 @@ pub fn usdc(data: &[u8]) {
     usd(data, "fuzz.usdc");
 }
 
-/// `.usdz` packages and the layers in them.
+/// `.usdz` packages and the layers in them: the input as it is, then with
+/// every entry's checksum made right, so that mutations inside a packaged
+/// layer reach its reader instead of stopping at the checksum.
 pub fn usdz(data: &[u8]) {
     usd(data, "fuzz.usdz");
+    let mut fixed = data.to_vec();
+    let mut at = 0;
+    let half = |b: &[u8], i: usize| u16::from_le_bytes([b[i], b[i + 1]]) as usize;
+    while fixed.len() >= at + 30 && fixed[at..at + 4] == [0x50, 0x4b, 3, 4] {
+        let size = u32::from_le_bytes(fixed[at + 18..at + 22].try_into().expect("4 bytes")) as usize;
+        let start = at + 30 + half(&fixed, at + 26) + half(&fixed, at + 28);
+        let Some(entry) = fixed.get(start..start.saturating_add(size)) else { break };
+        let crc = crc32fast::hash(entry);
+        fixed[at + 14..at + 18].copy_from_slice(&crc.to_le_bytes());
+        at = start + size;
+    }
+    if fixed != data {
+        usd(&fixed, "fuzz.usdz");
+    }
 }
 
 /// Alembic (Ogawa) curves.
