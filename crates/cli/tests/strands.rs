@@ -120,7 +120,7 @@ fn bad_grooms_give_one_line_errors() {
     assert_fails(
         &strands(&shared("grooms/Bangs_100.hair"), &bad_out, &[]),
         &bad_out,
-        ".usda or .usdc or .usd or .usdz or .ply",
+        ".usda, .usdc, .usd, .usdz or .ply",
     );
 }
 
