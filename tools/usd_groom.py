@@ -341,7 +341,9 @@ def round_trip(nst3d, work):
     write_groom(source, 100)
     ok = UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(source), os.path.join(work, "in.usdz"))
     assert ok, "in.usdz"
-    small = ["--preset", "short-hair", "--iters", "9", "--render-size", "96", "--proxies", "40"]
+    # The fewest iterations and pixels that move every strand: files are
+    # under test here, not looks.
+    small = ["--preset", "short-hair", "--iters", "3", "--render-size", "64", "--proxies", "20"]
     small += ["--views-per-scale", "1", "--lr-scale", "0.1"]
     problems = []
     for src, out in (("in.usdc", "out.usdc"), ("in.usdz", "out.usdz"), ("in.usdc", "out.usda")):
