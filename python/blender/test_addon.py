@@ -70,7 +70,16 @@ def smoke_scene():
     if BAKED is None:
         sys.argv = ["blender_bake_smoke.py", "--", os.path.join(OUT, "cache"), "32", str(FRAME)]
         runpy.run_path(os.path.join(SHARED, "tools", "blender_bake_smoke.py"), run_name="__main__")
+        # Saved with the fluid modifiers off: the bpy module's Mantaflow
+        # fails in its own Python code whenever it evaluates them, and the
+        # add-on needs the domain's settings and the cache on disk, not the
+        # evaluated smoke.
+        fluids = [m for o in bpy.data.objects for m in o.modifiers if m.type == "FLUID"]
+        for m in fluids:
+            m.show_viewport = m.show_render = False
         bpy.ops.wm.save_as_mainfile(filepath=os.path.join(OUT, "baked.blend"), copy=True)
+        for m in fluids:
+            m.show_viewport = m.show_render = True
     else:
         bpy.ops.wm.open_mainfile(filepath=BAKED)
     domain = next(o for o in bpy.data.objects if any(m.type == "FLUID" and m.fluid_type == "DOMAIN" for m in o.modifiers))
