@@ -9,7 +9,8 @@
     python python/blender/test_addon.py -- OUTDIR4 --extension nst3d-VERSION-PLATFORM.zip \
         --baked OUTDIR/baked.blend
 
-(tools/test_blender.sh runs both.) The first bakes a small Mantaflow smoke
+(tools/test_blender.sh runs both; `--pictures` renders docs/img's pictures:
+larger, 32 samples, 15 iterations.) The first bakes a small Mantaflow smoke
 (32 voxels, 30 frames) with ../shared/tools/blender_bake_smoke.py and
 saves it as OUTDIR/baked.blend (the bpy module cannot bake: its Mantaflow
 fails in its own Python code); then, in both (nst3d_blender_tests/):
@@ -132,6 +133,7 @@ def main():
     bg = smoke.pictures(mod, scene, domain, styled, pv, FRAME, OUT, cache)
     smoke.model(mod, domain, OUT, MODEL, FRAME)
     smoke.cancel(mod, domain, OUT, STYLE, FRAME)
+    smoke.bad_output(domain, OUT, STYLE, FRAME)
     scalp = hair.particle_hair()
     hair.particles(mod, scalp, STYLE, OUT)
     hair.cancel(mod, scalp, OUT)

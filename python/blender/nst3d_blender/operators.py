@@ -67,13 +67,18 @@ class SmokeTask:
             opts.update(color=True, color_grid=volume_io.COLOR_GRID)
         camera = volume_io.scene_camera(context.scene, obj, self.frames) if s.use_scene_camera and not model else None
         self.out_dir = bpy.path.abspath(s.output_dir) if s.output_dir else os.path.dirname(pattern) + "_nst3d"
-        self._made = _make_dirs(self.out_dir)
-        self.staging = tempfile.mkdtemp(prefix=".nst3d-run-", dir=self.out_dir)
-        if camera is not None:
-            opts.pop("cameras")
-            opts["camera_file"] = os.path.join(self.staging, "camera.json")
-            with open(opts["camera_file"], "w") as f:
-                json.dump(camera, f)
+        self._made, self.staging = None, None
+        try:
+            self._made = _make_dirs(self.out_dir)
+            self.staging = tempfile.mkdtemp(prefix=".nst3d-run-", dir=self.out_dir)
+            if camera is not None:
+                opts.pop("cameras")
+                opts["camera_file"] = os.path.join(self.staging, "camera.json")
+                with open(opts["camera_file"], "w") as f:
+                    json.dump(camera, f)
+        except OSError as e:
+            self.rollback()
+            raise RuntimeError(f"cannot write into {self.out_dir}: {e.strerror or e}") from e
         staged = os.path.join(self.staging, "fluid_data_####.vdb")
         opts.update(style=style, strength=s.strength)
         if len(self.frames) == 1:
@@ -105,7 +110,8 @@ class SmokeTask:
 
     def rollback(self, scene=True):
         # The scene is untouched until commit; the files go.
-        shutil.rmtree(self.staging, ignore_errors=True)
+        if self.staging is not None:
+            shutil.rmtree(self.staging, ignore_errors=True)
         if self._made is not None:
             shutil.rmtree(self._made, ignore_errors=True)
 

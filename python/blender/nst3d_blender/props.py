@@ -9,13 +9,15 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, St
 # The add-on's module name: "nst3d_blender" as a legacy add-on,
 # "bl_ext.<repository>.nst3d" as an extension. Preferences are keyed by it.
 ADDON = __package__
+# An extension brings the package in its wheel (and must leave sys.path alone).
+EXTENSION = ADDON.startswith("bl_ext.")
 
 
 def nst3d_package():
     """The nst3d package: the extension's bundled wheel, Blender's Python, or
-    the folder set in the add-on's preferences."""
+    (legacy add-on) the folder set in the add-on's preferences."""
     addon = bpy.context.preferences.addons.get(ADDON)
-    extra = addon.preferences.package_path if addon and addon.preferences else ""
+    extra = addon.preferences.package_path if addon and addon.preferences and not EXTENSION else ""
     if extra and bpy.path.abspath(extra) not in sys.path:
         sys.path.append(bpy.path.abspath(extra))
     try:
@@ -39,7 +41,10 @@ class Nst3dPreferences(bpy.types.AddonPreferences):
     )
 
     def draw(self, context):
-        self.layout.prop(self, "package_path")
+        if EXTENSION:
+            self.layout.label(text="The nst3d package comes with the extension.")
+        else:
+            self.layout.prop(self, "package_path")
 
 
 _MODES = [("velocity", "Velocity", "Move the smoke (the look follows the painting's strokes)"),

@@ -163,3 +163,23 @@ def cancel(addon, domain, out, style, frame):
           f"Esc cancels Stylize smoke in {time.time() - t0:.1f} s ({state}, '{run.report[1]}')")
     changed = same_state(before, scene_state(out))
     check(not changed, f"the scene and the earlier result are as they were (changed: {changed})")
+
+
+def bad_output(domain, out, style, frame):
+    """An output folder that cannot be made: one line in Blender's report,
+    nothing left behind."""
+    s = domain.nst3d
+    s.style, s.model, s.frame_start, s.frame_end = style, "", frame, frame
+    blocker = os.path.join(out, "a_file")
+    open(blocker, "w").close()
+    s.output_dir = os.path.join(blocker, "styled")
+    before = scene_state(out)
+    with bpy.context.temp_override(object=domain, active_object=domain, selected_objects=[domain]):
+        try:
+            result, message = bpy.ops.nst3d.stylize_smoke(), ""
+        except RuntimeError as e:  # an operator's error report raises in background mode
+            result, message = {"CANCELLED"}, str(e).strip()
+    check(result == {"CANCELLED"} and len(message.splitlines()) == 1 and "cannot write into" in message,
+          f"an output folder that cannot be made is one line: '{message}'")
+    check(not same_state(before, scene_state(out)), "and leaves the scene and the files as they were")
+    os.remove(blocker)
