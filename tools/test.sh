@@ -12,6 +12,10 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 # Each step's start, in seconds since this script began: where CI's time goes.
 stamp() { echo "== [${SECONDS}s] $*"; }
+# The Cargo profile the tests build with: `test` by default; CI (.ci/run)
+# names `release`, with its own overrides, so the tests, the binary and the
+# wheel share one build of every crate.
+profile=(--cargo-profile "${NST3D_TEST_PROFILE:-test}")
 
 if ! /usr/bin/python3 -c "import pyopenvdb, numpy" >/dev/null 2>&1; then
   stamp "installing python3-openvdb (reference OpenVDB library for the round-trip tests)"
@@ -31,7 +35,7 @@ python3 tools/long_functions.py
 
 stamp "tests"
 if cargo nextest --version >/dev/null 2>&1; then
-  cargo nextest run --workspace --exclude nst3d-python --no-fail-fast
+  cargo nextest run "${profile[@]}" --workspace --exclude nst3d-python --no-fail-fast
 else
   cargo test --workspace --exclude nst3d-python --no-fail-fast
 fi
@@ -48,7 +52,7 @@ kernel_crates=(nst3d-core nst3d-features nst3d-loss nst3d-network nst3d-stylize 
 if cargo nextest --version >/dev/null 2>&1; then
   # The workspace build of the run above, filtered: no second build.
   filter=$(printf 'package(%s) | ' "${kernel_crates[@]}"); filter=${filter% | }
-  NST3D_PRECISION=$other cargo nextest run --workspace --exclude nst3d-python --no-fail-fast -E "$filter"
+  NST3D_PRECISION=$other cargo nextest run "${profile[@]}" --workspace --exclude nst3d-python --no-fail-fast -E "$filter"
 else
   NST3D_PRECISION=$other cargo test $(printf -- '-p %s ' "${kernel_crates[@]}") --no-fail-fast
 fi
