@@ -91,7 +91,10 @@ fn an_older_or_cut_checkpoint_is_refused_in_one_line() {
     let mut s = settings(&out);
     s.steps = Some(2);
     let e = train(&s, &mut Silent).unwrap_err().to_string();
-    assert!(e.contains("old.safetensors.ckpt") && e.contains("older nst3d") && e.ends_with("delete it to start over"), "{e}");
+    assert!(
+        e.contains("old.safetensors.ckpt") && e.contains("older nst3d") && e.ends_with("delete it to start over"),
+        "{e}"
+    );
     assert_eq!(e.lines().count(), 1, "{e}");
 
     std::fs::remove_file(checkpoint_path(&out)).unwrap();

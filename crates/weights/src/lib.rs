@@ -175,10 +175,7 @@ pub fn parse_safetensors(bytes: &[u8], source: &Path) -> Result<(TensorMap, BTre
 /// `__metadata__` strings of `.safetensors` bytes; `source` names them in
 /// errors. Files of state rather than of weights read through this, so
 /// integers and doubles come back bit for bit.
-pub fn parse_safetensors_exact(
-    bytes: &[u8],
-    source: &Path,
-) -> Result<(BTreeMap<String, Tensor<'static>>, BTreeMap<String, String>), WeightsError> {
+pub fn parse_safetensors_exact(bytes: &[u8], source: &Path) -> Result<safetensors::Exact, WeightsError> {
     let malformed = |problem| WeightsError::Malformed { path: source.to_path_buf(), problem };
     if !safetensors::looks_like(bytes) {
         return Err(malformed("not a .safetensors file".into()));

@@ -190,11 +190,12 @@ pub(crate) fn read(bytes: &[u8]) -> Result<(TensorMap, BTreeMap<String, String>)
     Ok((map, meta))
 }
 
+/// Every tensor of a safetensors file by name, as stored, and its metadata.
+pub type Exact = (BTreeMap<String, Tensor<'static>>, BTreeMap<String, String>);
+
 /// Reads every tensor of a safetensors file as stored (F32, F64 or U64; any
 /// other element type is refused), and its metadata.
-pub(crate) fn read_exact(
-    bytes: &[u8],
-) -> Result<(BTreeMap<String, Tensor<'static>>, BTreeMap<String, String>), Problem> {
+pub(crate) fn read_exact(bytes: &[u8]) -> Result<Exact, Problem> {
     fn le<const N: usize, T>(data: &[u8], from: fn([u8; N]) -> T) -> Vec<T> {
         data.chunks_exact(N).map(|c| from(c.try_into().expect("N bytes"))).collect()
     }
