@@ -10,6 +10,7 @@ Fails loudly when a real file is missing: a corpus without its seeds would
 fuzz something else than the readers see in production.
 """
 import hashlib
+import json
 import os
 import struct
 import sys
@@ -101,40 +102,58 @@ CAMERAS = [
 ]
 
 
+def state_file(kind, meta, arrays):
+    """A job state file (crates/job/src/state.rs): safetensors whose
+    metadata says the format, the kind of job and its fingerprint; `arrays`
+    are (name, dtype, shape, values) with dtype F32, F64 or U64."""
+    meta = dict(meta, format="nst3d-state", format_version="1", kind=kind, fingerprint="%016x" % 42, settings="")
+    header, data = {"__metadata__": {k: str(v) for k, v in meta.items()}}, b""
+    for name, dtype, shape, values in sorted(arrays):
+        code = {"F32": "<f", "F64": "<d", "U64": "<Q"}[dtype]
+        raw = b"".join(struct.pack(code, v) for v in values)
+        header[name] = {"data_offsets": [len(data), len(data) + len(raw)], "dtype": dtype, "shape": shape}
+        data += raw
+    text = json.dumps(header, sort_keys=True, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 8)
+    return struct.pack("<Q", len(text)) + text + data
+
+
 def volume_states():
-    def state(scale, step, params):
-        n = len(params)
-        return b"NST3DFS1" + struct.pack("<3Q", scale, step, n) + f32s(params + [0.01] * n + [0.001] * n)
+    def state(field, step, shape):
+        n = 1
+        for d in shape:
+            n *= d
+        params = [0.1 * i for i in range(n)]
+        arrays = [("field", "F32", shape, params), ("adam.m", "F32", [n], [0.01] * n), ("adam.v", "F32", [n], [0.001] * n)]
+        return state_file("volume sequence", {"field": field, "step": step}, arrays)
 
     return [
-        state(0, 3, [0.1 * i for i in range(24)]),  # velocity: 8 voxels x 3
-        state(1, 0, [1.0] * 8),  # scale
-        b"nst3d-checkpoint generation 4 octave 1 octaves 3 sweeps 2\n",
+        state("velocity", 3, [8, 3]),
+        state("scale", 0, [8]),
+        state_file("volume sequence", {"generation": 4, "octave": 1, "octaves": 3, "sweeps_done": 2}, []),
     ]
 
 
 def strand_states():
-    def u64(x):
-        return struct.pack("<Q", x)
+    def v3s(name, n):
+        return (name, "F32", [n, 3], [0.1 * i for i in range(3 * n)])
 
-    def vec(xs, fmt):
-        return u64(len(xs)) + b"".join(struct.pack(fmt, x) for x in xs)
+    def strands(name, n_points, offsets):
+        return [v3s(name + ".points", n_points), (name + ".offsets", "U64", [len(offsets)], offsets)]
 
-    def v3s(n):
-        return u64(n) + f32s([0.1 * i for i in range(3 * n)])
+    def image(name, c, h, w):
+        return (name, "F32", [c, h, w], [0.5] * (c * h * w))
 
-    def strands(n_points, offsets):
-        return v3s(n_points) + vec(offsets, "<Q")
-
-    def image(c, h, w):
-        return vec([c, h, w], "<Q") + vec([0.5] * (c * h * w), "<f")
-
-    tail = struct.pack("<7d", *([0.1] * 7)) + u64(2) + u64(1) + vec([2.0, 24.0], "<d")
-    empty = b"NST3DSQ1" + b"\0\0\0\0" + tail
-    view = f32s([0, 0, 0, 1, 0, 0, 1, 0, 1, 0, 1, 0, 0, 3.0, 40.0]) + f32s([0.01, 0.5, 0.3, 1.0, 1.0, 1.0, 1, 1, 1, 0.1, 1.0])
-    full = b"NST3DSQ1" + b"\1" + vec([2, 3], "<Q") + b"\1" + view + b"\0"
-    full += b"\1" + v3s(4) + v3s(4) + strands(5, [0, 2, 5]) + strands(5, [0, 2, 5]) + image(3, 2, 2) + image(3, 2, 2)
-    full += b"\1" + v3s(5) + v3s(5) + tail
+    tail = [("sums", "F64", [4], [0.1] * 4), ("flicker_sums", "F64", [3], [0.1] * 3)]
+    counts = {"frames": 2, "pairs": 1}
+    empty = state_file("groom sequence", counts, tail)
+    view = [0, 0, 0, 1, 0, 0, 1, 0, 1, 0, 1, 0, 0, 3.0, 40.0, 0.01, 0.5, 0.3, 1.0, 1.0, 1.0, 1, 1, 1, 0.1, 1.0]
+    arrays = tail + [("topology", "U64", [2], [2, 3]), ("view", "F32", [26], view)]
+    arrays += [v3s("previous.samples", 4), v3s("previous.velocities", 4)]
+    arrays += strands("previous.undeformed", 5, [0, 2, 5]) + strands("previous.output", 5, [0, 2, 5])
+    arrays += [image("previous.render_output", 3, 2, 2), image("previous.render_input", 3, 2, 2)]
+    arrays += [v3s("one_euro.x", 5), v3s("one_euro.d", 5)]
+    full = state_file("groom sequence", dict(counts, **{"view.output": "grey_alpha"}), arrays)
     return [empty, full]
 
 

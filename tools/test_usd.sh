@@ -34,9 +34,9 @@ echo "== usd-core's grooms read by nst3d as usd-core reads them"
 quiet() { grep -v "^Warning: in RequestWriteVersionUpgrade" >&2 || true; }
 .venv-usd/bin/python tools/usd_groom.py fixtures "$work/reference" 2> >(quiet)
 if cargo nextest --version >/dev/null 2>&1; then
-  # The workspace build of tools/test.sh, filtered: no second build.
-  NST3D_USD_REFERENCE="$work/reference" cargo nextest run --workspace --exclude nst3d-python \
-    --no-fail-fast -E 'binary(groom_usd)'
+  # The workspace build of tools/test.sh (its profile), filtered: no second build.
+  NST3D_USD_REFERENCE="$work/reference" cargo nextest run --cargo-profile "${NST3D_TEST_PROFILE:-test}" \
+    --workspace --exclude nst3d-python --no-fail-fast -E 'binary(groom_usd)'
 else
   NST3D_USD_REFERENCE="$work/reference" cargo test -p nst3d-io --test groom_usd
 fi

@@ -180,18 +180,21 @@ pub fn camera_json(data: &[u8]) {
     }
 }
 
-/// A volume sequence's work folder: a frame state file, and the same bytes
-/// as the `checkpoint` line.
+/// A volume sequence's work folder: a state file read as a frame state,
+/// and as the `checkpoint`.
 pub fn volume_state(data: &[u8]) {
-    if let Some(st) = nst3d_sequence::store::decode(data) {
+    let Ok(state) = nst3d_job::State::from_bytes(data) else { return };
+    let _ = nst3d_sequence::store::checkpoint_mark(&state);
+    if let Ok(st) = nst3d_sequence::store::decode(state) {
         assert!(st.m.len() == st.field.len() && st.v.len() == st.field.len(), "moments vs field");
     }
-    let _ = nst3d_sequence::store::parse_checkpoint(&String::from_utf8_lossy(data));
 }
 
 /// An animated groom's saved state between frames.
 pub fn strand_state(data: &[u8]) {
-    let _ = nst3d_strands::sequence::SavedState::parse(data);
+    if let Ok(state) = nst3d_job::State::from_bytes(data) {
+        let _ = nst3d_strands::sequence::SavedState::parse(&state);
+    }
 }
 
 /// Every target: its name (the corpus folder and `NST3D_FUZZ_TARGET`) and

@@ -144,7 +144,8 @@ fn bad_sequences_fail_before_stylizing() {
 /// Kill a run once frame 3's iterations start (frames 1-2 written, their
 /// state saved), rerun the same command: it resumes after frame 2 and every
 /// frame has the bytes of an uninterrupted run (the EMA and 1€ history came
-/// back exactly). A finished job is not redone; --force redoes it.
+/// back exactly). A finished job is not redone; a state an older nst3d
+/// wrote is refused; --force redoes it.
 #[test]
 fn a_killed_sequence_resumes_after_its_last_finished_frame() {
     let dir = tempfile::tempdir().unwrap();
@@ -191,6 +192,19 @@ fn a_killed_sequence_resumes_after_its_last_finished_frame() {
     let again = run("killed/fur_%04d.ply", &[]).output().unwrap();
     ok(&again);
     assert!(String::from_utf8_lossy(&again.stderr).contains("all 4 frames already done"));
+    // A state an older nst3d left in the work folder is refused in one
+    // line that says how to start over, and --force starts over.
+    let work = std::fs::read_dir(dir.path().join("killed/.nst3d-work"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.is_dir())
+        .expect("the work folder");
+    std::fs::write(work.join("strands.state"), b"NST3DSQ1\x01\x00\x00").unwrap();
+    let old = run("killed/fur_%04d.ply", &[]).output().unwrap();
+    let err = String::from_utf8_lossy(&old.stderr);
+    assert_eq!(old.status.code(), Some(1), "{err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("nst3d: error")).collect();
+    assert!(lines.len() == 1 && lines[0].contains("older nst3d") && lines[0].contains("--force starts over"), "{err}");
     let forced = ok(&run("killed/fur_%04d.ply", &["--force"]).output().unwrap());
     assert!(forced.contains("frame 1:"), "{forced}");
     let redone = std::fs::read(dir.path().join("killed/fur_0004.ply")).unwrap();

@@ -14,7 +14,7 @@ use nst3d_core::{Groom, UpAxis};
 use nst3d_features::Vgg19;
 use nst3d_io::groom::{read_groom, read_groom_file};
 use nst3d_io::mesh::read_mesh;
-use nst3d_job::{default_work_dir, job_fingerprint, settings_key, FrameSpec};
+use nst3d_job::{default_work_dir, settings_key, FrameSpec, JobId, Resume, State, StateFiles};
 use nst3d_strands::{check_topology, FlatStrands, Flow, FrameResult, SequenceParams, SequenceStylizer, TemporalParams};
 
 use crate::axis;
@@ -28,6 +28,9 @@ use crate::NO_MESH;
 
 /// Name of the saved sequence state in the work folder.
 pub const STATE_FILE: &str = "strands.state";
+
+/// What a groom sequence's state file says it is.
+pub const STATE_KIND: &str = "groom sequence";
 
 /// What an animated-groom job did.
 #[derive(Clone, Debug)]
@@ -95,24 +98,30 @@ fn check_meshes(frames: &[i64], mesh_at: &dyn Fn(i64) -> Result<Option<PathBuf>>
 }
 
 /// Resume: the state saved after the last finished frame of this job, if
-/// any, restored into `seq`: the frames done and the worst checks over them.
+/// any (`saved`, see [`Resume::load_or_fresh`]), restored into `seq`: the
+/// frames done and the worst checks over them.
 fn resume(
     seq: &mut SequenceStylizer<'_>,
-    state_path: &Path,
-    work: &Path,
+    saved: Option<State<'_>>,
+    (state_path, work): (&Path, &Path),
     frames: &[i64],
     out_at: &dyn Fn(i64) -> Result<PathBuf>,
     reporter: &mut dyn Reporter,
 ) -> Result<(usize, Checks)> {
-    if !state_path.exists() {
+    let Some(saved) = saved else {
         return Ok((0, Checks::default()));
-    }
-    let bytes = std::fs::read(state_path).with_context(|| state_path.display().to_string())?;
-    let extra = seq.restore_state(&bytes).with_context(|| format!("{} (--force starts over)", state_path.display()))?;
-    let &[n, w0, w1, w2] = extra.as_slice() else {
-        bail!("{}: saved state has no frame count (--force starts over)", state_path.display());
     };
-    let done = n as usize;
+    let starts_over = || format!("{} (--force starts over)", state_path.display());
+    seq.restore_state(&saved).with_context(starts_over)?;
+    let numbers = || -> Result<(usize, Checks), nst3d_job::state::Problem> {
+        let worst = Checks {
+            vs_input: saved.get("worst.vs_input")?,
+            vs_rest: saved.get("worst.vs_rest")?,
+            inside: saved.get("worst.inside")?,
+        };
+        Ok((saved.get("frames_done")?, worst))
+    };
+    let (done, worst) = numbers().map_err(|e| anyhow::anyhow!("saved state {e}")).with_context(starts_over)?;
     if done > frames.len() {
         bail!(
             "{}: saved state has {done} frames done, the job has {} (--force starts over)",
@@ -130,7 +139,6 @@ fn resume(
             );
         }
     }
-    let worst = Checks { vs_input: w0, vs_rest: w1 as f32, inside: w2 as usize };
     if done == frames.len() {
         reporter.status(&format!("all {done} frames already done (state in {}; --force redoes them)", work.display()));
     } else if let Some(last) = done.checked_sub(1).map(|i| frames[i]) {
@@ -224,18 +232,17 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
     let mut seq = SequenceStylizer::new(&vgg, &painting, params)?;
 
     // Resume: the state saved after the last finished frame of this job.
+    let id = job_id(s, frames, &groom_at, &mesh_at)?;
     let work = match &s.work_dir {
         Some(w) => w.clone(),
-        None => default_work_dir(&out_at(frames[0])?, job_hash(s, frames, &groom_at, &mesh_at)?),
+        None => default_work_dir(&out_at(frames[0])?, id.hash),
     };
     // Held until the job ends: a second blade on the same job exits here.
-    let _lock = nst3d_job::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
+    let job = Resume::begin(&work, StateFiles::new(id, "--force starts over")).map_err(anyhow::Error::msg)?;
     let state_path = work.join(STATE_FILE);
-    // Only our own file goes: the work folder may hold more.
-    if s.force && state_path.exists() {
-        std::fs::remove_file(&state_path).with_context(|| format!("cannot remove {}", state_path.display()))?;
-    }
-    let (done, mut worst) = resume(&mut seq, &state_path, &work, frames, &out_at, reporter)?;
+    // With --force only our own file goes: the work folder may hold more.
+    let saved = job.load_or_fresh(&state_path, s.force)?;
+    let (done, mut worst) = resume(&mut seq, saved, (&state_path, &work), frames, &out_at, reporter)?;
     let per_frame: u32 = seq.params().stylize.iterations.iter().sum();
     reporter.begin(per_frame as u64 * (frames.len() - done) as u64);
     for (i, &f) in frames.iter().enumerate().skip(done) {
@@ -269,10 +276,13 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
         }
         reporter.result(&frame_line(f, &r, &out));
         // Outputs first, then the state: a kill in between redoes this frame.
-        std::fs::create_dir_all(&work).with_context(|| format!("cannot create the work folder {}", work.display()))?;
-        let state = seq.save_state(&[(i + 1) as f64, worst.vs_input, worst.vs_rest as f64, worst.inside as f64]);
-        nst3d_io::atomic::write_atomic(&state_path, |w| w.write_all(&state))
-            .with_context(|| format!("cannot write {}", state_path.display()))?;
+        let mut state = job.files().fresh();
+        seq.save_state(&mut state);
+        state.set("frames_done", i + 1);
+        state.set("worst.vs_input", worst.vs_input);
+        state.set("worst.vs_rest", worst.vs_rest);
+        state.set("worst.inside", worst.inside);
+        job.files().save(&state_path, &state)?;
     }
     reporter.end();
     let p = &seq.params().stylize;
@@ -291,12 +301,12 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
 /// (not `force`, `work_dir`), the painting's contents, and every frame's
 /// groom and mesh by path, size and modification time. The thread count is
 /// included: results are reproducible bit for bit only on the same count.
-fn job_hash(
+fn job_id(
     s: &StrandSettings,
     frames: &[i64],
     groom_at: &dyn Fn(i64) -> Result<PathBuf>,
     mesh_at: &dyn Fn(i64) -> Result<Option<PathBuf>>,
-) -> Result<u64> {
+) -> Result<JobId> {
     let mut a = s.clone();
     (a.force, a.work_dir) = (false, None);
     let mut stamped = Vec::with_capacity(2 * frames.len());
@@ -304,5 +314,5 @@ fn job_hash(
         stamped.push(groom_at(f)?);
         stamped.extend(mesh_at(f)?);
     }
-    Ok(job_fingerprint(&settings_key(&a, true), std::slice::from_ref(&s.style), &stamped)?)
+    Ok(JobId::new(STATE_KIND, settings_key(&a, true), std::slice::from_ref(&s.style), &stamped)?)
 }

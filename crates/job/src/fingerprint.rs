@@ -54,3 +54,32 @@ pub fn default_work_dir(out: &Path, hash: u64) -> PathBuf {
     let dir = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     dir.join(".nst3d-work").join(format!("{hash:016x}"))
 }
+
+/// Whose a saved state is: the kind of job (`"volume sequence"`, ...,
+/// also how messages name it), the job's fingerprint and the settings text
+/// it was taken over. Every state file carries all three
+/// ([`crate::State::new`]) and a job resumes only from its own
+/// ([`crate::State::check`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct JobId {
+    /// The kind of job, in words.
+    pub kind: String,
+    /// [`job_fingerprint`] of the job.
+    pub hash: u64,
+    /// The settings text the fingerprint was taken over ([`settings_key`]).
+    pub settings: String,
+}
+
+impl JobId {
+    /// The identity of a job of `kind`: [`job_fingerprint`] over
+    /// `settings`, the contents of `read` and the stamps of `stamped`.
+    pub fn new(kind: &str, settings: String, read: &[PathBuf], stamped: &[PathBuf]) -> std::io::Result<Self> {
+        let hash = job_fingerprint(&settings, read, stamped)?;
+        Ok(Self { kind: kind.to_string(), hash, settings })
+    }
+
+    /// The fingerprint as a state file stores it: 16 hex digits.
+    pub fn fingerprint(&self) -> String {
+        format!("{:016x}", self.hash)
+    }
+}

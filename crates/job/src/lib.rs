@@ -3,7 +3,10 @@
 //! [`expand_pattern`]), the lock that keeps two blades off one job
 //! ([`WorkLock`]) and the fingerprint that names a job's work folder from
 //! its settings and inputs, so a rerun finds its saved state again and a
-//! changed job never resumes a stale one ([`job_fingerprint`]).
+//! changed job never resumes a stale one ([`job_fingerprint`], [`JobId`]),
+//! the one format every job saves its state in ([`State`]) and how a job
+//! starts: lock, then resume from its own state or start afresh
+//! ([`Resume`], [`StateFiles`]).
 //!
 //! The volume, groom and training jobs use it; none of them needs the
 //! others' optimisers to get a lock or a frame list.
@@ -13,7 +16,11 @@
 pub mod fingerprint;
 pub mod frames;
 pub mod lock;
+pub mod resume;
+pub mod state;
 
-pub use fingerprint::{default_work_dir, job_fingerprint, settings_key};
+pub use fingerprint::{default_work_dir, job_fingerprint, settings_key, JobId};
 pub use frames::{expand_pattern, FrameSpec, FramesError};
 pub use lock::WorkLock;
+pub use resume::{Resume, StateError, StateFiles};
+pub use state::State;

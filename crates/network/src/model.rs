@@ -46,29 +46,51 @@ impl Model {
     /// The file's bytes: tensors in layer order, then metadata (`format`,
     /// `architecture`, `channels`, `out_channels` and [`Model::info`]).
     pub fn to_bytes(&self) -> Vec<u8> {
+        let tensors = self.tensors();
+        let tensors: Vec<(&str, &[usize], &[f32])> =
+            tensors.iter().map(|(n, shape, data)| (n.as_str(), shape.as_slice(), *data)).collect();
+        nst3d_weights::safetensors_bytes(&tensors, &self.metadata())
+    }
+
+    /// The weights by name (`e1.weight`, `e1.bias`, ...), in layer order,
+    /// with their PyTorch shapes.
+    pub fn tensors(&self) -> Vec<(String, Vec<usize>, &[f32])> {
+        let mut out = Vec::with_capacity(2 * LAYER_NAMES.len());
+        for (l, name) in self.net.layers.iter().zip(LAYER_NAMES) {
+            out.push((format!("{name}.weight"), vec![l.cout, l.cin, l.k, l.k, l.k], &l.weight[..]));
+            out.push((format!("{name}.bias"), vec![l.cout], &l.bias[..]));
+        }
+        out
+    }
+
+    /// The file's metadata: `format`, `architecture`, `channels`,
+    /// `out_channels` and [`Model::info`].
+    pub fn metadata(&self) -> BTreeMap<String, String> {
         let mut meta = self.info.clone();
         meta.insert("format".into(), FORMAT.into());
         meta.insert("architecture".into(), "volumetric-style-transfer fig9".into());
         meta.insert("channels".into(), self.net.layers[0].cout.to_string());
         meta.insert("out_channels".into(), self.net.out_channels().to_string());
-        let names: Vec<(String, String)> =
-            LAYER_NAMES.iter().map(|n| (format!("{n}.weight"), format!("{n}.bias"))).collect();
-        let shapes: Vec<([usize; 5], [usize; 1])> =
-            self.net.layers.iter().map(|l| ([l.cout, l.cin, l.k, l.k, l.k], [l.cout])).collect();
-        let mut tensors: Vec<(&str, &[usize], &[f32])> = Vec::new();
-        for ((l, (wn, bn)), (ws, bs)) in self.net.layers.iter().zip(&names).zip(&shapes) {
-            tensors.push((wn, ws, &l.weight));
-            tensors.push((bn, bs, &l.bias));
-        }
-        nst3d_weights::safetensors_bytes(&tensors, &meta)
+        meta
     }
 
     /// Reads a model file's bytes; `source` names it in errors. Refuses
     /// files of another format, a network of other shapes than its metadata
     /// says, and non-finite weights.
     pub fn from_bytes(bytes: &[u8], source: &Path) -> Result<Model, ModelError> {
+        let (tensors, info) = nst3d_weights::parse_safetensors(bytes, source)?;
+        Self::from_parts(&tensors, info, source)
+    }
+
+    /// A model from the tensors and metadata of [`Model::tensors`] and
+    /// [`Model::metadata`], checked as [`Model::from_bytes`] checks a file;
+    /// `source` names them in errors.
+    pub fn from_parts(
+        tensors: &nst3d_weights::TensorMap,
+        mut info: BTreeMap<String, String>,
+        source: &Path,
+    ) -> Result<Model, ModelError> {
         let invalid = |problem: String| ModelError::Invalid { path: source.display().to_string(), problem };
-        let (tensors, mut info) = nst3d_weights::parse_safetensors(bytes, source)?;
         match info.get("format").map(String::as_str) {
             Some(FORMAT) => {}
             Some(other) => return Err(invalid(format!("model format '{other}', this nst3d reads '{FORMAT}'"))),
@@ -142,6 +164,15 @@ mod tests {
         wider[at + key.len() - 2] = b'4';
         let e = Model::from_bytes(&wider, p).unwrap_err().to_string();
         assert!(e.contains("e1.weight") && e.contains("channels 4"), "{e}");
+    }
+
+    /// The example model shipped with nst3d reads and writes back to the
+    /// same bytes: what the writer writes has not changed since it was made.
+    #[test]
+    fn the_example_model_writes_back_byte_for_byte() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/starry_density.safetensors");
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(Model::from_bytes(&bytes, &path).unwrap().to_bytes(), bytes);
     }
 
     #[test]

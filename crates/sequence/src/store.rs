@@ -3,11 +3,17 @@
 //! task resumes from its last completed sweep.
 //!
 //! # Layout of the work folder
+//! Every file is a state file of the job ([`nst3d_job::State`]: safetensors
+//! with the job's kind and fingerprint), so a folder of another job or of
+//! an older nst3d is refused rather than resumed.
 //! * `frame_TTTTTT.gGGGGGGGG.bin`: the [`FrameState`] of frame `T` (index in
 //!   the run, not the frame number) as written during generation `G`
-//!   (one generation per [`SweepMark`]).
-//! * `checkpoint`: one line, `nst3d-checkpoint generation G octave K octaves N sweeps S`,
-//!   the last generation whose states are complete.
+//!   (one generation per [`SweepMark`]): the arrays `field` (`[n, 3]`
+//!   velocities or `[n]` scales), `adam.m`, `adam.v`, with colour
+//!   `color.raw` (`[channels, n]`), `color.m`, `color.v`; the metadata
+//!   `step` and `field` (`velocity` or `scale`).
+//! * `checkpoint`: the metadata `generation`, `octave`, `octaves`,
+//!   `sweeps_done`: the last generation whose states are complete.
 //!
 //! A sweep rewrites every frame, so while it runs some frames are one
 //! generation ahead of the others. Files of the committed generation are
@@ -17,15 +23,14 @@
 //! written to a temporary name and renamed, so none is ever half-written.
 
 use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use nst3d_job::state::Problem;
+use nst3d_job::{State, StateFiles};
 use nst3d_stylize::Field;
 
 use crate::ema::{ColorState, FrameState, SequenceError, StateStore, SweepMark};
 
-/// First bytes of a state file (format version 1).
-const MAGIC: &[u8; 8] = b"NST3DFS1";
 /// Name of the checkpoint file inside the work folder.
 const CHECKPOINT: &str = "checkpoint";
 
@@ -33,6 +38,7 @@ const CHECKPOINT: &str = "checkpoint";
 /// folder; memory holds only the frame being worked on.
 pub struct DiskStore {
     dir: PathBuf,
+    files: StateFiles,
     /// Generation that `save` writes: one past the committed one.
     generation: u64,
     /// Newest generation on disk per frame.
@@ -46,21 +52,8 @@ fn io_err(path: &Path, e: impl std::fmt::Display) -> SequenceError {
     SequenceError::Checkpoint(format!("{}: {e}", path.display()))
 }
 
-/// Writes `bytes` to `path` through a temporary file in the same folder and
-/// a rename, so readers see the old content or the new, never a part.
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SequenceError> {
-    let tmp = path.with_extension(format!("tmp{}", std::process::id()));
-    let result = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
-        let _ = fs::remove_file(&tmp);
-        return Err(io_err(path, e));
-    }
-    Ok(())
+fn state_err(e: nst3d_job::StateError) -> SequenceError {
+    SequenceError::Checkpoint(e.to_string())
 }
 
 /// `frame_TTTTTT.gGGGGGGGG.bin` → `(T, G)`.
@@ -71,25 +64,26 @@ fn parse_name(name: &str) -> Option<(usize, u64)> {
 }
 
 impl DiskStore {
-    /// Opens (creating it if needed) a work folder. A checkpoint found there
-    /// becomes the [`StateStore::resume_point`]; states written after it by
-    /// a run that was killed mid-sweep are discarded. Without a checkpoint
-    /// any old state files are removed and the run starts afresh.
-    pub fn open(dir: &Path) -> Result<Self, SequenceError> {
+    /// Opens (creating it if needed) a work folder whose states `files`
+    /// reads and writes. A checkpoint of this job found there becomes the
+    /// [`StateStore::resume_point`]; states written after it by a run that
+    /// was killed mid-sweep are discarded. Without a checkpoint any old
+    /// state files are removed and the run starts afresh. A checkpoint of
+    /// another job or of an older nst3d is an error that says how to start
+    /// over.
+    pub fn open(dir: &Path, files: StateFiles) -> Result<Self, SequenceError> {
         fs::create_dir_all(dir).map_err(|e| io_err(dir, e))?;
         let cp_path = dir.join(CHECKPOINT);
-        let (committed_gen, mark) = match fs::read_to_string(&cp_path) {
-            Ok(text) => {
-                let (g, m) = parse_checkpoint(&text).ok_or_else(|| {
-                    io_err(&cp_path, "unreadable checkpoint (delete the work folder to start afresh)")
-                })?;
+        let (committed_gen, mark) = match files.load(&cp_path).map_err(state_err)? {
+            Some(state) => {
+                let (g, m) = checkpoint_mark(&state).map_err(|p| state_err(files.unusable(&cp_path, p)))?;
                 (Some(g), Some(m))
             }
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => (None, None),
-            Err(e) => return Err(io_err(&cp_path, e)),
+            None => (None, None),
         };
         let mut store = Self {
             dir: dir.to_path_buf(),
+            files,
             generation: committed_gen.map_or(1, |g| g + 1),
             latest: Vec::new(),
             committed: Vec::new(),
@@ -135,7 +129,8 @@ impl DiskStore {
             let name = entry.file_name().to_string_lossy().to_string();
             let ours = name == CHECKPOINT
                 || parse_name(&name).is_some()
-                || ((name.starts_with("frame_") || name.starts_with(CHECKPOINT)) && name.contains(".tmp"));
+                || ((name.starts_with("frame_") || name.starts_with(CHECKPOINT)) && name.contains(".tmp"))
+                || (name.starts_with(".nst3d-") && name.ends_with(".tmp"));
             if ours {
                 fs::remove_file(entry.path()).map_err(|e| io_err(&entry.path(), e))?;
             }
@@ -164,102 +159,87 @@ impl DiskStore {
     }
 }
 
-/// Parses the `checkpoint` file: its generation and sweep mark, `None` when
-/// the text is not such a line. Public for the fuzz harness.
-pub fn parse_checkpoint(text: &str) -> Option<(u64, SweepMark)> {
-    let w: Vec<&str> = text.split_whitespace().collect();
-    match w.as_slice() {
-        ["nst3d-checkpoint", "generation", g, "octave", k, "octaves", n, "sweeps", s] => Some((
-            g.parse().ok()?,
-            SweepMark { octave: k.parse().ok()?, octaves: n.parse().ok()?, sweeps_done: s.parse().ok()? },
-        )),
-        _ => None,
-    }
+/// The generation and sweep mark of a `checkpoint` state. Public for the
+/// fuzz harness.
+pub fn checkpoint_mark(state: &State<'_>) -> Result<(u64, SweepMark), Problem> {
+    let mark = SweepMark {
+        octave: state.get("octave")?,
+        octaves: state.get("octaves")?,
+        sweeps_done: state.get("sweeps_done")?,
+    };
+    Ok((state.get("generation")?, mark))
 }
 
-/// Serialises a state: magic, mode (0 velocity, 1 scale), step, parameter
-/// count, then field, first and second moments as little-endian f32; with
-/// colour, then the voxel count `n` and the raw channels, first and second
-/// moments (`3n` values each).
-pub fn encode(st: &FrameState) -> Vec<u8> {
-    let params = st.field.params();
-    let mut out = Vec::with_capacity(32 + 12 * params.len());
-    out.extend_from_slice(MAGIC);
-    out.extend_from_slice(&(matches!(st.field, Field::Scale(_)) as u64).to_le_bytes());
-    out.extend_from_slice(&st.step.to_le_bytes());
-    out.extend_from_slice(&(params.len() as u64).to_le_bytes());
-    for v in params.iter().chain(&st.m).chain(&st.v) {
-        out.extend_from_slice(&v.to_le_bytes());
+/// A frame's state as a state file of the job `files` names; the arrays
+/// are borrowed from `st`.
+pub fn encode<'a>(st: &'a FrameState, files: &StateFiles) -> State<'a> {
+    let mut out = files.fresh();
+    let n = st.field.len();
+    match &st.field {
+        Field::Velocity(_) => out.put_f32("field", &[n / 3, 3], st.field.params()),
+        Field::Scale(_) => out.put_f32("field", &[n], st.field.params()),
     }
+    out.set("field", if matches!(st.field, Field::Scale(_)) { "scale" } else { "velocity" });
+    out.set("step", st.step);
+    out.put_f32("adam.m", &[st.m.len()], &st.m[..]);
+    out.put_f32("adam.v", &[st.v.len()], &st.v[..]);
     if let Some(c) = &st.color {
-        out.extend_from_slice(&(c.raw.first().map_or(0, |f| f.len()) as u64).to_le_bytes());
-        for v in c.raw.iter().flat_map(|f| f.params()).chain(&c.m).chain(&c.v) {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
+        let voxels = c.raw.first().map_or(0, |f| f.len());
+        let raw: Vec<f32> = c.raw.iter().flat_map(|f| f.params()).copied().collect();
+        out.put_f32("color.raw", &[c.raw.len(), voxels], raw);
+        out.put_f32("color.m", &[c.m.len()], &c.m[..]);
+        out.put_f32("color.v", &[c.v.len()], &c.v[..]);
     }
     out
 }
 
-/// Reads what [`encode`] wrote; `None` for anything else (another file,
-/// a truncated one, a count that does not match the bytes). Public for the
-/// fuzz harness.
-pub fn decode(bytes: &[u8]) -> Option<FrameState> {
-    let word = |i: usize| Some(u64::from_le_bytes(bytes.get(8 * i..8 * i + 8)?.try_into().ok()?));
-    if bytes.get(..8)? != MAGIC {
-        return None;
-    }
-    let (scale, step, len) = (word(1)?, word(2)?, usize::try_from(word(3)?).ok()?);
-    let field_bytes = len.checked_mul(12)?;
-    let body = bytes.get(32..32usize.checked_add(field_bytes)?)?;
-    // The count is checked against the bytes actually there before anything is allocated.
-    if scale > 1 || (scale == 0 && len % 3 != 0) {
-        return None;
-    }
-    let floats =
-        |b: &[u8]| -> Vec<f32> { b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect() };
-    let all = floats(body);
-    let (p, rest) = all.split_at(len);
-    let (m, v) = rest.split_at(len);
-    let field = if scale == 1 {
-        Field::Scale(p.to_vec())
-    } else {
-        Field::Velocity(p.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+/// Reads what [`encode`] wrote: arrays of the wrong shape or sizes that
+/// disagree are corruption. Public for the fuzz harness.
+pub fn decode(mut state: State<'_>) -> Result<FrameState, Problem> {
+    let bad = |what: &str| Problem::Corrupt(what.to_string());
+    let (shape, params) = state.take_f32s("field")?;
+    let field = match (state.text("field"), shape.as_slice()) {
+        (Some("velocity"), &[n, 3]) if params.len() == 3 * n => {
+            Field::Velocity(params.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+        }
+        (Some("scale"), &[n]) if params.len() == n => Field::Scale(params),
+        _ => return Err(bad("field")),
     };
-    let tail = &bytes[32 + field_bytes..];
-    let color = match tail.len() {
-        0 => None,
-        _ => {
-            let n = usize::try_from(u64::from_le_bytes(tail.get(..8)?.try_into().ok()?)).ok()?;
-            if Some(tail.len() - 8) != n.checked_mul(36) {
-                return None;
+    let (_, m) = state.take_f32s("adam.m")?;
+    let (_, v) = state.take_f32s("adam.v")?;
+    if m.len() != field.len() || v.len() != field.len() {
+        return Err(bad("moments vs field"));
+    }
+    let color = match state.has("color.raw") {
+        false => None,
+        true => {
+            let (shape, raw) = state.take_f32s("color.raw")?;
+            let (_, m) = state.take_f32s("color.m")?;
+            let (_, v) = state.take_f32s("color.v")?;
+            let &[channels, voxels] = shape.as_slice() else { return Err(bad("colour")) };
+            if m.len() != raw.len() || v.len() != raw.len() || channels > 3 {
+                return Err(bad("colour moments"));
             }
-            let all = floats(&tail[8..]);
-            let (raw, rest) = all.split_at(3 * n);
-            let (m, v) = rest.split_at(3 * n);
-            Some(ColorState {
-                raw: raw.chunks_exact(n.max(1)).take(3).map(|c| Field::Scale(c.to_vec())).collect(),
-                m: m.to_vec(),
-                v: v.to_vec(),
-            })
+            let raw = (0..channels).map(|c| Field::Scale(raw[c * voxels..(c + 1) * voxels].to_vec())).collect();
+            Some(ColorState { raw, m, v })
         }
     };
-    Some(FrameState { field, m: m.to_vec(), v: v.to_vec(), step, color })
+    Ok(FrameState { field, m, v, step: state.get("step")?, color })
 }
 
 impl StateStore for DiskStore {
     fn load(&mut self, t: usize) -> Result<Option<FrameState>, SequenceError> {
         let Some(g) = self.slot(t) else { return Ok(None) };
         let path = self.path(t, g);
-        let bytes = fs::read(&path).map_err(|e| io_err(&path, e))?;
-        decode(&bytes)
-            .map(Some)
-            .ok_or_else(|| io_err(&path, "corrupt state file (delete the work folder to start afresh)"))
+        let state = self.files.load(&path).map_err(state_err)?;
+        let state = state.ok_or_else(|| io_err(&path, "state file missing"))?;
+        decode(state).map(Some).map_err(|p| state_err(self.files.unusable(&path, p)))
     }
 
     fn save(&mut self, t: usize, state: FrameState) -> Result<(), SequenceError> {
         self.slot(t);
         let g = self.generation;
-        write_atomic(&self.path(t, g), &encode(&state))?;
+        self.files.save(&self.path(t, g), &encode(&state, &self.files)).map_err(state_err)?;
         // A second save in one generation replaces the first; anything older
         // than the committed file is already gone.
         self.latest[t] = Some(g);
@@ -268,11 +248,12 @@ impl StateStore for DiskStore {
 
     fn commit(&mut self, mark: SweepMark) -> Result<(), SequenceError> {
         let g = self.generation;
-        let line = format!(
-            "nst3d-checkpoint generation {g} octave {} octaves {} sweeps {}\n",
-            mark.octave, mark.octaves, mark.sweeps_done
-        );
-        write_atomic(&self.dir.join(CHECKPOINT), line.as_bytes())?;
+        let mut checkpoint = self.files.fresh();
+        checkpoint.set("generation", g);
+        checkpoint.set("octave", mark.octave);
+        checkpoint.set("octaves", mark.octaves);
+        checkpoint.set("sweeps_done", mark.sweeps_done);
+        self.files.save(&self.dir.join(CHECKPOINT), &checkpoint).map_err(state_err)?;
         for t in 0..self.latest.len() {
             if let (Some(new), Some(old)) = (self.latest[t], self.committed[t]) {
                 if old < new {
@@ -295,6 +276,11 @@ impl StateStore for DiskStore {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nst3d_job::JobId;
+
+    fn files(hash: u64) -> StateFiles {
+        StateFiles::new(JobId { kind: "volume sequence".into(), hash, settings: String::new() }, "rerun with --force")
+    }
 
     fn state(x: f32) -> FrameState {
         FrameState {
@@ -306,7 +292,11 @@ mod tests {
         }
     }
 
-    /// A state with colour comes back with it; cut short, it is refused.
+    fn round_trip(st: &FrameState) -> Result<FrameState, Problem> {
+        decode(State::from_bytes(&encode(st, &files(1)).to_bytes())?)
+    }
+
+    /// A state with colour comes back with it, bit for bit; cut short, it is refused.
     #[test]
     fn colour_round_trips_and_a_cut_file_is_refused() {
         let color = ColorState {
@@ -317,17 +307,42 @@ mod tests {
         let st = FrameState {
             field: Field::Scale(vec![1.0, 2.0]),
             m: vec![0.0; 2],
-            v: vec![0.0; 2],
+            v: vec![-0.0; 2],
             step: 3,
             color: Some(color),
         };
-        let bytes = encode(&st);
-        let back = decode(&bytes).unwrap();
+        let back = round_trip(&st).unwrap();
+        assert_eq!((back.field.params(), back.step), (st.field.params(), 3));
         let c = back.color.unwrap();
         assert_eq!(c.raw.iter().map(|f| f.params().to_vec()).collect::<Vec<_>>(), [[0.5, 1.5], [1.5, 1.5], [2.5, 1.5]]);
         assert_eq!((c.m, c.v), ((0..6).map(|i| i as f32).collect(), vec![0.25; 6]));
-        assert!(decode(&bytes[..bytes.len() - 4]).is_none());
-        assert!(decode(&bytes[..bytes.len() - 8 - 72]).unwrap().color.is_none(), "without the block: no colour");
+        let velocity = round_trip(&state(1.5)).unwrap();
+        assert_eq!((velocity.field.params(), &velocity.m[..]), (state(1.5).field.params(), &state(1.5).m[..]));
+        assert!(matches!(velocity.field, Field::Velocity(_)) && velocity.color.is_none());
+        let bytes = encode(&st, &files(1)).to_bytes();
+        for len in 0..bytes.len() {
+            assert!(State::from_bytes(&bytes[..len]).is_err(), "cut to {len} bytes read");
+        }
+    }
+
+    /// Arrays whose shapes disagree with each other are refused, not a panic.
+    #[test]
+    fn arrays_that_disagree_are_refused() {
+        let st = state(1.0);
+        let mut short = encode(&st, &files(1));
+        short.put_f32("adam.m", &[11], vec![0.0; 11]);
+        assert!(decode(short).is_err());
+        let mut flat = encode(&st, &files(1));
+        flat.put_f32("field", &[12], vec![0.0; 12]);
+        assert!(decode(flat).is_err(), "a velocity field must be [n, 3]");
+        let mut odd = encode(&st, &files(1));
+        odd.set("field", "pressure");
+        assert!(decode(odd).is_err());
+        let mut four = encode(&st, &files(1));
+        four.put_f32("color.raw", &[4, 1], vec![1.0; 4]);
+        four.put_f32("color.m", &[4], vec![0.0; 4]);
+        four.put_f32("color.v", &[4], vec![0.0; 4]);
+        assert!(decode(four).is_err(), "four colour channels");
     }
 
     fn first(st: &FrameState) -> f32 {
@@ -336,11 +351,11 @@ mod tests {
 
     #[test]
     fn states_round_trip_and_commit_is_what_a_restart_sees() {
-        let dir = std::env::temp_dir().join(format!("nst3d-diskstore-{}", std::process::id()));
-        let _ = fs::remove_dir_all(&dir);
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("work");
         let mark = |s| SweepMark { octave: 0, octaves: 1, sweeps_done: s };
         {
-            let mut store = DiskStore::open(&dir).unwrap();
+            let mut store = DiskStore::open(&dir, files(1)).unwrap();
             assert_eq!(store.resume_point(), None);
             for t in 0..3 {
                 store.save(t, state(t as f32)).unwrap();
@@ -353,7 +368,7 @@ mod tests {
             store.save(0, state(10.0)).unwrap();
             assert_eq!(first(&store.load(0).unwrap().unwrap()), 10.0);
         }
-        let mut store = DiskStore::open(&dir).unwrap();
+        let mut store = DiskStore::open(&dir, files(1)).unwrap();
         assert_eq!(store.resume_point(), Some(mark(1)));
         assert_eq!(first(&store.load(0).unwrap().unwrap()), 0.0, "the uncommitted save is discarded");
         assert_eq!(first(&store.load(1).unwrap().unwrap()), 1.0);
@@ -361,16 +376,20 @@ mod tests {
             store.save(t, state(20.0 + t as f32)).unwrap();
         }
         store.commit(mark(2)).unwrap();
-        let files = fs::read_dir(&dir).unwrap().count();
-        assert_eq!(files, 4, "one file per frame plus the checkpoint");
-        let mut store = DiskStore::open(&dir).unwrap();
+        let files_left = fs::read_dir(&dir).unwrap().count();
+        assert_eq!(files_left, 4, "one file per frame plus the checkpoint");
+        let mut store = DiskStore::open(&dir, files(1)).unwrap();
         assert_eq!(first(&store.load(2).unwrap().unwrap()), 22.0);
+        // Another job's folder is refused, not resumed.
+        let e = DiskStore::open(&dir, files(2)).err().expect("refused").to_string();
+        assert!(e.contains("different volume sequence") && e.contains("--force"), "{e}");
         fs::write(dir.join(CHECKPOINT), "garbage").unwrap();
-        assert!(DiskStore::open(&dir).is_err());
+        assert!(DiskStore::open(&dir, files(1)).is_err());
 
         // Removing the store deletes its files only; a folder with nothing
         // else goes too.
         fs::write(dir.join("frame_000001.g00000003.tmp42"), "half").unwrap();
+        fs::write(dir.join(".nst3d-Ab12.tmp"), "half").unwrap();
         fs::write(dir.join("notes.txt"), "the user's").unwrap();
         DiskStore::remove(&dir).unwrap();
         let left: Vec<_> = fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
@@ -381,19 +400,22 @@ mod tests {
         DiskStore::remove(&dir).unwrap();
     }
 
+    /// A work folder an older nst3d left mid-run: one line that says to
+    /// start over, and `remove` (what `--force` runs) clears it.
     #[test]
-    fn a_state_whose_count_overflows_is_refused_not_a_panic() {
-        // Count 2^62 + 1: `12 * count` wraps to 12, which the 12 bytes of
-        // body used to match, and the split at the count then panicked.
-        let mut bytes =
-            encode(&FrameState { field: Field::Scale(vec![1.0]), m: vec![0.0], v: vec![0.0], step: 0, color: None });
-        bytes[24..32].copy_from_slice(&((1u64 << 62) + 1).to_le_bytes());
-        assert!(decode(&bytes).is_none());
-        // The well-formed one still reads; a mode other than 0 or 1 does not.
-        let good = encode(&state(1.0));
-        assert_eq!(decode(&good).unwrap().field.params(), state(1.0).field.params());
-        let mut odd = good.clone();
-        odd[8] = 2;
-        assert!(decode(&odd).is_none());
+    fn an_older_nst3d_work_folder_is_refused_in_one_line() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("work");
+        fs::create_dir_all(&dir).unwrap();
+        fs::write(dir.join(CHECKPOINT), "nst3d-checkpoint generation 4 octave 1 octaves 3 sweeps 2\n").unwrap();
+        let mut old = b"NST3DFS1".to_vec();
+        old.extend([0u8; 24]);
+        fs::write(dir.join("frame_000000.g00000004.bin"), old).unwrap();
+        let e = DiskStore::open(&dir, files(1)).err().expect("refused").to_string();
+        assert!(e.contains("checkpoint") && e.contains("older nst3d") && e.ends_with("rerun with --force"), "{e}");
+        assert_eq!(e.lines().count(), 1);
+        DiskStore::remove(&dir).unwrap();
+        assert!(!dir.exists());
+        assert_eq!(DiskStore::open(&dir, files(1)).unwrap().resume_point(), None);
     }
 }

@@ -132,10 +132,12 @@ fn disk_store_resumes_exactly() {
     let _ = std::fs::remove_dir_all(&dir);
     // Octave 1: 3 sweeps x 4 frames = 12 reads; octave 2's first sweep 4 more; die 2 frames into its sweep 2.
     let dying = Dying { sim: &sim, budget: std::cell::Cell::new(12 + 4 + 2) };
-    let mut disk = DiskStore::open(&dir).unwrap();
+    let id = nst3d_job::JobId { kind: "volume sequence".into(), hash: 42, settings: String::new() };
+    let files = nst3d_job::StateFiles::new(id, "rerun with --force");
+    let mut disk = DiskStore::open(&dir, files.clone()).unwrap();
     assert!(stylize_sequence_with(&dying, &loss, &views, &params, &mut disk, &mut |_| {}).is_err());
     drop(disk);
-    let mut disk = DiskStore::open(&dir).unwrap();
+    let mut disk = DiskStore::open(&dir, files).unwrap();
     let mark = disk.resume_point().expect("a checkpoint");
     assert_eq!((mark.octave, mark.sweeps_done), (1, 1), "{mark:?}");
     let mut sweeps = Vec::new();

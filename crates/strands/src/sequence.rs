@@ -710,9 +710,12 @@ mod tests {
         for (i, g) in frames[..2].iter().enumerate() {
             first.stylize_frame(i as i64 + 1, g, Some(&mesh), &mut |_| {}).unwrap();
         }
-        let bytes = first.save_state(&[2.0, 0.5]);
+        let id = nst3d_job::JobId { kind: "groom sequence".into(), hash: 1, settings: String::new() };
+        let mut saved = nst3d_job::State::new(&id);
+        first.save_state(&mut saved);
+        let bytes = saved.to_bytes();
         let mut second = SequenceStylizer::new(&vgg, &style, params(true, true)).unwrap();
-        assert_eq!(second.restore_state(&bytes).unwrap(), vec![2.0, 0.5]);
+        second.restore_state(&nst3d_job::State::from_bytes(&bytes).unwrap()).unwrap();
         for (i, g) in frames.iter().enumerate().skip(2) {
             let r = second.stylize_frame(i as i64 + 1, g, Some(&mesh), &mut |_| {}).unwrap();
             assert_eq!(r.strands, whole_frames[i].strands, "frame {}", i + 1);
@@ -720,11 +723,16 @@ mod tests {
         }
         assert_eq!(second.report(), whole);
 
-        // Truncated, foreign or padded bytes are refused and change nothing.
+        // A state lacking a part, or whose parts disagree, is refused and
+        // changes nothing.
         let mut third = SequenceStylizer::new(&vgg, &style, params(true, true)).unwrap();
-        for bad in [&bytes[..bytes.len() / 2], &b"NST3DFS1 not a strand state"[..], &[bytes.as_slice(), &[0]].concat()]
-        {
-            let e = third.restore_state(bad).unwrap_err().to_string();
+        let full = nst3d_job::State::from_bytes(&bytes).unwrap();
+        let mut no_velocities = full.clone();
+        no_velocities.take_f32s("previous.velocities").unwrap();
+        let mut short_history = full.clone();
+        short_history.put_f32("one_euro.d", &[1, 3], vec![0.0; 3]);
+        for bad in [no_velocities, short_history, nst3d_job::State::new(&id)] {
+            let e = third.restore_state(&bad).unwrap_err().to_string();
             assert!(e.contains("state"), "{e}");
         }
         assert!(third.previous.is_none() && third.frames == 0);

@@ -13,7 +13,7 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use nst3d_core::{math::SplitMix64, Grid3, Reporter};
 use nst3d_features::Vgg19;
-use nst3d_job::{expand_pattern, FrameSpec};
+use nst3d_job::{expand_pattern, FrameSpec, JobId, Resume, StateFiles};
 use nst3d_network::{FeedForward, Model};
 use nst3d_optim::OneCycle;
 use nst3d_stylize::{StyleSpec, ViewLoss, ViewSpec};
@@ -202,14 +202,19 @@ fn load_frames(s: &TrainSettings) -> Result<Vec<Grid3>> {
     Ok(out)
 }
 
+/// What a training checkpoint says it is.
+pub const STATE_KIND: &str = "training run";
+
 /// What must match for a checkpoint to be resumed: every setting but the
-/// budget, the output path and the checkpoint interval, and the thread
-/// count (a resumed run repeats an uninterrupted one bit for bit only on
-/// the same count).
-fn fingerprint(s: &TrainSettings) -> String {
+/// budget, the output path and the checkpoint interval, the thread count
+/// (a resumed run repeats an uninterrupted one bit for bit only on the
+/// same count), the painting's contents and each frame's size and
+/// modification time.
+fn job_id(s: &TrainSettings) -> Result<JobId> {
     let mut a = s.clone();
     (a.minutes, a.out, a.checkpoint_every) = (None, PathBuf::new(), 0);
-    nst3d_job::settings_key(&a, true)
+    let settings = nst3d_job::settings_key(&a, true);
+    Ok(JobId::new(STATE_KIND, settings, std::slice::from_ref(&s.style), &s.frames)?)
 }
 
 struct Checkpoint {
@@ -236,80 +241,67 @@ struct Clock {
     paced: bool,
 }
 
+/// The checkpoint: a state file ([`nst3d_job::State`]) holding the
+/// network (its tensors and metadata under `model.`), Adam's moments, the
+/// losses and learning rates so far, and the step, schedule, random
+/// generator and clock as metadata.
 fn save_checkpoint(
     path: &Path,
-    s: &TrainSettings,
+    files: &StateFiles,
     t: &TrainStep,
     rng: &SplitMix64,
     (losses, lrs): (&[f32], &[f32]),
     clock: Clock,
 ) -> Result<()> {
     let (m, v, adam_step) = t.adam_state();
-    let mut meta = BTreeMap::new();
-    meta.insert("fingerprint".to_string(), fingerprint(s));
-    meta.insert("step".to_string(), t.steps().to_string());
-    meta.insert("planned_steps".to_string(), t.schedule.total_steps.to_string());
-    meta.insert("position".to_string(), t.position().to_string());
-    meta.insert("adam_step".to_string(), adam_step.to_string());
-    meta.insert("rng".to_string(), rng.state().to_string());
-    meta.insert("elapsed_s".to_string(), clock.elapsed_s.to_string());
-    meta.insert("paced".to_string(), clock.paced.to_string());
-    let model = Model { net: t.net.clone(), info: meta };
-    // The model's bytes then the optimiser's tensors, in one safetensors file.
-    let bytes = nst3d_weights::safetensors_bytes(
-        &[
-            ("adam.m", &[m.len()], m),
-            ("adam.v", &[v.len()], v),
-            ("losses", &[losses.len()], losses),
-            ("lrs", &[lrs.len()], lrs),
-        ],
-        &BTreeMap::new(),
-    );
-    nst3d_io::atomic::write_atomic(path, |w| {
-        let model = model.to_bytes();
-        w.write_all(&(model.len() as u64).to_le_bytes())?;
-        w.write_all(&model)?;
-        w.write_all(&bytes)
-    })
-    .with_context(|| format!("cannot write the checkpoint {}", path.display()))
+    let model = Model { net: t.net.clone(), info: BTreeMap::new() };
+    let mut st = files.fresh();
+    for (name, shape, data) in model.tensors() {
+        st.put_f32(&format!("model.{name}"), &shape, data);
+    }
+    for (key, value) in model.metadata() {
+        st.set(&format!("model.{key}"), value);
+    }
+    st.put_f32("adam.m", &[m.len()], m);
+    st.put_f32("adam.v", &[v.len()], v);
+    st.put_f32("losses", &[losses.len()], losses);
+    st.put_f32("lrs", &[lrs.len()], lrs);
+    st.set("step", t.steps());
+    st.set("planned_steps", t.schedule.total_steps);
+    st.set("position", t.position());
+    st.set("adam_step", adam_step);
+    st.set("rng", rng.state());
+    st.set("elapsed_s", clock.elapsed_s);
+    st.set("paced", clock.paced);
+    Ok(files.save(path, &st)?)
 }
 
-fn load_checkpoint(path: &Path, s: &TrainSettings) -> Result<Option<Checkpoint>> {
-    let bytes = match std::fs::read(path) {
-        Ok(b) => b,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
+fn load_checkpoint(path: &Path, files: &StateFiles) -> Result<Option<Checkpoint>> {
+    let Some(mut st) = files.load(path)? else {
+        return Ok(None);
     };
-    let bad = || format!("{}: not a checkpoint of this nst3d (delete it to start over)", path.display());
-    let n = bytes.get(..8).map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")) as usize).with_context(bad)?;
-    let model_bytes = bytes.get(8..8usize.saturating_add(n)).with_context(bad)?;
-    let model = Model::from_bytes(model_bytes, path)?;
-    if model.info.get("fingerprint").map(String::as_str) != Some(fingerprint(s).as_str()) {
-        bail!(
-            "{}: a checkpoint of a different training run (other frames, painting, settings or thread count); delete it to start over",
-            path.display()
-        );
+    let mut tensors = nst3d_weights::TensorMap::new();
+    for name in nst3d_network::model::LAYER_NAMES.iter().flat_map(|n| [format!("{n}.weight"), format!("{n}.bias")]) {
+        let (shape, data) = st.take_f32s(&format!("model.{name}")).map_err(|p| files.unusable(path, p))?;
+        tensors.insert(name, nst3d_weights::TensorData { shape, data });
     }
-    let (tensors, _) = nst3d_weights::parse_safetensors(&bytes[8 + n..], path)?;
-    let get = |k: &str| tensors.get(k).map(|t| t.data.clone()).with_context(bad);
-    let num = |k: &str| model.info.get(k).and_then(|v| v.parse::<u64>().ok()).with_context(bad);
-    Ok(Some(Checkpoint {
-        net: model.net,
-        m: get("adam.m")?,
-        v: get("adam.v")?,
-        step: num("step")?,
-        planned_steps: num("planned_steps")?,
-        position: model.info.get("position").and_then(|v| v.parse::<f64>().ok()).with_context(bad)?,
-        rng: num("rng")?,
-        losses: get("losses")?,
-        lrs: get("lrs")?,
-        // Checkpoints written before the clock was saved: a budgeted run
-        // was paced, and its budget counts from this call.
-        clock: Clock {
-            elapsed_s: model.info.get("elapsed_s").and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0),
-            paced: model.info.get("paced").map_or(s.steps.is_none() && s.minutes.is_some(), |v| v == "true"),
-        },
-    }))
+    let info = st.metadata().iter().filter_map(|(k, v)| Some((k.strip_prefix("model.")?.to_string(), v.clone())));
+    let model = Model::from_parts(&tensors, info.collect(), path)?;
+    let checkpoint = |st: &mut nst3d_job::State<'_>| -> Result<Checkpoint, nst3d_job::state::Problem> {
+        Ok(Checkpoint {
+            net: model.net,
+            m: st.take_f32s("adam.m")?.1,
+            v: st.take_f32s("adam.v")?.1,
+            step: st.get("step")?,
+            planned_steps: st.get("planned_steps")?,
+            position: st.get("position")?,
+            rng: st.get("rng")?,
+            losses: st.take_f32s("losses")?.1,
+            lrs: st.take_f32s("lrs")?.1,
+            clock: Clock { elapsed_s: st.get("elapsed_s")?, paced: st.get("paced")? },
+        })
+    };
+    Ok(Some(checkpoint(&mut st).map_err(|p| files.unusable(path, p))?))
 }
 
 /// Writes the model file and the loss log.
@@ -389,11 +381,11 @@ struct Resumed {
 /// set in `trainer`, and the rest of its state; `None` without one.
 fn resume(
     trainer: &mut TrainStep,
-    ckpt: &Path,
+    (ckpt, files): (&Path, &StateFiles),
     s: &TrainSettings,
     reporter: &mut dyn Reporter,
 ) -> Result<Option<Resumed>> {
-    let Some(c) = load_checkpoint(ckpt, s)? else {
+    let Some(c) = load_checkpoint(ckpt, files)? else {
         return Ok(None);
     };
     trainer.net = c.net;
@@ -511,10 +503,11 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     let (mut losses, mut lrs) = (Vec::new(), Vec::new());
     let ckpt = checkpoint_path(&s.out);
     // Two blades training one model would interleave their checkpoints.
-    let _lock = nst3d_job::WorkLock::acquire(&ckpt).map_err(anyhow::Error::msg)?;
+    let job =
+        Resume::begin(&ckpt, StateFiles::new(job_id(s)?, "delete it to start over")).map_err(anyhow::Error::msg)?;
     // Training time of earlier calls; the budget is the run's, not the call's.
     let mut elapsed_before = 0.0f64;
-    if let Some(r) = resume(&mut trainer, &ckpt, s, reporter)? {
+    if let Some(r) = resume(&mut trainer, (&ckpt, job.files()), s, reporter)? {
         (rng, losses, lrs, elapsed_before) = (r.rng, r.losses, r.lrs, r.elapsed_before);
         (pacing.sizing, pacing.paced) = (false, r.paced);
     }
@@ -561,7 +554,7 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         let stop = nst3d_core::stop::requested();
         let last = trainer.schedule_done();
         if trainer.steps().is_multiple_of(s.checkpoint_every) || last || out_of_time || stop {
-            save_checkpoint(&ckpt, s, &trainer, &rng, (&losses, &lrs), clock)?;
+            save_checkpoint(&ckpt, job.files(), &trainer, &rng, (&losses, &lrs), clock)?;
             write_outputs(s, &trainer, (&losses, &lrs), &style_sha, [style_img.width, style_img.height])?;
         }
         nst3d_core::stop::check()?;

@@ -75,6 +75,36 @@ fn a_killed_run_resumes_to_the_same_model() {
     assert!(train(&bad, &mut Silent).unwrap_err().to_string().contains("--patch"));
 }
 
+/// A checkpoint an older nst3d wrote (its model, then a second
+/// safetensors part, behind a length) is refused in one line that says how
+/// to start over, and so is a cut one; deleting it starts afresh.
+#[test]
+fn an_older_or_cut_checkpoint_is_refused_in_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("old.safetensors");
+    let model = nst3d_network::Model { net: nst3d_network::FeedForward::new(2, 1, 3), info: Default::default() };
+    let model = model.to_bytes();
+    let mut old = (model.len() as u64).to_le_bytes().to_vec();
+    old.extend(&model);
+    old.extend(nst3d_weights::safetensors_bytes(&[("adam.m", &[1], &[0.0])], &Default::default()));
+    std::fs::write(checkpoint_path(&out), &old).unwrap();
+    let mut s = settings(&out);
+    s.steps = Some(2);
+    let e = train(&s, &mut Silent).unwrap_err().to_string();
+    assert!(
+        e.contains("old.safetensors.ckpt") && e.contains("older nst3d") && e.ends_with("delete it to start over"),
+        "{e}"
+    );
+    assert_eq!(e.lines().count(), 1, "{e}");
+
+    std::fs::remove_file(checkpoint_path(&out)).unwrap();
+    assert_eq!(train(&s, &mut Silent).unwrap().steps, 2);
+    let ckpt = std::fs::read(checkpoint_path(&out)).unwrap();
+    std::fs::write(checkpoint_path(&out), &ckpt[..ckpt.len() - 100]).unwrap();
+    let e = train(&s, &mut Silent).unwrap_err().to_string();
+    assert!(e.contains("truncated or corrupt") && e.ends_with("delete it to start over"), "{e}");
+}
+
 /// Given only `minutes`, the schedule is sized from the measured step time
 /// and the run ends with it, near the budget.
 #[test]

@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use nst3d_core::{Grid3, Reporter};
 use nst3d_io::vdb::{read_vdb, GridValues, Transform};
-use nst3d_job::{default_work_dir, expand_pattern, job_fingerprint, settings_key, FrameSpec};
+use nst3d_job::{default_work_dir, expand_pattern, settings_key, FrameSpec, JobId, Resume, StateFiles};
 use nst3d_render::Camera;
 use nst3d_sequence::ema::{stylize_sequence_with, SequenceParams, Simulation, StateStore};
 use nst3d_sequence::DiskStore;
@@ -351,10 +351,13 @@ pub fn flicker_of_outputs(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Re
     Ok((pairs > 0).then(|| sum / pairs as f64))
 }
 
+/// What a volume sequence's state files say they are.
+pub const STATE_KIND: &str = "volume sequence";
+
 /// Everything the optimised states depend on, so a work folder is only
 /// reused by the same job: settings, the style image and camera file
 /// contents, and each input frame's size and modification time.
-fn job_hash(s: &VolumeSettings, run_paths: &[PathBuf]) -> Result<u64> {
+fn job_id(s: &VolumeSettings, run_paths: &[PathBuf]) -> Result<JobId> {
     // Not what the states depend on: previews, held-out scoring, where the
     // states go, --force; the painting and the camera file count by their
     // contents below, not their paths.
@@ -366,7 +369,7 @@ fn job_hash(s: &VolumeSettings, run_paths: &[PathBuf]) -> Result<u64> {
     let settings = settings_key(&a, false);
     let mut read = vec![s.style.clone()];
     read.extend(s.camera_file.clone());
-    Ok(job_fingerprint(&settings, &read, run_paths)?)
+    Ok(JobId::new(STATE_KIND, settings, &read, run_paths)?)
 }
 
 /// Stylizes the frames `s.sequence` names, or one chunk of them with its
@@ -405,14 +408,13 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
     let warmup = run_frames.iter().filter(|&&f| !(start..=end).contains(&f)).count();
     reporter.status(&run_status(run_frames.len(), todo.len(), warmup, &sim, dims, origin));
 
-    let work = match &seq.work_dir {
-        Some(w) => w.clone(),
-        None => default_work_dir(&s.out, job_hash(s, &sim.inner.paths)?),
-    };
+    let id = job_id(s, &sim.inner.paths)?;
+    let work = seq.work_dir.clone().unwrap_or_else(|| default_work_dir(&s.out, id.hash));
+    let restart = format!("rerun with --force (or delete {}) to start over", work.display());
     // Held until the job ends: a second blade on the same job exits here,
     // before the weights and the painting's features are loaded (seconds on
     // a blade the first one keeps busy).
-    let _lock = nst3d_job::WorkLock::acquire(&work).map_err(anyhow::Error::msg)?;
+    let job = Resume::begin(&work, StateFiles::new(id, restart)).map_err(anyhow::Error::msg)?;
     let (style, vgg) = load_style_and_vgg(s)?;
     let cameras = Cameras::of(s)?;
     let cams_at = |f: i64| cameras.at(f as f64, dims, &transform, origin);
@@ -436,7 +438,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         DiskStore::remove(&work).with_context(|| format!("cannot clear the work folder {}", work.display()))?;
     }
     // A chunk of empty frames only has nothing to optimise.
-    let mut store = if sim.is_empty() { None } else { Some(DiskStore::open(&work)?) };
+    let mut store = if sim.is_empty() { None } else { Some(DiskStore::open(&work, job.files().clone())?) };
     if let Some(store) = &mut store {
         optimise(s, &work, &sim, &loss, &views, &live, &params, store, reporter)?;
     }
@@ -705,7 +707,7 @@ mod tests {
         std::fs::write(&style, b"painting").unwrap();
         let mut s = VolumeSettings::new("in_####.vdb", &style, "out_####.vdb");
         s.sequence = Some(SequenceSettings { frames: "1-3".into(), ..SequenceSettings::default() });
-        let h = |s: &VolumeSettings| job_hash(s, &[]).unwrap();
+        let h = |s: &VolumeSettings| job_id(s, &[]).unwrap().hash;
         let base = h(&s);
         let mut same = s.clone();
         same.preview = Some("p_####.png".into());

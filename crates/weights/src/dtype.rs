@@ -20,15 +20,6 @@ impl DType {
             _ => return None,
         })
     }
-
-    /// Bytes per element.
-    pub fn size(self) -> usize {
-        match self {
-            DType::F32 => 4,
-            DType::F64 => 8,
-            DType::F16 | DType::BF16 => 2,
-        }
-    }
 }
 
 /// A torch storage class (`torch.FloatStorage`, ...): its element size is needed even

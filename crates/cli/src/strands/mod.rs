@@ -130,7 +130,7 @@ pub struct StrandsArgs {
     field_neighbors: Option<usize>,
     /// Weight of the orientation term: the painting's stroke directions as targets for
     /// the strands' directions, relative to the NNST loss (0: the paper's NNST alone;
-    /// default: the preset's, 1 for fur-ball, 0 for the others and for --frames,
+    /// default: the preset's, 1 for fur-ball and long-hair, 0 for the others and for --frames,
     /// where it flickers more).
     #[arg(long)]
     orientation: Option<f32>,

@@ -1,21 +1,33 @@
-//! A [`SequenceStylizer`]'s state between frames as bytes, so a farm task
-//! killed in the middle of an animated groom resumes after its last finished
-//! frame instead of starting over (each frame depends on the one before:
-//! the EMA blends towards its field and the 1€ filter towards its output).
+//! A [`SequenceStylizer`]'s state between frames, so a farm task killed in
+//! the middle of an animated groom resumes after its last finished frame
+//! instead of starting over (each frame depends on the one before: the EMA
+//! blends towards its field and the 1€ filter towards its output).
 //!
 //! The state is what [`SequenceStylizer::stylize_frame`] carries forward:
 //! the first frame's topology and locked cameras, the previous frame's
 //! samples, optimized velocities, undeformed and output strands and flicker
 //! renders, the 1€ filter's history, and the running sums of the report.
-//! Everything is stored bit for bit (little-endian `f32`/`f64`), so a
-//! resumed run continues exactly as the uninterrupted one would.
+//! It is kept in the jobs' one state format ([`nst3d_job::State`]), every
+//! number bit for bit (`f32`, `f64` and `u64` arrays), so a resumed run
+//! continues exactly as the uninterrupted one would:
 //!
-//! Layout: the magic `NST3DSQ1`, then the fields in the order of
-//! [`SequenceStylizer::save_state`], each vector as a `u64` length and its
-//! elements, each option as a `u8` flag. A caller's own numbers ride along
-//! in `extra`.
+//! * `topology` (`u64`), when a frame was seen;
+//! * `view` (26 `f32`: centre, radius, front, up, side, distance, field of
+//!   view, the strand look) and the metadata `view.output`, once locked;
+//! * `previous.samples`, `previous.velocities` (`[n, 3]`),
+//!   `previous.undeformed.points`, `previous.output.points` (`[p, 3]`) with
+//!   their `.offsets` (`u64`), `previous.render_output`,
+//!   `previous.render_input` (`[c, h, w]`), after the first frame;
+//! * `one_euro.x`, `one_euro.d` (`[n, 3]`), the filter's history;
+//! * `sums` (4 `f64`), `flicker_sums` (3 `f64`) and the metadata `frames`
+//!   and `pairs`.
+//!
+//! The caller's own numbers (frames of its list done, ...) ride along as
+//! more metadata of the same state.
 
 use nst3d_core::Image;
+use nst3d_job::state::Problem;
+use nst3d_job::State;
 use nst3d_splat::{SplatOutput, StrandStyle};
 
 use super::{LockedView, Previous, SequenceError, SequenceStylizer};
@@ -24,189 +36,173 @@ use crate::strands::FlatStrands;
 use crate::temporal::OneEuroHistory;
 use nst3d_core::math::V3;
 
-/// First bytes of a saved state (format version 1).
-const MAGIC: &[u8; 8] = b"NST3DSQ1";
+fn corrupt(e: Problem) -> SequenceError {
+    SequenceError::State(format!("saved sequence state {e}"))
+}
 
-/// Longest vector a state may claim: more than any groom fits in memory,
-/// so a corrupt length fails here rather than in an allocation.
-const MAX_LEN: u64 = 1 << 32;
+fn bad(what: &str) -> SequenceError {
+    corrupt(Problem::Corrupt(what.to_string()))
+}
 
-#[derive(Default)]
-struct Writer(Vec<u8>);
+fn put_v3s<'a>(st: &mut State<'a>, name: &str, xs: &'a [V3]) {
+    st.put_f32(name, &[xs.len(), 3], xs.as_flattened());
+}
 
-impl Writer {
-    fn u64(&mut self, x: u64) {
-        self.0.extend_from_slice(&x.to_le_bytes());
-    }
-    fn f32(&mut self, x: f32) {
-        self.0.extend_from_slice(&x.to_le_bytes());
-    }
-    fn f64(&mut self, x: f64) {
-        self.0.extend_from_slice(&x.to_le_bytes());
-    }
-    fn flag(&mut self, x: bool) {
-        self.0.push(x as u8);
-    }
-    fn f32s(&mut self, xs: &[f32]) {
-        self.u64(xs.len() as u64);
-        xs.iter().for_each(|&x| self.f32(x));
-    }
-    fn v3s(&mut self, xs: &[V3]) {
-        self.u64(xs.len() as u64);
-        xs.iter().flatten().for_each(|&x| self.f32(x));
-    }
-    fn usizes(&mut self, xs: &[usize]) {
-        self.u64(xs.len() as u64);
-        xs.iter().for_each(|&x| self.u64(x as u64));
-    }
-    fn strands(&mut self, s: &FlatStrands) {
-        self.v3s(&s.points);
-        self.usizes(&s.offsets);
-    }
-    fn image(&mut self, img: &Image) {
-        self.usizes(&[img.channels, img.height, img.width]);
-        self.f32s(&img.data);
+fn put_strands<'a>(st: &mut State<'a>, name: &str, s: &'a FlatStrands) {
+    put_v3s(st, &format!("{name}.points"), &s.points);
+    let offsets: Vec<u64> = s.offsets.iter().map(|&o| o as u64).collect();
+    st.put_u64(&format!("{name}.offsets"), &[offsets.len()], offsets);
+}
+
+fn put_image<'a>(st: &mut State<'a>, name: &str, img: &'a Image) {
+    st.put_f32(name, &[img.channels, img.height, img.width], &img.data[..]);
+}
+
+fn v3s(st: &State<'_>, name: &str) -> Result<Vec<V3>, SequenceError> {
+    match st.f32s(name).map_err(corrupt)? {
+        (&[n, 3], data) if data.len() == 3 * n => Ok(data.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()),
+        _ => Err(bad(name)),
     }
 }
 
-struct Reader<'b> {
-    bytes: &'b [u8],
-    at: usize,
+fn usizes(st: &State<'_>, name: &str) -> Result<Vec<usize>, SequenceError> {
+    let (_, data) = st.u64s(name).map_err(corrupt)?;
+    data.iter().map(|&x| usize::try_from(x).map_err(|_| bad(name))).collect()
 }
 
-fn corrupt(what: &str) -> SequenceError {
-    SequenceError::State(format!("saved sequence state is truncated or corrupt ({what})"))
+fn strands(st: &State<'_>, name: &str) -> Result<FlatStrands, SequenceError> {
+    let points = v3s(st, &format!("{name}.points"))?;
+    let offsets = usizes(st, &format!("{name}.offsets"))?;
+    let ok = offsets.first() == Some(&0)
+        && offsets.last() == Some(&points.len())
+        && offsets.windows(2).all(|w| w[0] <= w[1]);
+    if !ok {
+        return Err(bad(name));
+    }
+    Ok(FlatStrands { points, offsets })
 }
 
-impl<'b> Reader<'b> {
-    fn take(&mut self, n: usize, what: &str) -> Result<&'b [u8], SequenceError> {
-        let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len()).ok_or_else(|| corrupt(what))?;
-        let s = &self.bytes[self.at..end];
-        self.at = end;
-        Ok(s)
+fn image(st: &State<'_>, name: &str) -> Result<Image, SequenceError> {
+    match st.f32s(name).map_err(corrupt)? {
+        (&[c, h, w], data) => Ok(Image::from_vec(c, h, w, data.to_vec())),
+        _ => Err(bad(name)),
     }
-    fn u64(&mut self, what: &str) -> Result<u64, SequenceError> {
-        Ok(u64::from_le_bytes(self.take(8, what)?.try_into().expect("8 bytes")))
+}
+
+/// The 26 numbers of a locked view: its frame, distance and field of view,
+/// then the strand look (the output kind is metadata).
+fn view_numbers(v: &LockedView) -> Vec<f32> {
+    let f = &v.frame;
+    let s = &v.style;
+    let mut out: Vec<f32> =
+        f.centre.iter().chain([&f.radius]).chain(&f.front).chain(&f.up).chain(&f.side).copied().collect();
+    out.extend([v.distance, v.fov_deg]);
+    out.extend([s.width, s.length_sigma, s.root_shade, s.tip_shade, s.root_opacity, s.tip_opacity]);
+    out.extend(s.background);
+    out.extend([s.visibility_threshold, s.dilation]);
+    out
+}
+
+fn view(st: &State<'_>) -> Result<Option<LockedView>, SequenceError> {
+    if !st.has("view") {
+        return Ok(None);
     }
-    fn f32(&mut self, what: &str) -> Result<f32, SequenceError> {
-        Ok(f32::from_le_bytes(self.take(4, what)?.try_into().expect("4 bytes")))
+    let (_, x) = st.f32s("view").map_err(corrupt)?;
+    let output = match st.text("view.output") {
+        Some("grey_alpha") => SplatOutput::GreyAlpha,
+        Some("rgb") => SplatOutput::Rgb,
+        _ => return Err(bad("view.output")),
+    };
+    let &[c0, c1, c2, radius, f0, f1, f2, u0, u1, u2, s0, s1, s2, distance, fov_deg, ref look @ ..] = x else {
+        return Err(bad("view"));
+    };
+    let &[width, length_sigma, root_shade, tip_shade, root_opacity, tip_opacity, b0, b1, b2, visibility_threshold, dilation] =
+        look
+    else {
+        return Err(bad("view"));
+    };
+    let style = StrandStyle {
+        width,
+        length_sigma,
+        root_shade,
+        tip_shade,
+        root_opacity,
+        tip_opacity,
+        background: [b0, b1, b2],
+        visibility_threshold,
+        dilation,
+        output,
+    };
+    let frame = ViewFrame { centre: [c0, c1, c2], radius, front: [f0, f1, f2], up: [u0, u1, u2], side: [s0, s1, s2] };
+    Ok(Some(LockedView { frame, distance, fov_deg, style }))
+}
+
+fn previous(st: &State<'_>) -> Result<Option<Previous>, SequenceError> {
+    if !st.has("previous.samples") {
+        return Ok(None);
     }
-    fn f64(&mut self, what: &str) -> Result<f64, SequenceError> {
-        Ok(f64::from_le_bytes(self.take(8, what)?.try_into().expect("8 bytes")))
+    let p = Previous {
+        samples: v3s(st, "previous.samples")?,
+        velocities: v3s(st, "previous.velocities")?,
+        undeformed: strands(st, "previous.undeformed")?,
+        output: strands(st, "previous.output")?,
+        render_output: image(st, "previous.render_output")?,
+        render_input: image(st, "previous.render_input")?,
+    };
+    // What the next frame reads side by side must be of one size; the
+    // next frame checks the rest against its own groom.
+    let images = |i: &Image| (i.channels, i.height, i.width);
+    if p.velocities.len() != p.samples.len()
+        || p.output.offsets != p.undeformed.offsets
+        || images(&p.render_output) != images(&p.render_input)
+    {
+        return Err(bad("previous frame"));
     }
-    fn flag(&mut self, what: &str) -> Result<bool, SequenceError> {
-        match self.take(1, what)?[0] {
-            0 => Ok(false),
-            1 => Ok(true),
-            _ => Err(corrupt(what)),
-        }
-    }
-    fn len(&mut self, elem_bytes: usize, what: &str) -> Result<usize, SequenceError> {
-        let n = self.u64(what)?;
-        // A length the rest of the buffer cannot hold is corruption.
-        if n > MAX_LEN || n as usize * elem_bytes > self.bytes.len() - self.at {
-            return Err(corrupt(what));
-        }
-        Ok(n as usize)
-    }
-    fn f32s(&mut self, what: &str) -> Result<Vec<f32>, SequenceError> {
-        let n = self.len(4, what)?;
-        (0..n).map(|_| self.f32(what)).collect()
-    }
-    fn v3s(&mut self, what: &str) -> Result<Vec<V3>, SequenceError> {
-        let n = self.len(12, what)?;
-        (0..n).map(|_| self.v3(what)).collect()
-    }
-    fn usizes(&mut self, what: &str) -> Result<Vec<usize>, SequenceError> {
-        let n = self.len(8, what)?;
-        (0..n).map(|_| Ok(self.u64(what)? as usize)).collect()
-    }
-    fn strands(&mut self, what: &str) -> Result<FlatStrands, SequenceError> {
-        let points = self.v3s(what)?;
-        let offsets = self.usizes(what)?;
-        let ok = offsets.first() == Some(&0)
-            && offsets.last() == Some(&points.len())
-            && offsets.windows(2).all(|w| w[0] <= w[1]);
-        if !ok {
-            return Err(corrupt(what));
-        }
-        Ok(FlatStrands { points, offsets })
-    }
-    fn image(&mut self, what: &str) -> Result<Image, SequenceError> {
-        let dims = self.usizes(what)?;
-        let data = self.f32s(what)?;
-        match dims[..] {
-            [c, h, w] if c.checked_mul(h).and_then(|x| x.checked_mul(w)) == Some(data.len()) => {
-                Ok(Image::from_vec(c, h, w, data))
-            }
-            _ => Err(corrupt(what)),
-        }
-    }
-    fn v3(&mut self, what: &str) -> Result<V3, SequenceError> {
-        Ok([self.f32(what)?, self.f32(what)?, self.f32(what)?])
-    }
+    Ok(Some(p))
+}
+
+fn sums<const N: usize>(st: &State<'_>, name: &str) -> Result<[f64; N], SequenceError> {
+    st.f64s(name).map_err(corrupt)?.1.try_into().map_err(|_| bad(name))
 }
 
 impl SequenceStylizer<'_> {
-    /// The state after the frames stylized so far, with the caller's own
-    /// numbers `extra` (e.g. how many frames of its list are done), as bytes
-    /// for [`SequenceStylizer::restore_state`]. The settings are not saved:
-    /// the caller restores into a stylizer made with the same ones.
-    pub fn save_state(&self, extra: &[f64]) -> Vec<u8> {
-        let mut w = Writer::default();
-        w.0.extend_from_slice(MAGIC);
-        w.flag(self.topology.is_some());
+    /// Puts the state after the frames stylized so far into `st` (arrays
+    /// borrowed from the stylizer), for [`SequenceStylizer::restore_state`].
+    /// The settings are not saved: the caller restores into a stylizer made
+    /// with the same ones, and adds its own numbers to `st`.
+    pub fn save_state<'s>(&'s self, st: &mut State<'s>) {
         if let Some(t) = &self.topology {
-            w.usizes(t);
+            st.put_u64("topology", &[t.len()], t.iter().map(|&x| x as u64).collect::<Vec<_>>());
         }
-        w.flag(self.view.is_some());
         if let Some(v) = &self.view {
-            let f = &v.frame;
-            for x in f.centre.iter().chain([&f.radius]).chain(&f.front).chain(&f.up).chain(&f.side) {
-                w.f32(*x);
-            }
-            w.f32(v.distance);
-            w.f32(v.fov_deg);
-            let s = &v.style;
-            for x in [s.width, s.length_sigma, s.root_shade, s.tip_shade, s.root_opacity, s.tip_opacity]
-                .iter()
-                .chain(&s.background)
-                .chain(&[s.visibility_threshold, s.dilation])
-            {
-                w.f32(*x);
-            }
-            w.flag(matches!(s.output, SplatOutput::GreyAlpha));
+            st.put_f32("view", &[26], view_numbers(v));
+            st.set("view.output", if matches!(v.style.output, SplatOutput::GreyAlpha) { "grey_alpha" } else { "rgb" });
         }
-        w.flag(self.previous.is_some());
         if let Some(p) = &self.previous {
-            w.v3s(&p.samples);
-            w.v3s(&p.velocities);
-            w.strands(&p.undeformed);
-            w.strands(&p.output);
-            w.image(&p.render_output);
-            w.image(&p.render_input);
+            put_v3s(st, "previous.samples", &p.samples);
+            put_v3s(st, "previous.velocities", &p.velocities);
+            put_strands(st, "previous.undeformed", &p.undeformed);
+            put_strands(st, "previous.output", &p.output);
+            put_image(st, "previous.render_output", &p.render_output);
+            put_image(st, "previous.render_input", &p.render_input);
         }
-        let history = self.filter.history();
-        w.flag(history.is_some());
-        if let Some((x, d)) = history {
-            w.v3s(x);
-            w.v3s(d);
+        if let Some((x, d)) = self.filter.history() {
+            put_v3s(st, "one_euro.x", x);
+            put_v3s(st, "one_euro.d", d);
         }
-        self.sums.iter().chain(&self.flicker_sums).for_each(|&s| w.f64(s));
-        w.u64(self.frames as u64);
-        w.u64(self.pairs as u64);
-        w.u64(extra.len() as u64);
-        extra.iter().for_each(|&x| w.f64(x));
-        w.0
+        st.put_f64("sums", &[4], &self.sums[..]);
+        st.put_f64("flicker_sums", &[3], &self.flicker_sums[..]);
+        st.set("frames", self.frames);
+        st.set("pairs", self.pairs);
     }
 
     /// Puts back a state from [`SequenceStylizer::save_state`]; the next
     /// [`SequenceStylizer::stylize_frame`] continues as if this stylizer
-    /// had run the saved frames. Returns the saved `extra`. A truncated or
-    /// foreign buffer is an error and leaves the stylizer as it was.
-    pub fn restore_state(&mut self, bytes: &[u8]) -> Result<Vec<f64>, SequenceError> {
-        let SavedState { topology, view, previous, history, sums, flicker_sums, frames, pairs, extra } =
-            SavedState::parse(bytes)?;
+    /// had run the saved frames. A state that lacks a part, or whose parts
+    /// disagree, is an error and leaves the stylizer as it was.
+    pub fn restore_state(&mut self, st: &State<'_>) -> Result<(), SequenceError> {
+        let SavedState { topology, view, previous, history, sums, flicker_sums, frames, pairs } =
+            SavedState::parse(st)?;
         let mut filter = self.filter.clone();
         filter.set_history(history).map_err(|e| SequenceError::State(e.to_string()))?;
         self.topology = topology;
@@ -217,7 +213,7 @@ impl SequenceStylizer<'_> {
         self.flicker_sums = flicker_sums;
         self.frames = frames;
         self.pairs = pairs;
-        Ok(extra)
+        Ok(())
     }
 }
 
@@ -231,118 +227,61 @@ pub struct SavedState {
     flicker_sums: [f64; 3],
     frames: usize,
     pairs: usize,
-    extra: Vec<f64>,
 }
 
 impl SavedState {
-    /// Reads the bytes of [`SequenceStylizer::save_state`]: a truncated or
-    /// foreign buffer, a length the buffer cannot hold, or parts that
-    /// disagree in size are errors. Needs no stylizer, so the fuzz harness
-    /// calls it directly.
-    pub fn parse(bytes: &[u8]) -> Result<SavedState, SequenceError> {
-        if bytes.len() < MAGIC.len() || &bytes[..MAGIC.len()] != MAGIC {
-            return Err(SequenceError::State("not an nst3d strand sequence state (bad magic)".into()));
-        }
-        let mut r = Reader { bytes, at: MAGIC.len() };
-        let topology = if r.flag("topology")? { Some(r.usizes("topology")?) } else { None };
-        let view = if r.flag("view")? {
-            let (centre, radius) = (r.v3("view")?, r.f32("view")?);
-            let (front, up, side) = (r.v3("view")?, r.v3("view")?, r.v3("view")?);
-            let (distance, fov_deg) = (r.f32("view")?, r.f32("view")?);
-            let mut f = [0.0f32; 11];
-            for x in &mut f {
-                *x = r.f32("strand look")?;
-            }
-            let output = if r.flag("strand look")? { SplatOutput::GreyAlpha } else { SplatOutput::Rgb };
-            let style = StrandStyle {
-                width: f[0],
-                length_sigma: f[1],
-                root_shade: f[2],
-                tip_shade: f[3],
-                root_opacity: f[4],
-                tip_opacity: f[5],
-                background: [f[6], f[7], f[8]],
-                visibility_threshold: f[9],
-                dilation: f[10],
-                output,
-            };
-            Some(LockedView { frame: ViewFrame { centre, radius, front, up, side }, distance, fov_deg, style })
-        } else {
-            None
+    /// Reads what [`SequenceStylizer::save_state`] put into a state: a
+    /// missing part, or parts that disagree in size, are errors. Needs no
+    /// stylizer, so the fuzz harness calls it directly.
+    pub fn parse(st: &State<'_>) -> Result<SavedState, SequenceError> {
+        let topology = if st.has("topology") { Some(usizes(st, "topology")?) } else { None };
+        let history = match st.has("one_euro.x") {
+            true => Some((v3s(st, "one_euro.x")?, v3s(st, "one_euro.d")?)),
+            false => None,
         };
-        let previous = if r.flag("previous frame")? {
-            Some(Previous {
-                samples: r.v3s("samples")?,
-                velocities: r.v3s("velocities")?,
-                undeformed: r.strands("undeformed strands")?,
-                output: r.strands("output strands")?,
-                render_output: r.image("output render")?,
-                render_input: r.image("input render")?,
-            })
-        } else {
-            None
-        };
-        let history =
-            if r.flag("1€ history")? { Some((r.v3s("1€ history")?, r.v3s("1€ history")?)) } else { None };
-        let mut sums = [0.0f64; 4];
-        let mut flicker_sums = [0.0f64; 3];
-        for s in sums.iter_mut().chain(flicker_sums.iter_mut()) {
-            *s = r.f64("report sums")?;
-        }
-        let (frames, pairs) = (r.u64("frame count")? as usize, r.u64("frame count")? as usize);
-        let n = r.len(8, "extra")?;
-        let extra = (0..n).map(|_| r.f64("extra")).collect::<Result<Vec<_>, _>>()?;
-        if r.at != bytes.len() {
-            return Err(corrupt("trailing bytes"));
-        }
-        // What the next frame reads side by side must be of one size; the
-        // next frame checks the rest against its own groom.
-        if let Some(p) = &previous {
-            let images = |i: &Image| (i.channels, i.height, i.width);
-            if p.velocities.len() != p.samples.len()
-                || p.output.offsets != p.undeformed.offsets
-                || images(&p.render_output) != images(&p.render_input)
-            {
-                return Err(corrupt("previous frame"));
-            }
-        }
         if history.as_ref().is_some_and(|(x, d)| x.len() != d.len()) {
-            return Err(corrupt("1€ history"));
+            return Err(bad("1€ history"));
         }
-        Ok(SavedState { topology, view, previous, history, sums, flicker_sums, frames, pairs, extra })
+        Ok(SavedState {
+            topology,
+            view: view(st)?,
+            previous: previous(st)?,
+            history,
+            sums: sums(st, "sums")?,
+            flicker_sums: sums(st, "flicker_sums")?,
+            frames: st.get("frames").map_err(corrupt)?,
+            pairs: st.get("pairs").map_err(corrupt)?,
+        })
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nst3d_job::JobId;
 
-    fn u64s(xs: &[u64]) -> Vec<u8> {
-        xs.iter().flat_map(|x| x.to_le_bytes()).collect()
+    fn id() -> JobId {
+        JobId { kind: "groom sequence".into(), hash: 3, settings: String::new() }
     }
 
     /// A state with only a previous frame of `samples` samples and
-    /// `velocities` velocities (both strands 1 × 2 points, 1×1×1 renders).
-    fn with_previous(samples: u64, velocities: u64) -> Vec<u8> {
-        let mut b = MAGIC.to_vec();
-        b.extend([0u8, 0, 1]); // no topology, no view, a previous frame
-        for n in [samples, velocities] {
-            b.extend(u64s(&[n]));
-            b.extend(vec![0u8; 12 * n as usize]);
+    /// `velocities` velocities (both strands 1 × 2 points, 3×1×1 renders).
+    fn with_previous(samples: usize, velocities: usize) -> State<'static> {
+        let mut st = State::new(&id());
+        st.put_f32("previous.samples", &[samples, 3], vec![0.0; 3 * samples]);
+        st.put_f32("previous.velocities", &[velocities, 3], vec![0.0; 3 * velocities]);
+        for part in ["undeformed", "output"] {
+            st.put_f32(&format!("previous.{part}.points"), &[2, 3], vec![0.0; 6]);
+            st.put_u64(&format!("previous.{part}.offsets"), &[2], vec![0, 2]);
         }
-        for _ in 0..2 {
-            b.extend(u64s(&[2]));
-            b.extend([0u8; 24]);
-            b.extend(u64s(&[2, 0, 2]));
+        for part in ["render_output", "render_input"] {
+            st.put_f32(&format!("previous.{part}"), &[3, 1, 1], vec![0.5; 3]);
         }
-        for _ in 0..2 {
-            b.extend(u64s(&[3, 1, 1, 1, 1]));
-            b.extend(0.5f32.to_le_bytes());
-        }
-        b.push(0); // no 1€ history
-        b.extend([0u8; 7 * 8]);
-        b.extend(u64s(&[1, 0, 0]));
-        b
+        st.put_f64("sums", &[4], vec![0.0; 4]);
+        st.put_f64("flicker_sums", &[3], vec![0.0; 3]);
+        st.set("frames", 1);
+        st.set("pairs", 0);
+        st
     }
 
     #[test]
@@ -350,8 +289,15 @@ mod tests {
         assert!(SavedState::parse(&with_previous(3, 3)).is_ok());
         let e = SavedState::parse(&with_previous(3, 2)).err().expect("refused").to_string();
         assert!(e.contains("previous frame"), "{e}");
-        let mut trailing = with_previous(3, 3);
-        trailing.push(0);
-        assert!(SavedState::parse(&trailing).is_err());
+        let mut no_sums = with_previous(3, 3);
+        no_sums.put_f64("sums", &[3], vec![0.0; 3]);
+        assert!(SavedState::parse(&no_sums).is_err());
+        let mut offsets = with_previous(3, 3);
+        offsets.put_u64("previous.output.offsets", &[2], vec![0, 3]);
+        assert!(SavedState::parse(&offsets).is_err());
+        let mut half_view = with_previous(3, 3);
+        half_view.put_f32("view", &[13], vec![0.0; 13]);
+        half_view.set("view.output", "rgb");
+        assert!(SavedState::parse(&half_view).is_err());
     }
 }
