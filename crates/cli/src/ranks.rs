@@ -76,7 +76,7 @@ fn as_rank(launch: Launch, settings: impl FnOnce() -> Result<TrainSettings>) -> 
         let (mut console, mut silent) = (Console::default(), nst3d_core::Silent);
         let reporter: &mut dyn Reporter = if rank == 0 { &mut console } else { &mut silent };
         reporter.status(&format!(
-            "nst3d: training on {} MPI ranks ({}), {} patches a step, {} threads a rank",
+            "nst3d: training on {} MPI ranks ({}), batch {}, {} threads a rank",
             team.size(),
             MpiTeam::library(),
             s.batch,

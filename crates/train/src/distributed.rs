@@ -112,7 +112,8 @@ pub fn agree<T>(team: &dyn Team, result: Result<T>) -> Result<T> {
     }
     let failed = n - lowest[0] as usize;
     match result {
-        Err(e) if failed == team.rank() && n > 1 => Err(e.context(format!("rank {failed} of {n}"))),
+        // Rank 0's failures are the job's; another rank's may be its node's.
+        Err(e) if failed == team.rank() && failed > 0 => Err(e.context(format!("rank {failed} of {n}"))),
         Err(e) if failed == team.rank() => Err(e),
         _ => Err(RankFailed { rank: failed }.into()),
     }
@@ -257,7 +258,10 @@ pub fn batch_step(
     if agreed[1] > 0.0 {
         let failed = n - agreed[1] as usize;
         return match failure {
-            Some(e) if failed == team.rank() => Err(anyhow::Error::from(e).context(format!("rank {failed} of {n}"))),
+            Some(e) if failed == team.rank() && failed > 0 => {
+                Err(anyhow::Error::from(e).context(format!("rank {failed} of {n}")))
+            }
+            Some(e) if failed == team.rank() => Err(e.into()),
             _ => Err(RankFailed { rank: failed }.into()),
         };
     }

@@ -32,10 +32,15 @@ impl MpiTeam {
         self.world.split_shared(self.world.rank()).size() as usize
     }
 
-    /// The MPI library's own name and version, its first line.
+    /// The MPI library's name and version ("Open MPI v4.1.4"): its own
+    /// description up to the first comma, spaces collapsed.
     pub fn library() -> String {
         let v = mpi::environment::library_version().unwrap_or_default();
-        v.lines().next().unwrap_or("an MPI library").trim().trim_end_matches(',').to_string()
+        let name = v.lines().next().unwrap_or_default().split(',').next().unwrap_or_default();
+        match name.split_whitespace().collect::<Vec<_>>().join(" ") {
+            n if n.is_empty() => "an MPI library".into(),
+            n => n,
+        }
     }
 
     /// Ends every rank at once (`MPI_Abort`), for a failure the others
