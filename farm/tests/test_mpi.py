@@ -82,9 +82,17 @@ def test_two_ranks_train_the_model_one_rank_trains_with_the_same_batch(tmp_path_
 def test_a_run_started_on_two_ranks_resumes_on_one(tmp_path_factory):
     whole = one_rank(tmp_path_factory, 4)
     parts = tmp_path_factory.mktemp("parts") / "m.safetensors"
-    # A zero-minute budget stops after the first step, checkpointed by rank 0.
-    log = train(NST3D_MPI, parts, "--steps", "4", "--minutes", "0", ranks=2)
-    assert "trained 1 of 4 steps" in log, log[-2000:]
+    # Two ranks through the OpenJD template (Ranks=2: mpirun on the one
+    # worker); a zero-minute budget stops after the first step, checkpointed
+    # by rank 0.
+    settings = " ".join([*TRAIN[7:], "--steps", "4", "--minutes", "0"])
+    r = subprocess.run([tool("openjd"), "run", str(REPO / "farm" / "openjd" / "train.yaml"),
+                        *[a for k, v in {"InputDir": PLUME.parent, "InputFrames": PLUME.name, "TrainFrames": "20-22",
+                                         "Style": STYLE, "Model": parts, "TrainSettings": f"--threads 1 {settings}",
+                                         "Nst3d": NST3D_MPI, "Ranks": 2}.items() for a in ("-p", f"{k}={v}")]],
+                       capture_output=True, text=True, env=MPI_ENV, cwd=parts.parent)
+    assert r.returncode == 0 and "training on 2 MPI ranks" in r.stdout, r.stdout[-3000:] + r.stderr[-2000:]
+    assert "trained 1 of 4 steps" in r.stdout, r.stdout[-2000:]
     log = train(NST3D, parts, "--steps", "4")
     assert "resumed at step 2" in log, log[-2000:]
     assert difference(whole, parts) <= TOLERANCE
@@ -117,7 +125,7 @@ def test_slurm_trains_on_two_tasks_and_a_requeue_resumes(tmp_path, tmp_path_fact
     # Requeued mid-run: Slurm sends every rank SIGTERM, they stop after the
     # same step, rank 0 checkpoints; the restart resumes and ends with the
     # model of an uninterrupted run.
-    steps = 400
+    steps = 300
     whole = one_rank(tmp_path_factory, steps)
     out2 = tmp_path / "b" / "m.safetensors"
     out2.parent.mkdir()
@@ -128,6 +136,13 @@ def test_slurm_trains_on_two_tasks_and_a_requeue_resumes(tmp_path, tmp_path_fact
         assert time.time() - t0 < 300, "the job never reached step 20"
         time.sleep(0.2)
     subprocess.run(["scontrol", "requeue", job2], check=True)
+    # A requeued job waits two minutes before it may start again; the test
+    # lets it start as soon as it is pending.
+    while subprocess.run(["squeue", "-h", "-j", job2, "-o", "%T"], capture_output=True,
+                         text=True).stdout.strip() not in ("PENDING", ""):
+        assert time.time() - t0 < 300, "the requeued job never became pending"
+        time.sleep(0.2)
+    subprocess.run(["scontrol", "update", f"JobId={job2}", "StartTime=now"], check=True)
     wait_for(job2)
     text = log2.read_text()
     assert "restart 1" in text, text[-3000:]
