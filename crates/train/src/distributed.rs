@@ -272,16 +272,21 @@ pub fn batch_step(
         );
         return Err(everywhere(team, e));
     }
-    let (grads, l, k) = batch_mean(team, &mine, batch.size, agreed[0]);
+    let params = trainer.adam_state().0.len();
+    let (grads, l, k) = batch_mean(team, &mine, (params, batch.size), agreed[0]);
     trainer.update(grads, k);
     Ok(l)
 }
 
-/// The batch's mean gradient, loss and mass ratio from each rank's share
-/// `mine` (`(j, patch j's gradient)`), `largest` the largest gradient
-/// magnitude over the batch.
-fn batch_mean(team: &dyn Team, mine: &[(usize, PatchGradient)], b: usize, largest: f64) -> (Vec<f32>, f32, f32) {
-    let n = mine.first().map_or(0, |(_, g)| g.grads.len());
+/// The mean gradient (of `n` parameters), loss and mass ratio of a batch
+/// of `b` from each rank's share `mine` (`(j, patch j's gradient)`),
+/// `largest` the largest gradient magnitude over the batch.
+fn batch_mean(
+    team: &dyn Team,
+    mine: &[(usize, PatchGradient)],
+    (n, b): (usize, usize),
+    largest: f64,
+) -> (Vec<f32>, f32, f32) {
     let scale = fixed_point_scale(largest, b);
     let mut sum = vec![0i64; n];
     // Per patch: its loss and mass ratio in its own slot.
