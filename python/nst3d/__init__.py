@@ -426,6 +426,7 @@ def train(
     octaves: Optional[int] = None,
     seed: Optional[int] = None,
     checkpoint_every: Optional[int] = None,
+    batch: Optional[int] = None,
     weights: Optional[PathLike] = None,
     progress: Optional[Progress] = None,
 ) -> Dict[str, Any]:
@@ -444,7 +445,7 @@ def train(
     opts = _options(
         mode=mode, grid=grid, channels=channels, patch=patch, steps=steps, minutes=minutes,
         theta=theta, phi=phi, view_axes=view_axes, style_scale=style_scale, octaves=octaves, seed=seed,
-        checkpoint_every=checkpoint_every, weights=weights,
+        checkpoint_every=checkpoint_every, batch=batch, weights=weights,
     )
     return _nst3d.train(inputs, frame_lists, os.fspath(style), os.fspath(out), opts, progress, _to_log)
 

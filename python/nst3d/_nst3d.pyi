@@ -119,6 +119,7 @@ class TrainOptions(TypedDict, total=False):
     octaves: int
     seed: int
     checkpoint_every: int
+    batch: int
     weights: str
 
 def stylize_volume(

@@ -7,6 +7,7 @@
 mod bench;
 mod console;
 mod judge;
+mod ranks;
 mod signals;
 mod strands;
 mod train;
@@ -120,6 +121,10 @@ fn main() {
         Command::Train(args) => train::run(args),
         Command::Judge(args) => judge::run(args),
     };
+    // A rank of an MPI job whose message another rank gives.
+    if let Some(q) = result.as_ref().err().and_then(|e| e.downcast_ref::<ranks::Quiet>()) {
+        std::process::exit(q.0);
+    }
     // A job stopped by a signal ends with 128 + the signal whatever it
     // returned, so a farm manager tells a cancelled task from a failed one.
     if let Some(sig) = signals::received() {

@@ -8,8 +8,6 @@ use clap::Args;
 use nst3d_stylize::Mode;
 use nst3d_train::{TrainSettings, ViewAxes};
 
-use crate::console::Console;
-
 /// Arguments of `nst3d train`.
 #[derive(Args)]
 pub struct TrainArgs {
@@ -74,16 +72,20 @@ pub struct TrainArgs {
     /// Steps between checkpoints.
     #[arg(long, default_value_t = 50)]
     checkpoint_every: u64,
+    /// Patches a step, over all ranks of an MPI run (`mpirun -n N nst3d
+    /// train`): each rank takes B/N of them and the step follows their mean
+    /// gradient; the same B on any N trains the same model.
+    #[arg(long, default_value_t = 1)]
+    batch: usize,
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).
     #[arg(long)]
     weights: Option<PathBuf>,
 }
 
-/// Runs `nst3d train`.
-pub fn run(args: TrainArgs) -> Result<()> {
-    let frames = nst3d_train::job::training_frames(&args.input, &args.frames)?;
-    let settings = TrainSettings {
-        frames,
+/// The library's settings from the command line.
+fn settings(args: TrainArgs) -> Result<TrainSettings> {
+    Ok(TrainSettings {
+        frames: nst3d_train::job::training_frames(&args.input, &args.frames)?,
         grid: args.grid,
         style: args.style,
         style_scale: args.style_scale,
@@ -100,9 +102,17 @@ pub fn run(args: TrainArgs) -> Result<()> {
         seed: args.seed,
         out: args.out,
         checkpoint_every: args.checkpoint_every,
-    };
+        batch: args.batch,
+    })
+}
+
+/// Runs `nst3d train`, alone or as one rank of an MPI job (rank 0 prints
+/// the report).
+pub fn run(args: TrainArgs) -> Result<()> {
     let started = std::time::Instant::now();
-    let r = nst3d_train::train(&settings, &mut Console::default())?;
+    let Some(r) = crate::ranks::train(|| settings(args))? else {
+        return Ok(());
+    };
     let minutes = started.elapsed().as_secs_f64() / 60.0;
     let how = if r.resumed_at > 0 { format!(" (resumed at step {})", r.resumed_at + 1) } else { String::new() };
     let left = if r.schedule_done { "" } else { "; time budget reached, rerun to continue" };
@@ -140,6 +150,6 @@ mod tests {
             (d.grid, d.style_scale, d.channels, d.patch, d.octaves, d.steps, d.minutes, d.theta_deg, d.phi_deg, d.seed)
         );
         assert_eq!((a.checkpoint_every, matches!(a.mode, Mode::Velocity)), (d.checkpoint_every, d.velocity));
-        assert_eq!(a.view_axes, d.view_axes);
+        assert_eq!((a.view_axes, a.batch), (d.view_axes, d.batch));
     }
 }

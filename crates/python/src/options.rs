@@ -255,5 +255,6 @@ pub fn apply_train(s: &mut nst3d_train::TrainSettings, mut o: Options<'_>) -> Py
     }
     set!(o.u64("seed") => s.seed);
     set!(o.u64("checkpoint_every") => s.checkpoint_every);
+    set!(o.usize("batch") => s.batch);
     o.finish("train")
 }

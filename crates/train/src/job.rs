@@ -19,7 +19,7 @@ use nst3d_optim::OneCycle;
 use nst3d_stylize::{StyleSpec, ViewLoss, ViewSpec};
 
 use crate::axes::ViewAxes;
-use crate::patch::{rotated_patch, Rotation};
+use crate::distributed::{self, Batch, Solo, Team};
 use crate::step::{Stylization, TrainStep};
 
 /// Everything `nst3d train` can be asked.
@@ -61,6 +61,9 @@ pub struct TrainSettings {
     pub out: PathBuf,
     /// Steps between checkpoints.
     pub checkpoint_every: u64,
+    /// Patches a step, over all ranks of a distributed run: the step takes
+    /// the mean of their gradients ([`crate::distributed`]).
+    pub batch: usize,
 }
 
 impl TrainSettings {
@@ -85,6 +88,7 @@ impl TrainSettings {
             seed: 0,
             out: out.into(),
             checkpoint_every: 50,
+            batch: 1,
         }
     }
 }
@@ -327,6 +331,11 @@ fn write_outputs(
     info.insert("view_axes".to_string(), s.view_axes.name().to_string());
     info.insert("mass".to_string(), if s.velocity { "conserved" } else { crate::step::MASS_PINNED }.to_string());
     info.insert("steps".to_string(), t.steps().to_string());
+    // Only where it is not the one patch every model was trained with, so
+    // an unbatched model keeps its bytes.
+    if s.batch != 1 {
+        info.insert("batch".to_string(), s.batch.to_string());
+    }
     info.insert("nst3d_version".to_string(), env!("CARGO_PKG_VERSION").to_string());
     let bytes = Model { net: t.net.clone(), info }.to_bytes();
     nst3d_io::atomic::write_atomic(&s.out, |w| w.write_all(&bytes))
@@ -413,19 +422,6 @@ fn resume(
     Ok(Some(Resumed { rng: SplitMix64::new(c.rng), losses: c.losses, lrs: c.lrs, paced, elapsed_before }))
 }
 
-/// A training patch: a random frame, a random corner, a random rotation
-/// about x and y within the settings' ranges and a random mirror (Sec. 5.1).
-fn sample_patch(rng: &mut SplitMix64, frames: &[Grid3], s: &TrainSettings) -> Grid3 {
-    let d = &frames[(rng.next_u64() % frames.len() as u64) as usize];
-    let origin: [usize; 3] = std::array::from_fn(|a| (rng.next_u64() % (d.dims[a] - s.patch + 1) as u64) as usize);
-    let rot = Rotation {
-        theta: (2.0 * rng.uniform_f32() - 1.0) * s.theta_deg.to_radians(),
-        phi: (2.0 * rng.uniform_f32() - 1.0) * s.phi_deg.to_radians(),
-        mirror: rng.uniform_f32() < 0.5,
-    };
-    rotated_patch(d, origin, s.patch, &rot)
-}
-
 /// How the schedule follows the clock.
 struct Pacing {
     /// Given only a budget, until the calibration steps are timed.
@@ -479,16 +475,36 @@ impl Pacing {
     }
 }
 
-/// Trains (or resumes training) the network `s` describes.
-pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainReport> {
+/// What every rank reads before training: the frames, the painting and
+/// the VGG-19 weights.
+struct Inputs {
+    frames: Vec<Grid3>,
+    style_img: nst3d_core::Image,
+    style_sha: String,
+    vgg: Vgg19,
+}
+
+fn load_inputs(s: &TrainSettings, team: &dyn Team) -> Result<Inputs> {
     let inputs: Vec<&Path> = s.frames.iter().map(PathBuf::as_path).collect();
     nst3d_io::atomic::check_output("--out", &s.out, &[], &inputs).map_err(anyhow::Error::msg)?;
     check_settings(s)?;
+    distributed::check_batch(team, s.batch)?;
     let frames = load_frames(s)?;
     let style_img = nst3d_io::image::luminance_rgb(&nst3d_io::image::load_style(&s.style, s.style_scale)?);
     let style_sha = nst3d_weights::sha256_file(&s.style)?;
-    let vgg = Vgg19::load(s.weights.as_deref())?;
-    let loss = ViewLoss::new(&vgg, &style_img, &StyleSpec::default())?;
+    Ok(Inputs { frames, style_img, style_sha, vgg: Vgg19::load(s.weights.as_deref())? })
+}
+
+/// Trains (or resumes training) the network `s` describes, in this process.
+pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainReport> {
+    train_on(&Solo, s, reporter)
+}
+
+/// [`train`] as one rank of `team` (every rank calls it with the same
+/// settings; rank 0 reports and writes, see [`crate::distributed`]).
+pub fn train_on(team: &dyn Team, s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainReport> {
+    let Inputs { frames, style_img, style_sha, vgg } = distributed::agree(team, load_inputs(s, team))?;
+    let loss = distributed::agree(team, ViewLoss::new(&vgg, &style_img, &StyleSpec::default()).map_err(Into::into))?;
     let stylization =
         if s.velocity { Stylization::Velocity { vmax: 0.04 * s.patch as f32 } } else { Stylization::Density };
     let net = FeedForward::new(s.channels, stylization.channels(), s.seed);
@@ -502,15 +518,24 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     let mut rng = SplitMix64::new(s.seed ^ 0x7261_696e);
     let (mut losses, mut lrs) = (Vec::new(), Vec::new());
     let ckpt = checkpoint_path(&s.out);
-    // Two blades training one model would interleave their checkpoints.
-    let job =
-        Resume::begin(&ckpt, StateFiles::new(job_id(s)?, "delete it to start over")).map_err(anyhow::Error::msg)?;
+    // Two blades training one model would interleave their checkpoints
+    // (rank 0 alone takes the lock and writes them).
+    let job = distributed::on_rank0(team, || {
+        Resume::begin(&ckpt, StateFiles::new(job_id(s)?, "delete it to start over")).map_err(anyhow::Error::msg)
+    })?;
     // Training time of earlier calls; the budget is the run's, not the call's.
     let mut elapsed_before = 0.0f64;
-    if let Some(r) = resume(&mut trainer, (&ckpt, job.files()), s, reporter)? {
+    let resumed = distributed::on_rank0(team, || match &job {
+        Some(job) => resume(&mut trainer, (&ckpt, job.files()), s, reporter),
+        None => Ok(None),
+    })?;
+    if let Some(r) = resumed.flatten() {
         (rng, losses, lrs, elapsed_before) = (r.rng, r.losses, r.lrs, r.elapsed_before);
         (pacing.sizing, pacing.paced) = (false, r.paced);
     }
+    distributed::share_start(team, &mut trainer, &mut rng)?;
+    let batch =
+        Batch { size: s.batch, patch: s.patch, theta_deg: s.theta_deg, phi_deg: s.phi_deg, view_axes: s.view_axes };
     let resumed_at = trainer.steps();
     // γ = 8/P as the benchmark: the densest ray of a full patch gets optical
     // depth ~8. Exposure γ, as every picture the optimisation, the previews
@@ -524,10 +549,8 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     let mut last_step = Instant::now();
     reporter.begin(trainer.schedule.total_steps.saturating_sub(trainer.position().floor() as u64));
     while !trainer.schedule_done() {
-        let patch = sample_patch(&mut rng, &frames, s);
         let before = trainer.position().floor() as u64;
-        let axes = s.view_axes.pick(|| rng.uniform_f32());
-        let l = trainer.step(&patch, &loss, &view, &axes)?;
+        let l = distributed::batch_step(team, &mut trainer, &mut rng, &frames, &batch, (&loss, &view))?;
         // The bar counts the schedule's steps: a paced run takes more or
         // fewer training steps than its schedule has, as the clock says.
         for _ in before..trainer.position().floor() as u64 {
@@ -539,7 +562,8 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
             ));
         }
         if !l.is_finite() {
-            bail!("the loss became {l} at step {} (try a smaller learning rate)", trainer.steps());
+            let e = anyhow::anyhow!("the loss became {l} at step {} (try a smaller learning rate)", trainer.steps());
+            return Err(distributed::everywhere(team, e));
         }
         losses.push(l);
         lrs.push(trainer.last_lr());
@@ -547,15 +571,23 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
         let dt = (now - last_step).as_secs_f64();
         last_step = now;
         let done = trainer.steps() - resumed_at;
-        pacing.after_step(&mut trainer, s, (done, t0.elapsed().as_secs_f64(), dt), elapsed_before, reporter);
+        if team.rank() == 0 {
+            pacing.after_step(&mut trainer, s, (done, t0.elapsed().as_secs_f64(), dt), elapsed_before, reporter);
+        }
         let clock = Clock { elapsed_s: elapsed_before + t0.elapsed().as_secs_f64(), paced: pacing.paced };
-        let out_of_time = s.minutes.is_some_and(|m| clock.elapsed_s >= 60.0 * m);
-        // A stopped run checkpoints first, so rerunning it resumes at this step.
-        let stop = nst3d_core::stop::requested();
+        let mut out_of_time = s.minutes.is_some_and(|m| clock.elapsed_s >= 60.0 * m);
+        // Rank 0's pacing and clock hold for every rank; a stop asked of
+        // any rank stops all. A stopped run checkpoints first, so rerunning
+        // it resumes at this step.
+        let stop = distributed::follow_rank0(team, &mut trainer, &mut out_of_time);
         let last = trainer.schedule_done();
         if trainer.steps().is_multiple_of(s.checkpoint_every) || last || out_of_time || stop {
-            save_checkpoint(&ckpt, job.files(), &trainer, &rng, (&losses, &lrs), clock)?;
-            write_outputs(s, &trainer, (&losses, &lrs), &style_sha, [style_img.width, style_img.height])?;
+            distributed::on_rank0(team, || {
+                if let Some(job) = &job {
+                    save_checkpoint(&ckpt, job.files(), &trainer, &rng, (&losses, &lrs), clock)?;
+                }
+                write_outputs(s, &trainer, (&losses, &lrs), &style_sha, [style_img.width, style_img.height])
+            })?;
         }
         nst3d_core::stop::check()?;
         if out_of_time {

@@ -12,11 +12,12 @@
 pub mod axes;
 pub mod bench;
 pub mod curve;
+pub mod distributed;
 pub mod job;
 pub mod patch;
 pub mod step;
 
 pub use axes::{Axis, ViewAxes};
-pub use job::{train, TrainReport, TrainSettings};
+pub use job::{train, train_on, TrainReport, TrainSettings};
 pub use patch::{rotated_patch, Rotation};
 pub use step::{Stylization, TrainStep};

@@ -3,8 +3,46 @@
 //! does not depend on the view (Sec. 5.1: θ ∈ [−180°, 180°] about x,
 //! φ ∈ [−90°, 90°] about y).
 
-use nst3d_core::Grid3;
+use nst3d_core::{math::SplitMix64, Grid3};
 use nst3d_transport::sample_trilinear_rows;
+
+/// Where a training patch comes from: which frame, which corner, which
+/// rotation. Drawing the numbers is apart from cutting the patch so that
+/// every rank of a distributed run draws the whole batch's numbers from
+/// the one shared stream (and so stays in step with it) but cuts only its
+/// own patches.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PatchDraw {
+    /// Index into the frames.
+    pub frame: usize,
+    /// The patch's corner in that frame.
+    pub origin: [usize; 3],
+    /// Its rotation and mirror.
+    pub rotation: Rotation,
+}
+
+impl PatchDraw {
+    /// A random frame, a random corner, a random rotation about x within
+    /// ±`theta_deg` and about y within ±`phi_deg`, and a random mirror
+    /// (Sec. 5.1), in that order from `rng`. Every frame is at least `p`
+    /// voxels along each axis.
+    pub fn draw(rng: &mut SplitMix64, frames: &[Grid3], p: usize, theta_deg: f32, phi_deg: f32) -> Self {
+        let frame = (rng.next_u64() % frames.len() as u64) as usize;
+        let d = &frames[frame];
+        let origin: [usize; 3] = std::array::from_fn(|a| (rng.next_u64() % (d.dims[a] - p + 1) as u64) as usize);
+        let rotation = Rotation {
+            theta: (2.0 * rng.uniform_f32() - 1.0) * theta_deg.to_radians(),
+            phi: (2.0 * rng.uniform_f32() - 1.0) * phi_deg.to_radians(),
+            mirror: rng.uniform_f32() < 0.5,
+        };
+        Self { frame, origin, rotation }
+    }
+
+    /// The `p³` patch itself ([`rotated_patch`]).
+    pub fn cut(&self, frames: &[Grid3], p: usize) -> Grid3 {
+        rotated_patch(&frames[self.frame], self.origin, p, &self.rotation)
+    }
+}
 
 /// A patch's orientation.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -213,6 +213,21 @@ impl TrainStep {
     /// style loss (summed over the octaves, the mean over the axes) before
     /// the update.
     pub fn step(&mut self, patch: &Grid3, loss: &ViewLoss, view: &ViewSpec, axes: &[Axis]) -> Result<f32, ViewError> {
+        let g = self.gradient(patch, loss, view, axes)?;
+        self.update(g.grads, g.mass_ratio);
+        Ok(g.loss)
+    }
+
+    /// The loss of `patch` and its gradient with respect to the network's
+    /// parameters ([`FeedForward::flat`] order), the network unchanged: the
+    /// half of [`TrainStep::step`] each patch of a batch runs on its own.
+    pub fn gradient(
+        &self,
+        patch: &Grid3,
+        loss: &ViewLoss,
+        view: &ViewSpec,
+        axes: &[Axis],
+    ) -> Result<PatchGradient, ViewError> {
         assert!(!axes.is_empty(), "a step renders its patch along at least one axis");
         let x = Volume::from_grid(patch);
         let (o, tape) = self.net.forward(&x);
@@ -232,9 +247,17 @@ impl TrainStep {
             let (_, g) = scale_pin(&raw, k, SCALE_PIN);
             grad_raw.iter_mut().for_each(|x| *x += g);
         }
-        self.last_mass_ratio = k;
         let grad_o = apply_backward(patch, &o, self.stylization, &grad_raw);
-        let mut grads = FeedForward::flat_grads(&self.net.backward(&tape, &grad_o));
+        let grads = FeedForward::flat_grads(&self.net.backward(&tape, &grad_o));
+        Ok(PatchGradient { loss: l, grads, mass_ratio: k })
+    }
+
+    /// The other half of [`TrainStep::step`]: `grads` (one patch's, or a
+    /// batch's mean) clipped, one Adam step under the schedule, the
+    /// schedule advanced. `mass_ratio` is what [`TrainStep::last_mass_ratio`]
+    /// reports.
+    pub fn update(&mut self, mut grads: Vec<f32>, mass_ratio: f32) {
+        self.last_mass_ratio = mass_ratio;
         clip_grad_norm(&mut [&mut grads], self.clip);
         let (lr, beta1) = self.schedule.at(self.position.floor() as u64);
         self.adam.lr = lr as f32;
@@ -244,8 +267,18 @@ impl TrainStep {
         self.net.set_flat(&params);
         self.steps += 1;
         self.position += self.pace;
-        Ok(l)
     }
+}
+
+/// One patch's part of a step ([`TrainStep::gradient`]).
+#[derive(Clone, Debug)]
+pub struct PatchGradient {
+    /// The style loss before the update.
+    pub loss: f32,
+    /// The loss's gradient, in [`FeedForward::flat`] order.
+    pub grads: Vec<f32>,
+    /// The patch's mass ratio `k` ([`conserve_mass`]).
+    pub mass_ratio: f32,
 }
 
 #[cfg(test)]

@@ -34,6 +34,7 @@ fn settings(out: &Path) -> TrainSettings {
         out: out.to_path_buf(),
         checkpoint_every: 2,
         octaves: 2,
+        batch: 1,
     }
 }
 
