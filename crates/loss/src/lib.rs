@@ -557,8 +557,7 @@ mod tests {
                 shapes.iter().enumerate().map(|(i, &(c, h, w))| image(c, h, w, 600 + i as u64)).collect();
             // A soft ramp across the picture, 0 on its left quarter.
             let pixels: Vec<f32> = (0..10 * 12).map(|i| ((i % 12) as f32 / 11.0 - 0.25).max(0.0)).collect();
-            let guides: Vec<Vec<f32>> =
-                shapes.iter().map(|&(_, h, w)| cell_weights(&pixels, 10, 12, h, w)).collect();
+            let guides: Vec<Vec<f32>> = shapes.iter().map(|&(_, h, w)| cell_weights(&pixels, 10, 12, h, w)).collect();
             let (loss, grads) = style_loss_guided(&views(&feats), &guides, &target).unwrap();
             for l in 0..shapes.len() {
                 let (c, h, w) = shapes[l];

@@ -42,14 +42,45 @@ impl<'a> MapLoss<'a> {
         Ok(self.gram_terms(&fwd.features(), &guides, (rgb.height, rgb.width))?.0)
     }
 
+    /// The judge's table for one view: `[r][p]` is the guided Gram loss of
+    /// region `r` (its guide rendered from `guide_density`, the input, so
+    /// every result is judged over the same pixels) of `d`'s picture against
+    /// painting `p`; `None` for a region this view does not show.
+    pub fn region_table(
+        &self,
+        d: &Grid3,
+        guide_density: &Grid3,
+        regions: &[Grid3],
+        view: &ViewSpec,
+    ) -> Result<Vec<Option<Vec<f32>>>, ViewError> {
+        let guides = render::upsample2x(&region_guides(guide_density, regions, view)?);
+        let rgb = grey_to_rgb(&render::upsample2x(&crate::view::view_image(d, view)?));
+        let p0 = &self.paintings[0];
+        let fwd = p0.vgg.forward(&rgb, &p0.layers, false);
+        let feats = fwd.features();
+        let mut table = Vec::new();
+        for r in 0..regions.len() {
+            let t: Vec<Vec<f32>> = feats
+                .iter()
+                .map(|f| cell_weights(guides.channel(r), rgb.height, rgb.width, f.height, f.width))
+                .collect();
+            if t.iter().any(|t| t.iter().all(|v| *v <= 0.0)) {
+                table.push(None);
+                continue;
+            }
+            let row: Result<Vec<f32>, ViewError> =
+                self.paintings.iter().map(|p| Ok(style_loss_guided(&feats, &t, &p.target)?.0)).collect();
+            table.push(Some(row?));
+        }
+        Ok(table)
+    }
+
     /// Guided style loss of one view and its gradient w.r.t. `d`.
     pub fn loss_and_grad(&self, d: &Grid3, regions: &[Grid3], view: &ViewSpec) -> Result<(f32, Grid3), ViewError> {
         let guides = region_guides(d, regions, view)?;
         let (w, h) = (2 * guides.width, 2 * guides.height);
         let p = &self.paintings[0];
-        crate::view::grey_loss_and_grad(p.vgg, &p.layers, d, view, &|feats| {
-            self.gram_terms(feats, &guides, (h, w))
-        })
+        crate::view::grey_loss_and_grad(p.vgg, &p.layers, d, view, &|feats| self.gram_terms(feats, &guides, (h, w)))
     }
 
     /// The guided Gram loss of every painting over its region's guide (the

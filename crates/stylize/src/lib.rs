@@ -20,7 +20,7 @@ pub mod guided;
 pub mod view;
 
 pub use color_stage::{stylize_color, ColorProgress, ColorResult, ColorStageParams, JointDensity, COLOR_VIEWS};
-pub use guided::{region_guides, MapLoss};
 pub use field::{Field, Limits, Mode, Tape};
 pub use frame::{stylize_frame, stylize_frame_map, stylize_frame_views, FrameParams, FrameResult, Progress};
+pub use guided::{region_guides, MapLoss};
 pub use view::{color_view_image, view_image, StyleSpec, ViewError, ViewLoss, ViewSpec};

@@ -102,9 +102,7 @@ impl<'a> ViewLoss<'a> {
     pub fn loss_and_grad(&self, d: &Grid3, view: &ViewSpec) -> Result<(f32, Grid3), ViewError> {
         // The Gram loss reads the network's channels-last activations in
         // place and hands its gradients back in the same layout.
-        grey_loss_and_grad(self.vgg, &self.layers, d, view, &|feats| {
-            Ok(nst3d_loss::style_loss(feats, &self.target)?)
-        })
+        grey_loss_and_grad(self.vgg, &self.layers, d, view, &|feats| Ok(nst3d_loss::style_loss(feats, &self.target)?))
     }
 }
 
