@@ -313,42 +313,79 @@ pub fn cell_mask(pixels: &[bool], mask_height: usize, mask_width: usize, height:
     cells
 }
 
-/// [`style_loss`] of the marked cells only: each layer's Gram matrix is
-/// summed over the cells `masks[l]` marks (row-major over its map) and
-/// divided by their count, so a picture's empty background (a groom on
-/// black) neither counts nor dilutes the statistics of what is drawn. It
-/// is [`style_loss`] of the features zeroed off the mask and scaled by
-/// `√(P / count)`, and the backward is the same mask and scale applied to
-/// that loss's gradient. A layer with no marked cell is an error
-/// ([`LossError::EmptyLayer`]).
+/// Cell weights of a `height x width` feature map from per-pixel weights of
+/// a `mask_height x mask_width` picture (row-major both): each cell gets the
+/// mean weight of the picture pixels that fall in it, the guide downsampled
+/// to the layer as Gatys et al. (2017) do for guided Gram matrices.
+pub fn cell_weights(pixels: &[f32], mask_height: usize, mask_width: usize, height: usize, width: usize) -> Vec<f32> {
+    assert_eq!(pixels.len(), mask_height * mask_width, "one weight per picture pixel");
+    let mut sum = vec![0.0f32; height * width];
+    let mut count = vec![0u32; height * width];
+    if height == 0 || width == 0 {
+        return sum;
+    }
+    for y in 0..mask_height {
+        let r = (y * height / mask_height).min(height - 1);
+        for x in 0..mask_width {
+            let cell = r * width + (x * width / mask_width).min(width - 1);
+            sum[cell] += pixels[y * mask_width + x];
+            count[cell] += 1;
+        }
+    }
+    sum.iter().zip(&count).map(|(s, &n)| if n > 0 { s / n as f32 } else { 0.0 }).collect()
+}
+
+/// [`style_loss`] of the marked cells only: [`style_loss_guided`] with
+/// weight 1 on the cells `masks[l]` marks and 0 elsewhere, so a picture's
+/// empty background (a groom on black) neither counts nor dilutes the
+/// statistics of what is drawn.
 pub fn style_loss_masked(
     feats: &[FeatureView<'_>],
     masks: &[Vec<bool>],
     target: &StyleTarget,
 ) -> Result<(f32, Vec<Vec<f32>>), LossError> {
-    if masks.len() != feats.len() {
-        return Err(LossError::LayerCount { got: masks.len(), expected: feats.len() });
+    let guides: Vec<Vec<f32>> = masks.iter().map(|m| m.iter().map(|&v| if v { 1.0 } else { 0.0 }).collect()).collect();
+    style_loss_guided(feats, &guides, target)
+}
+
+/// The guided Gram loss of Gatys et al. (2017, "Controlling Perceptual
+/// Factors"): each layer's features are multiplied by the region's guide
+/// `t_p` (one weight in [0, 1] per cell, row-major over the layer's map)
+/// and the Gram matrix is normalised by the region's area `Σ_p t_p²`,
+/// `G = Σ_p t_p² f_p f_pᵀ / Σ_p t_p²`, so a region's statistics do not
+/// depend on its size. It is [`style_loss`] of the features scaled by
+/// `t_p √(P / Σ t²)`, and the backward is the same scale applied to that
+/// loss's gradient (the guide is fixed: no gradient flows into it). A layer
+/// whose guide is all zero is an error ([`LossError::EmptyLayer`]); with a
+/// 0/1 guide it is the loss over the marked cells.
+pub fn style_loss_guided(
+    feats: &[FeatureView<'_>],
+    guides: &[Vec<f32>],
+    target: &StyleTarget,
+) -> Result<(f32, Vec<Vec<f32>>), LossError> {
+    if guides.len() != feats.len() {
+        return Err(LossError::LayerCount { got: guides.len(), expected: feats.len() });
     }
-    // Per layer: the scale of every value (0 off the mask), in `data`'s order.
+    // Per layer: the scale of every value, in `data`'s order.
     let mut scales = Vec::with_capacity(feats.len());
-    for (layer, (f, m)) in feats.iter().zip(masks).enumerate() {
-        let count = m.iter().filter(|&&v| v).count();
-        if m.len() != f.pixels() || count == 0 {
+    for (layer, (f, t)) in feats.iter().zip(guides).enumerate() {
+        let area: f64 = t.iter().map(|&v| v as f64 * v as f64).sum();
+        if t.len() != f.pixels() || !(area > 0.0) {
             return Err(LossError::EmptyLayer { layer, channels: f.channels, height: f.height, width: f.width });
         }
-        let s = (f.pixels() as f32 / count as f32).sqrt();
+        let s = (f.pixels() as f64 / area).sqrt() as f32;
         let (cs, ps) = f.strides();
         let mut scale = vec![0.0f32; f.data.len()];
-        for (p, _) in m.iter().enumerate().filter(|(_, &v)| v) {
+        for (p, &v) in t.iter().enumerate().filter(|(_, &v)| v != 0.0) {
             for c in 0..f.channels {
-                scale[c * cs + p * ps] = s;
+                scale[c * cs + p * ps] = s * v;
             }
         }
         scales.push(scale);
     }
-    let masked: Vec<Vec<f32>> =
+    let guided: Vec<Vec<f32>> =
         feats.iter().zip(&scales).map(|(f, s)| f.data.iter().zip(s).map(|(v, s)| v * s).collect()).collect();
-    let views: Vec<FeatureView<'_>> = feats.iter().zip(&masked).map(|(f, d)| FeatureView { data: d, ..*f }).collect();
+    let views: Vec<FeatureView<'_>> = feats.iter().zip(&guided).map(|(f, d)| FeatureView { data: d, ..*f }).collect();
     let (loss, mut grads) = style_loss(&views, target)?;
     for (g, s) in grads.iter_mut().zip(&scales) {
         g.iter_mut().zip(s).for_each(|(g, s)| *g *= s);
@@ -503,6 +540,60 @@ mod tests {
             let plain = style_loss(&views(&feats), &target).unwrap().0;
             let all = style_loss_masked(&views(&feats), &full, &target).unwrap().0;
             assert!((plain - all).abs() <= 1e-6 * plain.abs(), "{plain} vs {all}");
+        })
+    }
+
+    /// The guided loss with soft weights: its gradient by finite
+    /// differences, and its Gram against the definition
+    /// `Σ t² f fᵀ / Σ t²` computed in f64 (no reference framework needed).
+    #[test]
+    fn style_loss_guided_gradcheck_and_definition() {
+        nst3d_core::precision::fp32(|| {
+            let shapes = [(4, 5, 6), (8, 3, 4)];
+            let style: Vec<Image> =
+                shapes.iter().enumerate().map(|(i, &(c, h, w))| image(c, h, w, 500 + i as u64)).collect();
+            let target = StyleTarget::from_features(&views(&style), &[1.0, 2.0]).unwrap();
+            let feats: Vec<Image> =
+                shapes.iter().enumerate().map(|(i, &(c, h, w))| image(c, h, w, 600 + i as u64)).collect();
+            // A soft ramp across the picture, 0 on its left quarter.
+            let pixels: Vec<f32> = (0..10 * 12).map(|i| ((i % 12) as f32 / 11.0 - 0.25).max(0.0)).collect();
+            let guides: Vec<Vec<f32>> = shapes.iter().map(|&(_, h, w)| cell_weights(&pixels, 10, 12, h, w)).collect();
+            let (loss, grads) = style_loss_guided(&views(&feats), &guides, &target).unwrap();
+            for l in 0..shapes.len() {
+                let (c, h, w) = shapes[l];
+                let probe = |x: &[f32]| {
+                    let mut fs = feats.clone();
+                    fs[l] = Image::from_vec(c, h, w, x.to_vec());
+                    style_loss_guided(&views(&fs), &guides, &target).unwrap().0 as f64
+                };
+                let r = check_gradient(&feats[l].data, &grads[l], probe, 1e-2, 60, 1e-4);
+                assert!(r.max_rel_err < 2e-2, "layer {l}: {r:?}");
+            }
+            // The definition: weighted Gram, mse against the target, weighted sum.
+            let mut want = 0.0f64;
+            for (l, f) in feats.iter().enumerate() {
+                let (c, t) = (f.channels, &guides[l]);
+                let area: f64 = t.iter().map(|&v| (v as f64).powi(2)).sum();
+                let mut sq = 0.0;
+                for i in 0..c {
+                    for j in 0..c {
+                        let g: f64 = (0..f.plane())
+                            .map(|p| (t[p] as f64).powi(2) * f.channel(i)[p] as f64 * f.channel(j)[p] as f64)
+                            .sum::<f64>()
+                            / area;
+                        sq += (g - target.gram(l)[i * c + j] as f64).powi(2);
+                    }
+                }
+                want += target.weights()[l] as f64 * sq / (c * c) as f64;
+            }
+            assert!((loss as f64 - want).abs() <= 1e-4 * want, "{loss} vs {want}");
+            // A uniform guide is the plain loss, whatever its level.
+            let half: Vec<Vec<f32>> = shapes.iter().map(|&(_, h, w)| vec![0.5; h * w]).collect();
+            let plain = style_loss(&views(&feats), &target).unwrap().0;
+            let guided = style_loss_guided(&views(&feats), &half, &target).unwrap().0;
+            assert!((plain - guided).abs() <= 1e-5 * plain, "{plain} vs {guided}");
+            let zero: Vec<Vec<f32>> = shapes.iter().map(|&(_, h, w)| vec![0.0; h * w]).collect();
+            assert!(matches!(style_loss_guided(&views(&feats), &zero, &target), Err(LossError::EmptyLayer { .. })));
         })
     }
 

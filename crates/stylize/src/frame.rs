@@ -12,6 +12,7 @@ use nst3d_render::Camera;
 use nst3d_transport as transport;
 
 use crate::field::{Field, Limits, Mode};
+use crate::guided::{carried_regions, MapLoss};
 use crate::view::{ViewError, ViewLoss, ViewSpec};
 
 /// Settings of a single-frame stylisation.
@@ -133,6 +134,61 @@ pub fn stylize_frame_views(
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<FrameResult, ViewError> {
     let views = if views.is_empty() { std::slice::from_ref(&params.view) } else { views };
+    let mut score = |_: usize, _: &Field, dstar: &Grid3, view: &ViewSpec| loss.loss_and_grad(dstar, view);
+    let (field, density) = optimise(d, params, views, &mut score, progress)?;
+    let (mut loss_before, mut loss_after) = (0.0, 0.0);
+    for view in views {
+        loss_before += loss.loss(d, view)?;
+        loss_after += loss.loss(&density, view)?;
+    }
+    Ok(FrameResult { density, field, loss_before, loss_after })
+}
+
+/// [`stylize_frame_views`] toward several paintings split by a style map:
+/// `regions` holds one weight grid per painting of `loss` (over `d`'s box,
+/// summing to 1 in every voxel), and every view's loss is the guided Gram
+/// loss of each painting over its region ([`crate::guided`]). The regions
+/// follow the octaves (box-averaged as the density is) and, in velocity
+/// mode, the smoke's transport.
+pub fn stylize_frame_map(
+    d: &Grid3,
+    loss: &MapLoss,
+    regions: &[Grid3],
+    params: &FrameParams,
+    views: &[ViewSpec],
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<FrameResult, ViewError> {
+    let views = if views.is_empty() { std::slice::from_ref(&params.view) } else { views };
+    assert_eq!(regions.len(), loss.regions(), "one region per painting");
+    let octaves = pyramid(d, params.octaves.max(1)).len();
+    let pyramids: Vec<Vec<Grid3>> = regions.iter().map(|r| pyramid(r, octaves)).collect();
+    let mut score = |level: usize, f: &Field, dstar: &Grid3, view: &ViewSpec| {
+        let here: Vec<Grid3> = pyramids.iter().map(|p| p[level].clone()).collect();
+        loss.loss_and_grad(dstar, &carried_regions(f, &here), view)
+    };
+    let (field, density) = optimise(d, params, views, &mut score, progress)?;
+    let moved = carried_regions(&field, regions);
+    let (mut loss_before, mut loss_after) = (0.0, 0.0);
+    for view in views {
+        loss_before += loss.loss(d, regions, view)?;
+        loss_after += loss.loss(&density, &moved, view)?;
+    }
+    Ok(FrameResult { density, field, loss_before, loss_after })
+}
+
+/// One view's loss and gradient w.r.t. the transported density at pyramid
+/// level `level` (0 = full resolution) for the field that transported it.
+type Score<'s> = dyn FnMut(usize, &Field, &Grid3, &ViewSpec) -> Result<(f32, Grid3), ViewError> + 's;
+
+/// The multi-octave Adam loop: returns the field at full resolution and the
+/// density it transports.
+fn optimise(
+    d: &Grid3,
+    params: &FrameParams,
+    views: &[ViewSpec],
+    score: &mut Score,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<(Field, Grid3), ViewError> {
     let levels = pyramid(d, params.octaves.max(1));
     let octaves = levels.len();
     let mut field: Option<(Field, [usize; 3])> = None;
@@ -155,7 +211,7 @@ pub fn stylize_frame_views(
             let mut grad_dstar = Grid3::zeros(level.dims);
             let add = |acc: &mut Grid3, g: &Grid3| acc.data.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
             for view in &level_views {
-                let (lv, gv) = loss.loss_and_grad(&dstar, view)?;
+                let (lv, gv) = score(octaves - 1 - k, &f, &dstar, view)?;
                 l += lv;
                 add(&mut grad_dstar, &gv);
             }
@@ -169,15 +225,9 @@ pub fn stylize_frame_views(
     }
 
     let (field, dims) = field.expect("at least one octave");
-    let full = |f: Field| if dims == d.dims { f } else { f.resize(dims, d.dims) };
-    let field = full(field);
+    let field = if dims == d.dims { field } else { field.resize(dims, d.dims) };
     let density = field.transport(d);
-    let (mut loss_before, mut loss_after) = (0.0, 0.0);
-    for view in views {
-        loss_before += loss.loss(d, view)?;
-        loss_after += loss.loss(&density, view)?;
-    }
-    Ok(FrameResult { density, field, loss_before, loss_after })
+    Ok((field, density))
 }
 
 #[cfg(test)]

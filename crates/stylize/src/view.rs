@@ -65,9 +65,9 @@ pub const SMOKE_PIXEL: f32 = 0.02;
 
 /// Style loss of rendered views against one painting.
 pub struct ViewLoss<'a> {
-    vgg: &'a Vgg19,
-    layers: Vec<VggLayer>,
-    target: StyleTarget,
+    pub(crate) vgg: &'a Vgg19,
+    pub(crate) layers: Vec<VggLayer>,
+    pub(crate) target: StyleTarget,
 }
 
 /// What the forward pass keeps for the backward pass.
@@ -100,31 +100,43 @@ impl<'a> ViewLoss<'a> {
 
     /// Style loss of one view and its gradient w.r.t. `d`.
     pub fn loss_and_grad(&self, d: &Grid3, view: &ViewSpec) -> Result<(f32, Grid3), ViewError> {
-        let (grey, trace) = grey(d, view)?;
-        let rgb = grey_to_rgb(&render::upsample2x(&grey));
-        let fwd = self.vgg.forward(&rgb, &self.layers, true);
         // The Gram loss reads the network's channels-last activations in
         // place and hands its gradients back in the same layout.
-        let feats = fwd.features();
-        let (loss, tap_grads) = nst3d_loss::style_loss(&feats, &self.target)?;
-        let grads: Vec<FeatureView> =
-            feats.iter().zip(&tap_grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
-        let grad_rgb = self.vgg.backward(&fwd, &grads);
-
-        let grad_up = rgb_to_grey_backward(&grad_rgb);
-        let mut grad = render::upsample2x_backward(&grad_up);
-        if let Some(cache) = &trace.eq_cache {
-            grad = render::equalize_backward(cache, &grad);
-        }
-        if view.exposure != 1.0 {
-            grad.data.iter_mut().for_each(|v| *v *= view.exposure);
-        }
-        let grad_d = match &trace.render_cache {
-            None => render::march_backward(d, view.gamma, &grad),
-            Some(cache) => render::render_backward(d, cache, &grad),
-        };
-        Ok((loss, grad_d))
+        grey_loss_and_grad(self.vgg, &self.layers, d, view, &|feats| Ok(nst3d_loss::style_loss(feats, &self.target)?))
     }
+}
+
+/// The loss `gram` computes on the VGG-19 taps of `d`'s grey view, and its
+/// gradient w.r.t. `d` through the network, the upsampling, the
+/// equalisation, the exposure and the renderer.
+pub(crate) fn grey_loss_and_grad(
+    vgg: &Vgg19,
+    layers: &[VggLayer],
+    d: &Grid3,
+    view: &ViewSpec,
+    gram: &dyn Fn(&[FeatureView]) -> Result<(f32, Vec<Vec<f32>>), ViewError>,
+) -> Result<(f32, Grid3), ViewError> {
+    let (grey, trace) = grey(d, view)?;
+    let rgb = grey_to_rgb(&render::upsample2x(&grey));
+    let fwd = vgg.forward(&rgb, layers, true);
+    let feats = fwd.features();
+    let (loss, tap_grads) = gram(&feats)?;
+    let grads: Vec<FeatureView> = feats.iter().zip(&tap_grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
+    let grad_rgb = vgg.backward(&fwd, &grads);
+
+    let grad_up = rgb_to_grey_backward(&grad_rgb);
+    let mut grad = render::upsample2x_backward(&grad_up);
+    if let Some(cache) = &trace.eq_cache {
+        grad = render::equalize_backward(cache, &grad);
+    }
+    if view.exposure != 1.0 {
+        grad.data.iter_mut().for_each(|v| *v *= view.exposure);
+    }
+    let grad_d = match &trace.render_cache {
+        None => render::march_backward(d, view.gamma, &grad),
+        Some(cache) => render::render_backward(d, cache, &grad),
+    };
+    Ok((loss, grad_d))
 }
 
 /// Colour: `d` carries a colour per voxel, one grid per RGB
@@ -281,6 +293,12 @@ pub fn smoke_pixels(d: &Grid3, view: &ViewSpec) -> Result<Vec<bool>, ViewError> 
 /// The colour picture of `d` with `color` seen from `view` (render and
 /// exposure; no equalisation), before upsampling.
 pub fn color_view_image(d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result<Image, ViewError> {
+    Ok(rgb(d, color, view)?.0)
+}
+
+/// The picture of `d` with one emission channel per grid of `color` (any
+/// count), render and exposure, without the backward's cache.
+pub(crate) fn rgb_picture(d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result<Image, ViewError> {
     Ok(rgb(d, color, view)?.0)
 }
 

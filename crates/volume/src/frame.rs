@@ -15,10 +15,10 @@ use anyhow::{bail, Context, Result};
 use nst3d_core::Reporter;
 use nst3d_core::{Grid3, Image};
 use nst3d_io::image::{resize_to_height, side_by_side, write_png};
-use nst3d_io::vdb::{read_vdb, Transform};
+use nst3d_io::vdb::{read_vdb, Transform, VdbFile};
 use nst3d_stylize::{
-    stylize_color, stylize_frame_views, ColorStageParams, FrameParams, JointDensity, Mode, ViewLoss, ViewSpec,
-    COLOR_VIEWS,
+    stylize_color, stylize_frame_map, stylize_frame_views, ColorStageParams, FrameParams, JointDensity, MapLoss, Mode,
+    ViewLoss, ViewSpec, COLOR_VIEWS,
 };
 
 use crate::cameras::{CameraSet, Cameras, Lens};
@@ -27,6 +27,7 @@ use crate::look::{absorption_for, display, views_of, HeldOut, PREVIEW_HEIGHT};
 use crate::output::write_stylized;
 use crate::settings::VolumeSettings;
 use crate::style::load_style_and_vgg;
+use crate::style_map::{self, MapBox, MapSource};
 use crate::upsample::{refine_density, refine_origin, refine_transform};
 
 /// What a single-frame job did.
@@ -125,7 +126,7 @@ pub fn stylize_frame_file(s: &VolumeSettings, reporter: &mut dyn Reporter) -> Re
         format!("{}: no grid named '{}' (grids: {})", s.input.display(), s.grid, names.join(", "))
     })?;
     let (bx, dense) = grid.to_dense()?;
-    let r = stylize_grid(s, dense, &grid.transform, bx.origin, &grid.name, reporter)?;
+    let r = stylize_grid_in(s, dense, &grid.transform, bx.origin, &grid.name, Some((&file, &s.input)), reporter)?;
     let origin = r.origin.map(|o| o - r.margin as i32);
     let color_name = s.color_grid.clone().unwrap_or_else(|| crate::output::color_grid_name(&file, s.up).to_string());
     let color = r.color.as_ref().map(|c| (color_name.as_str(), &c[..]));
@@ -213,6 +214,76 @@ fn write_preview(
     Ok(())
 }
 
+/// The single-frame job with a style map: every painting's loss over its
+/// region (`nst3d_stylize::guided`), the map sampled on the padded box `at`.
+/// The preview shows input | map | result | the paintings.
+fn stylize_mapped(
+    s: &VolumeSettings,
+    vgg: &nst3d_features::Vgg19,
+    padded: &Grid3,
+    at: &MapBox,
+    input: Option<(&VdbFile, &Path)>,
+    (params, views): (&FrameParams, &[ViewSpec]),
+    reporter: &mut dyn Reporter,
+) -> Result<(nst3d_stylize::FrameResult, Grid3)> {
+    let source = MapSource::parse(s.style_map.as_deref().unwrap_or_default())?;
+    let labels = source.labels(s.style_map_labels);
+    let paintings = s.styles();
+    let map = style_map::sample(&source, input, at, labels)?;
+    let regions = style_map::regions(&map, padded, paintings.len(), labels)?;
+    let mut pictures = Vec::new();
+    let mut losses = Vec::new();
+    for p in &paintings {
+        let picture = nst3d_io::image::load_style(p, s.style_scale)?;
+        let picture = if s.style_color { picture } else { nst3d_io::image::luminance_rgb(&picture) };
+        losses.push(ViewLoss::new(vgg, &picture, &s.style_spec())?);
+        pictures.push(picture);
+    }
+    let loss = MapLoss::new(losses);
+    reporter.begin((s.octaves() * s.iterations()) as u64);
+    let result = stylize_frame_map(padded, &loss, &regions, params, views, &mut |p| {
+        reporter.step(&format!(
+            "octave {}/{} iteration {}/{} loss {:.4e}",
+            p.octave + 1,
+            p.octaves,
+            p.iteration,
+            p.iterations,
+            p.loss
+        ))
+    })?;
+    reporter.end();
+    if result.density.data.iter().any(|v| !v.is_finite()) {
+        bail!("stylization produced non-finite densities (try a smaller --lr)");
+    }
+    if let Some(path) = &s.preview {
+        let plain = ViewLoss::new(vgg, &pictures[0], &s.style_spec())?;
+        let h = PREVIEW_HEIGHT;
+        let guide = map_picture(padded, &regions, &views[0])?;
+        let mut panels = vec![
+            resize_to_height(&display(&plain, padded, &views[0])?, h),
+            resize_to_height(&guide, h),
+            resize_to_height(&display(&plain, &result.density, &views[0])?, h),
+        ];
+        panels.extend(pictures.iter().map(|p| resize_to_height(p, h)));
+        write_png(path, &side_by_side(&panels.iter().collect::<Vec<_>>()))?;
+    }
+    let density = result.density.clone();
+    Ok((result, density))
+}
+
+/// The map as a grey picture from `view`: each pixel's region index,
+/// weighted by the region's share of its light, over the number of
+/// regions less one (so a two-painting blend shows its weight), as RGB.
+pub fn map_picture(d: &Grid3, regions: &[Grid3], view: &ViewSpec) -> Result<Image> {
+    let g = nst3d_stylize::region_guides(d, regions, view)?;
+    let (n, plane) = (regions.len(), g.plane());
+    let top = (n.max(2) - 1) as f32;
+    let grey: Vec<f32> =
+        (0..plane).map(|p| (0..n).map(|r| r as f32 * g.data[r * plane + p]).sum::<f32>() / top).collect();
+    let grey = Image::from_vec(1, g.height, g.width, grey);
+    Ok(nst3d_render::upsample2x(&nst3d_stylize::view::grey_to_rgb(&grey)))
+}
+
 /// The views of `--eval-cameras` around the padded grid (none without).
 fn held_out_views(s: &VolumeSettings, padded: &Grid3) -> Result<Vec<ViewSpec>> {
     Ok(match &s.eval_cameras {
@@ -237,6 +308,20 @@ pub fn stylize_grid(
     transform: &Transform,
     origin: [i32; 3],
     name: &str,
+    reporter: &mut dyn Reporter,
+) -> Result<StylizedGrid> {
+    stylize_grid_in(s, dense, transform, origin, name, None, reporter)
+}
+
+/// [`stylize_grid`] of a grid read from `input` (the file and its path),
+/// where a `--style-map NAME` finds its grid.
+fn stylize_grid_in(
+    s: &VolumeSettings,
+    dense: Grid3,
+    transform: &Transform,
+    origin: [i32; 3],
+    name: &str,
+    input: Option<(&VdbFile, &Path)>,
     reporter: &mut dyn Reporter,
 ) -> Result<StylizedGrid> {
     s.check()?;
@@ -281,6 +366,29 @@ pub fn stylize_grid(
     };
     let color_iterations = if s.color { color_params.iterations } else { 0 };
     let held_out = held_out_views(s, &padded)?;
+    if s.style_map.is_some() {
+        let at = MapBox {
+            dims: padded.dims,
+            origin: padded_origin,
+            transform: &transform,
+            inner: ([margin; 3], dims),
+            up: s.up,
+        };
+        let (result, density) = stylize_mapped(s, &vgg, &padded, &at, input, (&params, &views), reporter)?;
+        return Ok(StylizedGrid {
+            cameras: views.len(),
+            loss_before: result.loss_before,
+            loss_after: result.loss_after,
+            density,
+            color: None,
+            margin,
+            upsample: k,
+            dims,
+            origin,
+            transform,
+            held_out: None,
+        });
+    }
 
     reporter.begin((s.octaves() * s.iterations() + color_iterations) as u64);
     let result = stylize_frame_views(&padded, &loss, &params, &views, &mut |p| {

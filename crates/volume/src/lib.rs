@@ -29,6 +29,7 @@ pub mod sequence;
 pub mod settings;
 pub mod simulation;
 pub mod style;
+pub mod style_map;
 pub mod summary;
 pub mod upsample;
 

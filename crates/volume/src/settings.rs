@@ -20,6 +20,16 @@ pub struct VolumeSettings {
     pub input: PathBuf,
     /// Style painting (PNG or JPEG).
     pub style: PathBuf,
+    /// Further paintings after `style`, for a style map: with
+    /// [`VolumeSettings::style_map`] each owns the region the map gives it.
+    pub more_styles: Vec<PathBuf>,
+    /// Where each painting goes ([`crate::style_map::MapSource`]): a grid of
+    /// the input (`NAME`), of another file (`FILE.vdb:NAME`), or `@height`
+    /// / `@height-split`. A float map blends two paintings (0: `style`, 1:
+    /// the first of `more_styles`).
+    pub style_map: Option<String>,
+    /// The map's values are labels: `k` picks painting `k` (0 is `style`).
+    pub style_map_labels: bool,
     /// Output OpenVDB file (a pattern for a sequence), written atomically.
     pub out: PathBuf,
     /// Before | after | painting preview PNG (single frames).
@@ -148,6 +158,9 @@ impl VolumeSettings {
         Self {
             input: input.into(),
             style: style.into(),
+            more_styles: Vec::new(),
+            style_map: None,
+            style_map_labels: false,
             out: out.into(),
             preview: None,
             grid: "density".into(),
@@ -227,9 +240,46 @@ impl VolumeSettings {
         if self.color && self.equalize {
             bail!("--color cannot be combined with --equalize (eq. 7 equalizes grey pictures)");
         }
+        self.check_style_map()?;
         let ema = self.sequence.as_ref().map_or(SequenceSettings::default().ema, |s| s.ema);
         if !(0.0..1.0).contains(&ema) {
             bail!("--ema must be in [0, 1), got {ema}");
+        }
+        Ok(())
+    }
+
+    /// The paintings in the map's order (`style`, then `more_styles`).
+    pub fn styles(&self) -> Vec<PathBuf> {
+        std::iter::once(self.style.clone()).chain(self.more_styles.iter().cloned()).collect()
+    }
+
+    /// A style map's settings fit together, before any file is read.
+    fn check_style_map(&self) -> Result<()> {
+        let n = 1 + self.more_styles.len();
+        let Some(map) = &self.style_map else {
+            if n > 1 {
+                bail!("{n} --style paintings need a --style-map saying where each goes");
+            }
+            if self.style_map_labels {
+                bail!("--style-map-labels needs a --style-map");
+            }
+            return Ok(());
+        };
+        let source = crate::style_map::MapSource::parse(map)?;
+        if n < 2 {
+            bail!("--style-map needs at least two --style paintings (got one)");
+        }
+        if n > 2 && !source.labels(self.style_map_labels) {
+            bail!("a float --style-map blends two paintings, got {n}; pass --style-map-labels for a label map");
+        }
+        if self.color {
+            bail!("--color is not supported with --style-map yet");
+        }
+        if self.model.is_some() {
+            bail!("--style-map works with the optimisation, not with a trained --model (yet)");
+        }
+        if self.sequence.is_some() {
+            bail!("--style-map stylizes single frames for now, not --frames");
         }
         Ok(())
     }

@@ -20,9 +20,21 @@ pub struct VolumeArgs {
     /// Input OpenVDB file.
     #[arg(long)]
     pub input: PathBuf,
-    /// Style painting (PNG or JPEG); not needed with --model.
+    /// Style painting (PNG or JPEG); not needed with --model. Give it
+    /// several times with --style-map: each painting owns a region of the smoke.
     #[arg(long, required_unless_present = "model")]
-    pub style: Option<PathBuf>,
+    pub style: Vec<PathBuf>,
+    /// Where each --style goes: a float grid of the input (`NAME`) or of
+    /// another file (`FILE.vdb:NAME`), 0 the first painting and 1 the
+    /// second, blended between; or `@height` (0 at the smoke's bottom, 1 at
+    /// its top) or `@height-split` (labels: the lower half the first, the
+    /// upper half the second). Sampled in world space.
+    #[arg(long)]
+    pub style_map: Option<String>,
+    /// The --style-map's values are labels: 0 the first --style, 1 the
+    /// second, and so on (one painting per region, any number of them).
+    #[arg(long, requires = "style_map")]
+    pub style_map_labels: bool,
     /// Output OpenVDB file (written atomically).
     #[arg(long)]
     pub out: PathBuf,
@@ -187,7 +199,10 @@ impl VolumeArgs {
         });
         VolumeSettings {
             input: self.input,
-            style: self.style.unwrap_or_default(),
+            style: self.style.first().cloned().unwrap_or_default(),
+            more_styles: self.style.iter().skip(1).cloned().collect(),
+            style_map: self.style_map,
+            style_map_labels: self.style_map_labels,
             out: self.out,
             preview: self.preview,
             grid: self.grid,

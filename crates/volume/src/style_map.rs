@@ -1,0 +1,261 @@
+//! `--style-map`: where each of several paintings goes. A float map blends
+//! two paintings (0: the first `--style`, 1: the second); with
+//! `--style-map-labels` its values are labels, `k` picking the `k`-th
+//! painting. The map is a grid of the input (`NAME`), of another file
+//! (`FILE.vdb:NAME`), or a built-in height ramp over the smoke's box
+//! (`@height`, soft, or `@height-split`, a label map cut at mid-height). A
+//! grid is sampled in world space, so its resolution and transform may
+//! differ from the density's: trilinear for a blend, nearest for labels.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use nst3d_core::Grid3;
+use nst3d_io::vdb::{read_vdb, Transform, VdbFile};
+
+use crate::settings::UpAxis;
+
+/// Where a map's values come from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum MapSource {
+    /// A grid of the input file.
+    Input(String),
+    /// A grid of another file.
+    File(PathBuf, String),
+    /// 0 at the bottom of the smoke's box to 1 at its top; `split`: a label
+    /// map, 0 below the middle and 1 above.
+    Height {
+        /// Hard labels instead of the soft ramp.
+        split: bool,
+    },
+}
+
+impl MapSource {
+    /// Parses `--style-map`.
+    pub fn parse(spec: &str) -> Result<Self> {
+        Ok(match spec {
+            "@height" => MapSource::Height { split: false },
+            "@height-split" => MapSource::Height { split: true },
+            s if s.starts_with('@') => bail!("--style-map '{s}': the built-in maps are @height and @height-split"),
+            s => match s.rsplit_once(':') {
+                Some((file, name)) if file.ends_with(".vdb") && !name.is_empty() => {
+                    MapSource::File(file.into(), name.into())
+                }
+                _ if s.is_empty() => bail!("--style-map is empty"),
+                _ => MapSource::Input(s.into()),
+            },
+        })
+    }
+
+    /// Whether the map's values are labels.
+    pub fn labels(&self, flag: bool) -> bool {
+        flag || matches!(self, MapSource::Height { split: true })
+    }
+}
+
+/// A map grid ready to sample at world positions.
+struct Sampled {
+    values: Grid3,
+    origin: [i32; 3],
+    world_to_index: [[f64; 4]; 3],
+}
+
+/// The inverse of an affine index-to-world matrix, as its top three rows.
+fn invert(t: &Transform) -> Result<[[f64; 4]; 3]> {
+    let m = &t.index_to_world;
+    let a = |r: usize, c: usize| m[r][c];
+    let det = a(0, 0) * (a(1, 1) * a(2, 2) - a(1, 2) * a(2, 1)) - a(0, 1) * (a(1, 0) * a(2, 2) - a(1, 2) * a(2, 0))
+        + a(0, 2) * (a(1, 0) * a(2, 1) - a(1, 1) * a(2, 0));
+    if !(det.abs() > 1e-300) {
+        bail!("the style map's transform is singular");
+    }
+    let mut inv = [[0.0; 4]; 3];
+    for r in 0..3 {
+        for c in 0..3 {
+            let (r1, r2, c1, c2) = ((c + 1) % 3, (c + 2) % 3, (r + 1) % 3, (r + 2) % 3);
+            inv[r][c] = (a(r1, c1) * a(r2, c2) - a(r1, c2) * a(r2, c1)) / det;
+        }
+    }
+    for r in 0..3 {
+        inv[r][3] = -(0..3).map(|c| inv[r][c] * m[c][3]).sum::<f64>();
+    }
+    Ok(inv)
+}
+
+impl Sampled {
+    fn value(&self, world: [f64; 3], nearest: bool) -> f32 {
+        let w = &self.world_to_index;
+        let p: [f64; 3] =
+            std::array::from_fn(|r| w[r][0] * world[0] + w[r][1] * world[1] + w[r][2] * world[2] + w[r][3]);
+        let local: [f64; 3] = std::array::from_fn(|a| p[a] - self.origin[a] as f64);
+        let at = |i: [i64; 3]| -> f32 {
+            let d = self.values.dims;
+            if (0..3).any(|a| i[a] < 0 || i[a] >= d[a] as i64) {
+                return 0.0;
+            }
+            self.values.data[self.values.index(i[0] as usize, i[1] as usize, i[2] as usize)]
+        };
+        if nearest {
+            return at(local.map(|x| x.round() as i64));
+        }
+        let base = local.map(|x| x.floor());
+        let mut v = 0.0;
+        for corner in 0..8 {
+            let mut wgt = 1.0;
+            let mut i = [0i64; 3];
+            for a in 0..3 {
+                let up = (corner >> a) & 1 == 1;
+                let f = local[a] - base[a];
+                wgt *= if up { f } else { 1.0 - f };
+                i[a] = base[a] as i64 + up as i64;
+            }
+            v += wgt as f32 * at(i);
+        }
+        v
+    }
+}
+
+/// A grid of `file` (a float grid) as a sampler; `what` names the file in messages.
+fn grid_of(file: &VdbFile, name: &str, what: &Path) -> Result<Sampled> {
+    let grid = file.grid(name).with_context(|| {
+        let names: Vec<&str> = file.grids.iter().map(|g| g.name.as_str()).collect();
+        format!("--style-map: {} has no grid named '{name}' (grids: {})", what.display(), names.join(", "))
+    })?;
+    let (bx, values) = grid
+        .to_dense()
+        .with_context(|| format!("--style-map: grid '{name}' of {} is not a float grid", what.display()))?;
+    Ok(Sampled { values, origin: bx.origin, world_to_index: invert(&grid.transform)? })
+}
+
+/// The map's value at every voxel of a box of `dims` voxels whose voxel
+/// (0,0,0) is index `origin` under `transform` (the density's, after any
+/// refinement and padding); `input` is the input's file for
+/// [`MapSource::Input`]; `inner` is the smoke's own box within it (origin
+/// offset and size), which a height ramp spans.
+pub struct MapBox<'a> {
+    /// Voxels of the box.
+    pub dims: [usize; 3],
+    /// Index of its voxel (0,0,0).
+    pub origin: [i32; 3],
+    /// Its index-to-world transform.
+    pub transform: &'a Transform,
+    /// The smoke's box inside it: offset and size in voxels.
+    pub inner: ([usize; 3], [usize; 3]),
+    /// Which index axis is up.
+    pub up: UpAxis,
+}
+
+/// The map sampled on `b` (see [`MapSource`]), labels rounded where `nearest`.
+pub fn sample(source: &MapSource, input: Option<(&VdbFile, &Path)>, b: &MapBox, nearest: bool) -> Result<Grid3> {
+    let mut out = Grid3::zeros(b.dims);
+    if let MapSource::Height { split } = source {
+        let axis = match b.up {
+            UpAxis::Y => 1,
+            UpAxis::Z => 2,
+        };
+        let (off, size) = (b.inner.0[axis] as f32, b.inner.1[axis].max(2) as f32);
+        for z in 0..b.dims[2] {
+            for y in 0..b.dims[1] {
+                for x in 0..b.dims[0] {
+                    let h = (([x, y, z][axis] as f32 - off) / (size - 1.0)).clamp(0.0, 1.0);
+                    let i = out.index(x, y, z);
+                    out.data[i] = if *split { (h >= 0.5) as u8 as f32 } else { h };
+                }
+            }
+        }
+        return Ok(out);
+    }
+    let sampled = match source {
+        MapSource::Input(name) => {
+            let (file, path) = input.context("--style-map NAME reads a grid of the input file; pass FILE.vdb:NAME")?;
+            grid_of(file, name, path)?
+        }
+        MapSource::File(path, name) => grid_of(&read_vdb(path)?, name, path)?,
+        MapSource::Height { .. } => unreachable!("handled above"),
+    };
+    for z in 0..b.dims[2] {
+        for y in 0..b.dims[1] {
+            for x in 0..b.dims[0] {
+                let ijk = [x as i32 + b.origin[0], y as i32 + b.origin[1], z as i32 + b.origin[2]];
+                let world = b.transform.index_to_world(ijk.map(|v| v as f64));
+                let i = out.index(x, y, z);
+                out.data[i] = sampled.value(world, nearest);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// One weight grid per painting from the sampled map: a blend of two
+/// (`1 − m`, `m`, the map clamped to [0, 1]) or labels (one-hot of the
+/// rounded value). A label that is not the index of a painting, where
+/// there is smoke, is an error.
+pub fn regions(map: &Grid3, density: &Grid3, paintings: usize, labels: bool) -> Result<Vec<Grid3>> {
+    let mut out = vec![Grid3::zeros(map.dims); paintings];
+    for (i, &m) in map.data.iter().enumerate() {
+        if !m.is_finite() {
+            bail!("--style-map holds a non-finite value ({m})");
+        }
+        if labels {
+            let k = m.round();
+            if k < 0.0 || k >= paintings as f32 || (m - k).abs() > 0.01 {
+                if density.data[i] > 0.0 {
+                    bail!(
+                        "--style-map label {m} is not one of the {paintings} paintings (labels 0 to {})",
+                        paintings - 1
+                    );
+                }
+                out[0].data[i] = 1.0;
+                continue;
+            }
+            out[k as usize].data[i] = 1.0;
+        } else {
+            let m = m.clamp(0.0, 1.0);
+            out[0].data[i] = 1.0 - m;
+            out[1].data[i] = m;
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_every_kind() {
+        assert_eq!(MapSource::parse("temperature").unwrap(), MapSource::Input("temperature".into()));
+        assert_eq!(MapSource::parse("m.vdb:mask").unwrap(), MapSource::File("m.vdb".into(), "mask".into()));
+        assert_eq!(MapSource::parse("@height").unwrap(), MapSource::Height { split: false });
+        assert!(MapSource::parse("@nope").is_err());
+    }
+
+    /// A map on a grid twice as coarse, shifted, is sampled where the
+    /// density's voxels are in the world.
+    #[test]
+    fn samples_in_world_space() {
+        // Map: value = its index x, voxel size 2, translated by 1 along x.
+        let mut values = Grid3::zeros([8, 2, 2]);
+        for i in 0..values.len() {
+            values.data[i] = (i % 8) as f32;
+        }
+        let mt = Transform::scale_translate([2.0; 3], [1.0, 0.0, 0.0]);
+        let s = Sampled { values, origin: [0; 3], world_to_index: invert(&mt).unwrap() };
+        // Density voxel x sits at world x; the map's index there is (x - 1) / 2.
+        for x in [3.0, 5.0, 8.0] {
+            assert!((s.value([x, 0.0, 0.0], false) - (x as f32 - 1.0) / 2.0).abs() < 1e-5);
+        }
+        assert_eq!(s.value([6.2, 0.0, 0.0], true), 3.0);
+    }
+
+    #[test]
+    fn labels_outside_the_paintings_are_errors() {
+        let d = Grid3::from_vec([3, 1, 1], vec![1.0, 1.0, 0.0]);
+        let r = regions(&Grid3::from_vec([3, 1, 1], vec![0.0, 1.0, 7.0]), &d, 2, true).unwrap();
+        assert_eq!((r[0].data.clone(), r[1].data.clone()), (vec![1.0, 0.0, 1.0], vec![0.0, 1.0, 0.0]));
+        let e = regions(&Grid3::from_vec([3, 1, 1], vec![0.0, 2.0, 0.0]), &d, 2, true).unwrap_err();
+        assert!(e.to_string().contains("label 2"), "{e}");
+        let r = regions(&Grid3::from_vec([3, 1, 1], vec![0.25, 2.0, -1.0]), &d, 2, false).unwrap();
+        assert_eq!(r[1].data, vec![0.25, 1.0, 0.0]);
+    }
+}
