@@ -500,6 +500,26 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     train_on(&Solo, s, reporter)
 }
 
+/// Rank 0 takes the job's lock (two blades training one model would
+/// interleave their checkpoints; rank 0 alone writes them) and resumes the
+/// checkpoint it finds; the other ranks hold neither.
+fn begin_job(
+    team: &dyn Team,
+    s: &TrainSettings,
+    ckpt: &Path,
+    trainer: &mut TrainStep,
+    reporter: &mut dyn Reporter,
+) -> Result<(Option<Resume>, Option<Resumed>)> {
+    let job = distributed::on_rank0(team, || {
+        Resume::begin(ckpt, StateFiles::new(job_id(s)?, "delete it to start over")).map_err(anyhow::Error::msg)
+    })?;
+    let resumed = distributed::on_rank0(team, || match &job {
+        Some(job) => resume(trainer, (ckpt, job.files()), s, reporter),
+        None => Ok(None),
+    })?;
+    Ok((job, resumed.flatten()))
+}
+
 /// [`train`] as one rank of `team` (every rank calls it with the same
 /// settings; rank 0 reports and writes, see [`crate::distributed`]).
 pub fn train_on(team: &dyn Team, s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainReport> {
@@ -518,18 +538,10 @@ pub fn train_on(team: &dyn Team, s: &TrainSettings, reporter: &mut dyn Reporter)
     let mut rng = SplitMix64::new(s.seed ^ 0x7261_696e);
     let (mut losses, mut lrs) = (Vec::new(), Vec::new());
     let ckpt = checkpoint_path(&s.out);
-    // Two blades training one model would interleave their checkpoints
-    // (rank 0 alone takes the lock and writes them).
-    let job = distributed::on_rank0(team, || {
-        Resume::begin(&ckpt, StateFiles::new(job_id(s)?, "delete it to start over")).map_err(anyhow::Error::msg)
-    })?;
+    let (job, resumed) = begin_job(team, s, &ckpt, &mut trainer, reporter)?;
     // Training time of earlier calls; the budget is the run's, not the call's.
     let mut elapsed_before = 0.0f64;
-    let resumed = distributed::on_rank0(team, || match &job {
-        Some(job) => resume(&mut trainer, (&ckpt, job.files()), s, reporter),
-        None => Ok(None),
-    })?;
-    if let Some(r) = resumed.flatten() {
+    if let Some(r) = resumed {
         (rng, losses, lrs, elapsed_before) = (r.rng, r.losses, r.lrs, r.elapsed_before);
         (pacing.sizing, pacing.paced) = (false, r.paced);
     }

@@ -313,6 +313,85 @@ pub fn stylize_grid(
     stylize_grid_in(s, dense, transform, origin, name, None, reporter)
 }
 
+/// A frame's grid made ready to stylize: refined, padded, with its cameras.
+struct Prepared {
+    /// The refined density plus `margin` empty voxels on every side.
+    padded: Grid3,
+    padded_origin: [i32; 3],
+    transform: Transform,
+    origin: [i32; 3],
+    /// The refined box's size without the margin.
+    dims: [usize; 3],
+    margin: usize,
+    upsample: usize,
+    vmax: f32,
+    gamma: f32,
+    views: Vec<ViewSpec>,
+}
+
+/// Checks `dense`, refines and pads it and places the cameras on it.
+fn prepare(
+    s: &VolumeSettings,
+    dense: Grid3,
+    transform: &Transform,
+    origin: [i32; 3],
+    name: &str,
+    reporter: &mut dyn Reporter,
+) -> Result<Prepared> {
+    s.check()?;
+    if dense.is_empty() || dense.data.iter().all(|v| *v == 0.0) {
+        bail!("grid '{name}' is empty: there is no smoke to stylize");
+    }
+    if let Some(v) = dense.data.iter().find(|v| !v.is_finite()) {
+        bail!("grid '{name}' holds a non-finite density ({v})");
+    }
+    let upsample = s.upsample.factor(dense.dims);
+    VolumeSettings::check_memory(dense.dims.map(|d| d * upsample), false)?;
+    let (dense, transform, origin) = refine(dense, upsample, transform, origin, name, reporter)?;
+    let dims = dense.dims;
+    let vmax = s.vmax_for(*dims.iter().max().unwrap_or(&1));
+    let margin = s.margin(vmax);
+    let padded = pad(&dense, margin);
+    let padded_origin = origin.map(|o| o - margin as i32);
+    let cameras = Cameras::of(s)?.at(0.0, padded.dims, &transform, padded_origin);
+    let gamma = absorption_for(s.absorption, cameras.iter().map(|c| (&padded, c)))?;
+    let views = views_of(&cameras, gamma, s.equalize);
+    Ok(Prepared { padded, padded_origin, transform, origin, dims, margin, upsample, vmax, gamma, views })
+}
+
+/// [`stylize_grid_in`] with several paintings, each where the style map
+/// puts it.
+fn stylize_grid_mapped(
+    s: &VolumeSettings,
+    vgg: &nst3d_features::Vgg19,
+    p: Prepared,
+    input: Option<(&VdbFile, &Path)>,
+    reporter: &mut dyn Reporter,
+) -> Result<StylizedGrid> {
+    let params = s.frame_params(p.vmax, &p.views[0]);
+    let at = MapBox {
+        dims: p.padded.dims,
+        origin: p.padded_origin,
+        transform: &p.transform,
+        inner: ([p.margin; 3], p.dims),
+        up: s.up,
+    };
+    let (result, density) = stylize_mapped(s, vgg, &p.padded, &at, input, (&params, &p.views), reporter)?;
+    Ok(StylizedGrid {
+        cameras: p.views.len(),
+        loss_before: result.loss_before,
+        loss_after: result.loss_after,
+        density,
+        color: None,
+        margin: p.margin,
+        upsample: p.upsample,
+        dims: p.dims,
+        origin: p.origin,
+        transform: p.transform,
+        held_out: None,
+    })
+}
+
 /// [`stylize_grid`] of a grid read from `input` (the file and its path),
 /// where a `--style-map NAME` finds its grid.
 fn stylize_grid_in(
@@ -324,27 +403,12 @@ fn stylize_grid_in(
     input: Option<(&VdbFile, &Path)>,
     reporter: &mut dyn Reporter,
 ) -> Result<StylizedGrid> {
-    s.check()?;
-    if dense.is_empty() || dense.data.iter().all(|v| *v == 0.0) {
-        bail!("grid '{name}' is empty: there is no smoke to stylize");
-    }
-    if let Some(v) = dense.data.iter().find(|v| !v.is_finite()) {
-        bail!("grid '{name}' holds a non-finite density ({v})");
-    }
-    let dims = dense.dims;
-    let k = s.upsample.factor(dims);
-    VolumeSettings::check_memory(dims.map(|d| d * k), false)?;
-    let (dense, transform, origin) = refine(dense, k, transform, origin, name, reporter)?;
-    let dims = dense.dims;
+    let p = prepare(s, dense, transform, origin, name, reporter)?;
     let (style, vgg) = load_style_and_vgg(s)?;
-
-    let vmax = s.vmax_for(*dims.iter().max().unwrap_or(&1));
-    let margin = s.margin(vmax);
-    let padded = pad(&dense, margin);
-    let padded_origin = origin.map(|o| o - margin as i32);
-    let cameras = Cameras::of(s)?.at(0.0, padded.dims, &transform, padded_origin);
-    let gamma = absorption_for(s.absorption, cameras.iter().map(|c| (&padded, c)))?;
-    let views = views_of(&cameras, gamma, s.equalize);
+    if s.style_map.is_some() {
+        return stylize_grid_mapped(s, &vgg, p, input, reporter);
+    }
+    let Prepared { padded, transform, origin, dims, margin, upsample: k, vmax, gamma, views, .. } = p;
     let view = views[0].clone();
     // The density follows the grey loss whether or not colour follows.
     let grey_style = match s.color {
@@ -366,29 +430,6 @@ fn stylize_grid_in(
     };
     let color_iterations = if s.color { color_params.iterations } else { 0 };
     let held_out = held_out_views(s, &padded)?;
-    if s.style_map.is_some() {
-        let at = MapBox {
-            dims: padded.dims,
-            origin: padded_origin,
-            transform: &transform,
-            inner: ([margin; 3], dims),
-            up: s.up,
-        };
-        let (result, density) = stylize_mapped(s, &vgg, &padded, &at, input, (&params, &views), reporter)?;
-        return Ok(StylizedGrid {
-            cameras: views.len(),
-            loss_before: result.loss_before,
-            loss_after: result.loss_after,
-            density,
-            color: None,
-            margin,
-            upsample: k,
-            dims,
-            origin,
-            transform,
-            held_out: None,
-        });
-    }
 
     reporter.begin((s.octaves() * s.iterations() + color_iterations) as u64);
     let result = stylize_frame_views(&padded, &loss, &params, &views, &mut |p| {

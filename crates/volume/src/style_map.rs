@@ -7,13 +7,12 @@
 //! grid is sampled in world space, so its resolution and transform may
 //! differ from the density's: trilinear for a blend, nearest for labels.
 
+use nst3d_core::UpAxis;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use nst3d_core::Grid3;
 use nst3d_io::vdb::{read_vdb, Transform, VdbFile};
-
-use crate::settings::UpAxis;
 
 /// Where a map's values come from.
 #[derive(Clone, Debug, PartialEq)]
