@@ -16,9 +16,25 @@ use nst3d_volume::look::{absorption_for, views_of};
 use nst3d_volume::style_map::{regions, sample, MapBox, MapSource};
 use nst3d_volume::{CameraSet, Lens, UpAxis, VolumeSettings};
 
-fn dense(path: &Path) -> Result<Grid3> {
+/// The result's density over the input's box (`origin`, `dims`), so every
+/// file is rendered on the same lattice.
+fn dense(path: &Path, origin: [i32; 3], dims: [usize; 3]) -> Result<Grid3> {
     let f = read_vdb(path)?;
-    Ok(f.grid("density").context("no density grid")?.to_dense()?.1)
+    let (bx, g) = f.grid("density").context("no density grid")?.to_dense()?;
+    let mut out = Grid3::zeros(dims);
+    for z in 0..g.dims[2] {
+        for y in 0..g.dims[1] {
+            for x in 0..g.dims[0] {
+                let p = [x, y, z].map(|v| v as i64);
+                let q: [i64; 3] = std::array::from_fn(|a| p[a] + (bx.origin[a] - origin[a]) as i64);
+                if (0..3).all(|a| q[a] >= 0 && q[a] < dims[a] as i64) {
+                    let i = out.index(q[0] as usize, q[1] as usize, q[2] as usize);
+                    out.data[i] = g.data[g.index(x, y, z)];
+                }
+            }
+        }
+    }
+    Ok(out)
 }
 
 fn main() -> Result<()> {
@@ -45,7 +61,7 @@ fn main() -> Result<()> {
     }
     let judge = MapLoss::new(losses);
     for result in &a[7..] {
-        let r = dense(Path::new(result))?;
+        let r = dense(Path::new(result), bx.origin, d.dims)?;
         let mut sums = [[0.0f64; 2]; 2];
         let mut counts = [0usize; 2];
         for v in &views {
