@@ -1,8 +1,9 @@
 """Data-parallel training over MPI (docs/guide/farm.md), with the MPI-enabled
 binary tools/build_mpi.sh builds: `mpirun -n 2` trains the same model as
 one rank with the same global batch; a run started on 2 ranks resumes on 1;
-the multi-node Slurm script runs with 2 tasks, and a requeue mid-run stops
-every rank cleanly (rank 0 checkpoints) and resumes. Tiny patches and
+the multi-node Slurm script runs with 2 tasks, and the time limit's warning
+signal mid-run stops every rank cleanly (rank 0 checkpoints) and the
+requeued job resumes. Tiny patches and
 networks: seconds of training. Missing tools or data fail loudly."""
 
 import json
@@ -107,7 +108,7 @@ def sbatch_train(tmp_path, out, steps, *extra):
                           env=env, cwd=tmp_path, check=True, capture_output=True, text=True).stdout.strip()
 
 
-def test_slurm_trains_on_two_tasks_and_a_requeue_resumes(tmp_path, tmp_path_factory):
+def test_slurm_trains_on_two_tasks_and_a_stopped_job_resumes(tmp_path, tmp_path_factory):
     need(NST3D_MPI)
     script = (REPO / "farm" / "slurm" / "nst3d-train.sbatch").read_text()
     for line in ("--requeue", "--signal=TERM@60", "--nodes=", "--ntasks-per-node=", "--cpus-per-task="):
@@ -122,9 +123,10 @@ def test_slurm_trains_on_two_tasks_and_a_requeue_resumes(tmp_path, tmp_path_fact
     # --cpus-per-task=1 became --threads 1: the one-rank run's model.
     assert difference(one, out) <= TOLERANCE
 
-    # Requeued mid-run: Slurm sends every rank SIGTERM, they stop after the
-    # same step, rank 0 checkpoints; the restart resumes and ends with the
-    # model of an uninterrupted run.
+    # The time limit's warning mid-run (--signal=TERM@60 signals the ranks,
+    # not srun; `scancel --signal=TERM` does the same at once): the ranks
+    # stop after the same step, rank 0 checkpoints, the job ends. Requeued,
+    # it resumes and ends with the model of an uninterrupted run.
     steps = 300
     whole = one_rank(tmp_path_factory, steps)
     out2 = tmp_path / "b" / "m.safetensors"
@@ -134,6 +136,15 @@ def test_slurm_trains_on_two_tasks_and_a_requeue_resumes(tmp_path, tmp_path_fact
     t0 = time.time()
     while not (log2.exists() and f"step 20/{steps}" in log2.read_text()):
         assert time.time() - t0 < 300, "the job never reached step 20"
+        time.sleep(0.2)
+    subprocess.run(["scancel", "--signal=TERM", job2], check=True)
+    wait_for(job2)
+    text = log2.read_text()
+    assert "stopped by SIGTERM" in text and f"trained {steps} of" not in text, text[-3000:]
+    # The stopped job's step daemons gone first: a restart at once can meet
+    # the old step's of the same number still closing, and fail to launch.
+    while subprocess.run(["pgrep", "-f", f"slurmstepd: \\[{job2}\\."], capture_output=True).returncode == 0:
+        assert time.time() - t0 < 300, "the stopped job's steps never ended"
         time.sleep(0.2)
     subprocess.run(["scontrol", "requeue", job2], check=True)
     # A requeued job waits two minutes before it may start again; the test
@@ -145,7 +156,6 @@ def test_slurm_trains_on_two_tasks_and_a_requeue_resumes(tmp_path, tmp_path_fact
     subprocess.run(["scontrol", "update", f"JobId={job2}", "StartTime=now"], check=True)
     wait_for(job2)
     text = log2.read_text()
-    assert "restart 1" in text, text[-3000:]
-    assert "stopped by SIGTERM" in text and "resuming at step" in text, text[-3000:]
+    assert "restart 1" in text and "resuming at step" in text, text[-3000:]
     assert text.count(f"trained {steps} of {steps} steps") == 1, text[-3000:]
     assert difference(whole, out2) <= TOLERANCE

@@ -176,9 +176,9 @@ pub fn share_start(team: &dyn Team, trainer: &mut TrainStep, rng: &mut SplitMix6
 }
 
 /// After a step: rank 0's pacing of the schedule and its `out_of_time`
-/// to every rank; returns whether any rank was asked to stop (and asks
-/// this thread's job to stop if so, so every rank ends with `Interrupted`
-/// after the same step).
+/// to every rank; returns whether any rank was asked to stop, the same on
+/// every rank, so all of them stop after this step. (A rank must act on
+/// this answer, not on its own flag again: a signal can arrive in between.)
 pub fn follow_rank0(team: &dyn Team, trainer: &mut TrainStep, out_of_time: &mut bool) -> bool {
     if team.size() == 1 {
         return nst3d_core::stop::requested();
@@ -190,9 +190,6 @@ pub fn follow_rank0(team: &dyn Team, trainer: &mut TrainStep, out_of_time: &mut 
     *out_of_time = words[2] != 0;
     let mut stop = [nst3d_core::stop::requested() as u8 as f64];
     team.max_f64(&mut stop);
-    if stop[0] > 0.0 {
-        nst3d_core::stop::request();
-    }
     stop[0] > 0.0
 }
 

@@ -601,7 +601,11 @@ pub fn train_on(team: &dyn Team, s: &TrainSettings, reporter: &mut dyn Reporter)
                 write_outputs(s, &trainer, (&losses, &lrs), &style_sha, [style_img.width, style_img.height])
             })?;
         }
-        nst3d_core::stop::check()?;
+        // The stop the ranks agreed on: a signal arriving after it is taken
+        // at the next step by every rank alike.
+        if stop {
+            return Err(nst3d_core::stop::Interrupted.into());
+        }
         if out_of_time {
             break;
         }
