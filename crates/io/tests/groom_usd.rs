@@ -336,3 +336,31 @@ fn every_value_type_survives_a_crate_file() {
     }
     assert_eq!(back.usd_primvars.primvars.len(), primvars.len());
 }
+
+/// A reference that cannot be followed (a missing asset beside the
+/// groom) is a note and the curves are read; one that loops on itself
+/// fails in one line.
+#[test]
+fn arcs_that_cannot_be_followed_are_notes_and_cycles_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let hair = "def BasisCurves \"Hair\"\n{\n    int[] curveVertexCounts = [2]\n    \
+                point3f[] points = [(0, 0, 0), (0, 1, 0)]\n}\n";
+    let shot = tmp.path().join("shot.usda");
+    std::fs::write(
+        &shot,
+        format!("#usda 1.0\n\ndef Xform \"Head\" (\n    references = @head.usdc@</Head>\n)\n{{\n}}\n{hair}"),
+    )
+    .unwrap();
+    let read = read_groom_file(&shot).unwrap();
+    assert_eq!(read.groom.point_count(), 2);
+    assert_eq!(read.usd_primvars.dropped.len(), 1, "{:?}", read.usd_primvars.dropped);
+    assert!(read.usd_primvars.dropped[0].contains("@head.usdc@") && read.usd_primvars.dropped[0].contains("Head"));
+    let looped = tmp.path().join("loop.usda");
+    std::fs::write(
+        &looped,
+        format!("#usda 1.0\n\ndef Xform \"X\" (\n    references = @loop.usda@</X>\n)\n{{\n}}\n{hair}"),
+    )
+    .unwrap();
+    let e = read_groom_file(&looped).unwrap_err().to_string();
+    assert!(e.lines().count() == 1 && e.contains("cycle"), "{e}");
+}
