@@ -500,6 +500,17 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     train_on(&Solo, s, reporter)
 }
 
+/// A fresh network and its optimiser on the provisional schedule.
+fn new_trainer(s: &TrainSettings) -> TrainStep {
+    let stylization =
+        if s.velocity { Stylization::Velocity { vmax: 0.04 * s.patch as f32 } } else { Stylization::Density };
+    let net = FeedForward::new(s.channels, stylization.channels(), s.seed);
+    let planned = s.steps.unwrap_or(DEFAULT_STEPS);
+    let mut trainer = TrainStep::new(net, stylization, OneCycle::new(1e-4, planned, 20.0));
+    trainer.octaves = s.octaves;
+    trainer
+}
+
 /// Rank 0 takes the job's lock (two blades training one model would
 /// interleave their checkpoints; rank 0 alone writes them) and resumes the
 /// checkpoint it finds; the other ranks hold neither.
@@ -525,16 +536,11 @@ fn begin_job(
 pub fn train_on(team: &dyn Team, s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainReport> {
     let Inputs { frames, style_img, style_sha, vgg } = distributed::agree(team, load_inputs(s, team))?;
     let loss = distributed::agree(team, ViewLoss::new(&vgg, &style_img, &StyleSpec::default()).map_err(Into::into))?;
-    let stylization =
-        if s.velocity { Stylization::Velocity { vmax: 0.04 * s.patch as f32 } } else { Stylization::Density };
-    let net = FeedForward::new(s.channels, stylization.channels(), s.seed);
     // Given only a budget, the schedule is sized after the first steps are
     // timed; until then it is provisionally the default one (the first steps
     // of any OneCycle sit at its initial rate, so the switch is seamless).
     let mut pacing = Pacing { sizing: s.steps.is_none() && s.minutes.is_some(), paced: false, step_s: 0.0 };
-    let planned = s.steps.unwrap_or(DEFAULT_STEPS);
-    let mut trainer = TrainStep::new(net, stylization, OneCycle::new(1e-4, planned, 20.0));
-    trainer.octaves = s.octaves;
+    let mut trainer = new_trainer(s);
     let mut rng = SplitMix64::new(s.seed ^ 0x7261_696e);
     let (mut losses, mut lrs) = (Vec::new(), Vec::new());
     let ckpt = checkpoint_path(&s.out);
@@ -554,7 +560,7 @@ pub fn train_on(team: &dyn Team, s: &TrainSettings, reporter: &mut dyn Reporter)
     // and the judges draw: grey = γ Σ d τ ≈ the ray's opacity, in [0, 1)
     // like the painting. (Exposure 1, the benchmark's, drew dense smoke up
     // to 1/γ = P/8 times too bright for VGG — 4 at the default patch — and
-    // the network learned its look on pictures nobody sees; until 2026-11-26.)
+    // the network learned its look on pictures nobody sees.)
     let gamma = 8.0 / s.patch as f32;
     let view = ViewSpec { camera: None, gamma, exposure: gamma, equalize: false };
     let t0 = Instant::now();
