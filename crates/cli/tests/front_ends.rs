@@ -134,7 +134,9 @@ const PAIRINGS: &[Pairing] = &[
         python: "stylize_vdb",
         rust: "apply_volume",
         not_options: &["input", "out", "style", "progress", "projection"],
-        cli_only: &[],
+        // Style maps (several paintings, each where a grid puts it) are the
+        // command line's alone until the Python package takes a map.
+        cli_only: &["style_map", "style_map_labels"],
         // The old name of `camera`, still accepted with a DeprecationWarning.
         python_only: &["projection"],
     },
@@ -165,6 +167,8 @@ const PAIRINGS: &[Pairing] = &[
             "force",
             "work_dir",
             "camera_file",
+            "style_map",
+            "style_map_labels",
         ],
         python_only: &["density", "report", "projection"],
     },
