@@ -241,16 +241,7 @@ fn stylize_mapped(
     }
     let loss = MapLoss::new(losses);
     reporter.begin((s.octaves() * s.iterations()) as u64);
-    let result = stylize_frame_map(padded, &loss, &regions, params, views, &mut |p| {
-        reporter.step(&format!(
-            "octave {}/{} iteration {}/{} loss {:.4e}",
-            p.octave + 1,
-            p.octaves,
-            p.iteration,
-            p.iterations,
-            p.loss
-        ))
-    })?;
+    let result = stylize_frame_map(padded, &loss, &regions, params, views, &mut |p| reporter.step(&progress_line(p)))?;
     reporter.end();
     if result.density.data.iter().any(|v| !v.is_finite()) {
         bail!("stylization produced non-finite densities (try a smaller --lr)");
@@ -311,6 +302,11 @@ pub fn stylize_grid(
     reporter: &mut dyn Reporter,
 ) -> Result<StylizedGrid> {
     stylize_grid_in(s, dense, transform, origin, name, None, reporter)
+}
+
+/// The progress bar's line for one optimisation iteration.
+fn progress_line(p: &nst3d_stylize::Progress) -> String {
+    format!("octave {}/{} iteration {}/{} loss {:.4e}", p.octave + 1, p.octaves, p.iteration, p.iterations, p.loss)
 }
 
 /// A frame's grid made ready to stylize: refined, padded, with its cameras.
@@ -432,16 +428,7 @@ fn stylize_grid_in(
     let held_out = held_out_views(s, &padded)?;
 
     reporter.begin((s.octaves() * s.iterations() + color_iterations) as u64);
-    let result = stylize_frame_views(&padded, &loss, &params, &views, &mut |p| {
-        reporter.step(&format!(
-            "octave {}/{} iteration {}/{} loss {:.4e}",
-            p.octave + 1,
-            p.octaves,
-            p.iteration,
-            p.iterations,
-            p.loss
-        ))
-    })?;
+    let result = stylize_frame_views(&padded, &loss, &params, &views, &mut |p| reporter.step(&progress_line(p)))?;
     if result.density.data.iter().any(|v| !v.is_finite()) {
         bail!("stylization produced non-finite densities (try a smaller --lr)");
     }
