@@ -9,6 +9,7 @@ networks: seconds of training. Missing tools or data fail loudly."""
 import json
 import os
 import pathlib
+import re
 import struct
 import subprocess
 import time
@@ -127,20 +128,26 @@ def test_slurm_trains_on_two_tasks_and_a_stopped_job_resumes(tmp_path, tmp_path_
     # not srun; `scancel --signal=TERM` does the same at once): the ranks
     # stop after the same step, rank 0 checkpoints, the job ends. Requeued,
     # it resumes and ends with the model of an uninterrupted run.
-    steps = 150
+    # Enough steps that the signal lands mid-run on a fast machine too: a
+    # CI machine trained 150 steps in 6 s, faster than the log's step line
+    # and the signal's way through Slurm.
+    steps = 400
     whole = one_rank(tmp_path_factory, steps)
     out2 = tmp_path / "b" / "m.safetensors"
     out2.parent.mkdir()
     job2 = sbatch_train(tmp_path, out2, steps)
     log2 = tmp_path / f"nst3d-train-{job2}.log"
     t0 = time.time()
-    while not (log2.exists() and f"step 15/{steps}" in log2.read_text()):
-        assert time.time() - t0 < 300, "the job never reached step 15"
-        time.sleep(0.2)
+    while not (log2.exists() and f"step 3/{steps}" in log2.read_text()):
+        assert time.time() - t0 < 300, "the job never reached step 3"
+        time.sleep(0.05)
     subprocess.run(["scancel", "--signal=TERM", job2], check=True)
+    seen = time.time()
     wait_for(job2)
     text = log2.read_text()
     assert "stopped by SIGTERM" in text and f"trained {steps} of" not in text, text[-3000:]
+    last = max(int(m) for m in re.findall(rf"step (\d+)/{steps}", text))
+    print(f"signalled at step 3, stopped after step {last} ({time.time() - seen:.1f} s to the job's end)")
     # The stopped job's step daemons gone first: a restart at once can meet
     # the old step's of the same number still closing, and fail to launch.
     while subprocess.run(["pgrep", "-f", f"slurmstepd: \\[{job2}\\."], capture_output=True).returncode == 0:
