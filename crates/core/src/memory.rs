@@ -78,6 +78,20 @@ pub fn check_fits(needed: u64, what: &str, lower: &str) -> Result<(), String> {
     }
 }
 
+/// Peak resident memory of this process in MiB (Linux `VmHWM`), for the
+/// benchmarks' memory comparison with their PyTorch peers; 0 where the
+/// kernel does not say.
+pub fn peak_rss_mb() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1).and_then(|kb| kb.parse::<f64>().ok()))
+        })
+        .map_or(0.0, |kb| kb / 1024.0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -6,7 +6,8 @@
 //! changed job never resumes a stale one ([`job_fingerprint`], [`JobId`]),
 //! the one format every job saves its state in ([`State`]) and how a job
 //! starts: lock, then resume from its own state or start afresh
-//! ([`Resume`], [`StateFiles`]).
+//! ([`Resume`], [`StateFiles`]), and how a farm's stop signal reaches it
+//! ([`signals`]).
 //!
 //! The volume, groom and training jobs use it; none of them needs the
 //! others' optimisers to get a lock or a frame list.
@@ -17,6 +18,7 @@ pub mod fingerprint;
 pub mod frames;
 pub mod lock;
 pub mod resume;
+pub mod signals;
 pub mod state;
 
 pub use fingerprint::{default_work_dir, job_fingerprint, settings_key, JobId};

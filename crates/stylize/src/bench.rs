@@ -10,6 +10,7 @@ use nst3d_optim::Adam;
 use nst3d_transport as transport;
 
 use crate::field::{Field, Mode};
+use crate::guided::{carried_regions, MapLoss};
 use crate::view::{StyleSpec, ViewLoss, ViewSpec};
 
 /// Median as Python's `statistics.median` computes it, so our figures and
@@ -55,15 +56,27 @@ pub fn synthetic_smoke(n: usize, seed: u64) -> Grid3 {
 /// Gram MSE loss on relu1_1..relu4_1, backward to the field, one Adam step
 /// (lr 0.01 in the peer's normalised units) and the density-mode clamp.
 pub fn volume_iter(n: usize, mode: Mode, iters: usize) -> BenchReport {
-    volume_iter_with(n, mode, iters, false)
+    volume_iter_with(n, mode, iters, Look::Grey)
 }
 
-/// [`volume_iter`] with colour when `color`: the same work, but
-/// the view renders emission–absorption in RGB from the chroma layer
-/// ([`crate::color`]), VGG-19 sees the colour picture, and the backward
-/// also steps the three raw colour channels — what `--color` adds to an
-/// iteration, to set against the grey one.
-pub fn volume_iter_with(n: usize, mode: Mode, iters: usize, color: bool) -> BenchReport {
+/// What a [`volume_iter_with`] iteration adds to the grey one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Look {
+    /// The peer's iteration.
+    Grey,
+    /// `--color`: the view renders emission–absorption in RGB from the
+    /// chroma layer ([`crate::color`]), VGG-19 sees the colour picture, and
+    /// the backward also steps the three raw colour channels.
+    Color,
+    /// `--style-map`: two paintings, each over one half of the smoke (split
+    /// at mid-height), scored by the guided Gram loss ([`crate::guided`])
+    /// with the regions carried by the field.
+    StyleMap,
+}
+
+/// [`volume_iter`] with what `look` adds to an iteration, to set against
+/// the grey one.
+pub fn volume_iter_with(n: usize, mode: Mode, iters: usize, look: Look) -> BenchReport {
     let d = synthetic_smoke(n, 0);
     // The peer uses a randomly initialised torchvision VGG: the work does not
     // depend on the weight values.
@@ -72,6 +85,14 @@ pub fn volume_iter_with(n: usize, mode: Mode, iters: usize, color: bool) -> Benc
         Image::from_vec(3, 2 * n, 2 * n, pseudo_random(3 * 4 * n * n, 7).iter().map(|v| 0.5 * (v + 1.0)).collect());
     let loss = ViewLoss::new(&vgg, &style, &StyleSpec::default()).expect("default style layers are valid");
     let view = ViewSpec { camera: None, gamma: 8.0 / n as f32, exposure: 1.0, equalize: false };
+    let second =
+        Image::from_vec(3, 2 * n, 2 * n, pseudo_random(3 * 4 * n * n, 8).iter().map(|v| 0.5 * (v + 1.0)).collect());
+    let map_loss = MapLoss::new(vec![
+        ViewLoss::new(&vgg, &style, &StyleSpec::default()).expect("default style layers are valid"),
+        ViewLoss::new(&vgg, &second, &StyleSpec::default()).expect("default style layers are valid"),
+    ]);
+    let upper = Grid3::from_vec(d.dims, (0..d.len()).map(|i| (i / (n * n) >= n / 2) as u8 as f32).collect());
+    let regions = [Grid3::from_vec(d.dims, upper.data.iter().map(|u| 1.0 - u).collect()), upper];
     let mut field = Field::identity(mode, d.len());
     // The peer's velocity lives in grid_sample's [-1, 1] coordinates; ours
     // is in voxels, so the same step is (N-1)/2 times larger here.
@@ -87,7 +108,10 @@ pub fn volume_iter_with(n: usize, mode: Mode, iters: usize, color: bool) -> Benc
     for it in 0..=iters {
         let t0 = Instant::now();
         let (dstar, tape) = field.forward(&d);
-        let (l, grad_dstar) = if color {
+        let (l, grad_dstar) = if look == Look::StyleMap {
+            let moved = carried_regions(&field, &regions);
+            map_loss.loss_and_grad(&dstar, &moved, &view).expect("the benchmark view renders")
+        } else if look == Look::Color {
             let (c, tape) = crate::color::chroma(&crate::color::raw_of(&raw), d.dims, crate::color::SMOOTH_PASSES);
             let (l, g, gc) = loss.loss_and_grad_color(&dstar, &c, &view).expect("the benchmark view renders");
             let grad_raw = crate::color::chroma_backward(&tape, &gc);

@@ -134,7 +134,7 @@ pub fn stylize_frame_views(
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<FrameResult, ViewError> {
     let views = if views.is_empty() { std::slice::from_ref(&params.view) } else { views };
-    let mut score = |_: usize, _: &Field, dstar: &Grid3, view: &ViewSpec| loss.loss_and_grad(dstar, view);
+    let mut score = |_: usize, _: usize, _: &Field, dstar: &Grid3, view: &ViewSpec| loss.loss_and_grad(dstar, view);
     let (field, density) = optimise(d, params, views, &mut score, progress)?;
     let (mut loss_before, mut loss_after) = (0.0, 0.0);
     for view in views {
@@ -162,9 +162,15 @@ pub fn stylize_frame_map(
     assert_eq!(regions.len(), loss.regions(), "one region per painting");
     let octaves = pyramid(d, params.octaves.max(1)).len();
     let pyramids: Vec<Vec<Grid3>> = regions.iter().map(|r| pyramid(r, octaves)).collect();
-    let mut score = |level: usize, f: &Field, dstar: &Grid3, view: &ViewSpec| {
-        let here: Vec<Grid3> = pyramids.iter().map(|p| p[level].clone()).collect();
-        loss.loss_and_grad(dstar, &carried_regions(f, &here), view)
+    // The regions as this iteration's field carries them, made once for
+    // all the iteration's views (keyed by octave and iteration).
+    let mut carried: Option<((usize, usize), Vec<Grid3>)> = None;
+    let mut score = |level: usize, step: usize, f: &Field, dstar: &Grid3, view: &ViewSpec| {
+        if carried.as_ref().is_none_or(|(key, _)| *key != (level, step)) {
+            let here: Vec<Grid3> = pyramids.iter().map(|p| p[level].clone()).collect();
+            carried = Some(((level, step), carried_regions(f, &here)));
+        }
+        loss.loss_and_grad(dstar, &carried.as_ref().expect("made above").1, view)
     };
     let (field, density) = optimise(d, params, views, &mut score, progress)?;
     let moved = carried_regions(&field, regions);
@@ -177,8 +183,9 @@ pub fn stylize_frame_map(
 }
 
 /// One view's loss and gradient w.r.t. the transported density at pyramid
-/// level `level` (0 = full resolution) for the field that transported it.
-type Score<'s> = dyn FnMut(usize, &Field, &Grid3, &ViewSpec) -> Result<(f32, Grid3), ViewError> + 's;
+/// level `level` (0 = full resolution) and iteration `step` of that level,
+/// for the field that transported it.
+type Score<'s> = dyn FnMut(usize, usize, &Field, &Grid3, &ViewSpec) -> Result<(f32, Grid3), ViewError> + 's;
 
 /// The multi-octave Adam loop: returns the field at full resolution and the
 /// density it transports.
@@ -211,7 +218,7 @@ fn optimise(
             let mut grad_dstar = Grid3::zeros(level.dims);
             let add = |acc: &mut Grid3, g: &Grid3| acc.data.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
             for view in &level_views {
-                let (lv, gv) = score(octaves - 1 - k, &f, &dstar, view)?;
+                let (lv, gv) = score(octaves - 1 - k, it, &f, &dstar, view)?;
                 l += lv;
                 add(&mut grad_dstar, &gv);
             }

@@ -40,6 +40,7 @@ use crate::axes::{Axis, ViewAxes};
 use crate::patch::PatchDraw;
 use crate::step::{PatchGradient, TrainStep};
 
+pub mod launch;
 #[cfg(feature = "mpi")]
 pub mod mpi_team;
 

@@ -23,7 +23,7 @@ use anyhow::{anyhow, bail, Result};
 use nst3d_core::{Grid3, Reporter, UpAxis};
 use nst3d_features::Vgg19;
 use nst3d_io::vdb::{read_vdb, DenseBox, Transform};
-use nst3d_stylize::{StyleSpec, ViewLoss};
+use nst3d_stylize::{StyleSpec, ViewLoss, ViewSpec};
 
 use crate::cameras::{CameraSet, Lens};
 use crate::dense::{color_grid, color_in_box, in_box, pad, union_box, DenseColor};
@@ -38,6 +38,8 @@ const MARGIN: usize = 4;
 pub struct JudgeSettings {
     /// The painting.
     pub style: PathBuf,
+    /// Further paintings, for a style map's judge ([`crate::judge_map`]).
+    pub more_styles: Vec<PathBuf>,
     /// Every result is compared with this file (the input, or another result).
     pub baseline: PathBuf,
     /// The files judged.
@@ -74,6 +76,7 @@ impl JudgeSettings {
     pub fn new(style: impl Into<PathBuf>, baseline: impl Into<PathBuf>, results: Vec<PathBuf>) -> Self {
         Self {
             style: style.into(),
+            more_styles: Vec::new(),
             baseline: baseline.into(),
             results,
             cameras: "ring:8:30".into(),
@@ -88,9 +91,21 @@ impl JudgeSettings {
     }
 }
 
+impl JudgeSettings {
+    /// `style`, then `more_styles`.
+    pub fn styles(&self) -> Vec<PathBuf> {
+        std::iter::once(self.style.clone()).chain(self.more_styles.iter().cloned()).collect()
+    }
+}
+
 /// Per view, loss(result) / loss(baseline).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Ratios(pub Vec<f32>);
+
+/// Per view, `a / b`; 1 where the baseline scores 0 (a view with no smoke).
+pub(crate) fn ratio(a: &[f32], b: &[f32]) -> Ratios {
+    Ratios(a.iter().zip(b).map(|(a, b)| if *b > 0.0 { a / b } else { 1.0 }).collect())
+}
 
 impl Ratios {
     /// The largest ratio: the view that moved least towards the painting.
@@ -159,8 +174,23 @@ fn refine(f: Loaded, k: usize) -> Result<Loaded> {
     Ok(Loaded { density, color, transform: refine_transform(&f.transform, k) })
 }
 
-/// Judges every result against the baseline; `reporter` sees one step per file.
-pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdict>> {
+/// Every file (the baseline first) in one shared box, padded, with the
+/// cameras and absorption every file is seen with.
+pub(crate) struct Scene {
+    /// Density, and colour where the file has it, per file.
+    pub files: Vec<(Grid3, Option<Vec<Grid3>>)>,
+    /// Index of the padded box's voxel (0,0,0) under `transform`.
+    pub origin: [i32; 3],
+    /// The finest file's index-to-world transform.
+    pub transform: Transform,
+    /// The union of the files' boxes inside the padded box: offset, size.
+    pub inner: ([usize; 3], [usize; 3]),
+    /// The held-out views.
+    pub views: Vec<ViewSpec>,
+}
+
+/// Loads the baseline and the results into one [`Scene`].
+pub(crate) fn scene(s: &JudgeSettings) -> Result<Scene> {
     if s.results.is_empty() {
         bail!("nothing to judge: give at least one result file after the baseline");
     }
@@ -197,7 +227,24 @@ pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdi
         let c = f.color.as_ref().map(|c| color_in_box(Some(c), &bx).iter().map(|g| pad(g, MARGIN)).collect::<Vec<_>>());
         (d, c)
     };
+    let boxed_files: Vec<_> = files.iter().map(boxed).collect();
+    let base = &boxed_files[0].0;
+    // The volume job's lens (projection, field of view), around this up axis.
+    let lens = Lens { up: s.up, ..Lens::of(&crate::VolumeSettings::new("", "", "")) };
+    let cams = CameraSet::parse(&s.cameras)?.cameras(&lens, base.dims);
+    let gamma = absorption_for(s.absorption, cams.iter().map(|c| (base, c)))?;
+    Ok(Scene {
+        origin: bx.origin.map(|o| o - MARGIN as i32),
+        transform: files[0].transform.clone(),
+        inner: ([MARGIN; 3], bx.dims),
+        views: views_of(&cams, gamma, false),
+        files: boxed_files,
+    })
+}
 
+/// Judges every result against the baseline; `reporter` sees one step per file.
+pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdict>> {
+    let scene = scene(s)?;
     let vgg = Vgg19::load(s.weights.as_deref())?;
     let painting = nst3d_io::image::load_style(&s.style, s.style_scale)?;
     let grey_loss = ViewLoss::new(&vgg, &painting.luminance3(), &s.spec)?;
@@ -205,17 +252,10 @@ pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdi
         true => Some(ViewLoss::new(&vgg, &painting, &s.spec)?),
         false => None,
     };
-    let (base, _) = boxed(&files[0]);
-    // The volume job's lens (projection, field of view), around this up axis.
-    let lens = Lens { up: s.up, ..Lens::of(&crate::VolumeSettings::new("", "", "")) };
-    let cams = CameraSet::parse(&s.cameras)?.cameras(&lens, base.dims);
-    let gamma = absorption_for(s.absorption, cams.iter().map(|c| (&base, c)))?;
-    let views = views_of(&cams, gamma, false);
-
-    reporter.begin(files.len() as u64);
+    let views = &scene.views;
+    reporter.begin(scene.files.len() as u64);
     let mut scores = Vec::new();
-    for f in &files {
-        let (d, c) = boxed(f);
+    for (d, c) in scene.files {
         // A coloured file's grey look is its colour render's luminance.
         let grey: Vec<f32> = views
             .iter()
@@ -241,8 +281,6 @@ pub fn judge(s: &JudgeSettings, reporter: &mut dyn Reporter) -> Result<Vec<Verdi
         reporter.step("judged");
     }
     reporter.end();
-    let ratio =
-        |a: &[f32], b: &[f32]| Ratios(a.iter().zip(b).map(|(a, b)| if *b > 0.0 { a / b } else { 1.0 }).collect());
     let (base_grey, base_rgb) = &scores[0];
     Ok(s.results
         .iter()

@@ -1,18 +1,16 @@
-//! `nst3d train` alone or as one rank of an MPI job (`mpirun -n N`,
-//! `srun --mpi=pmix`). A binary built without the `mpi` feature refuses to
-//! run as several copies of one job, in one line, rather than train N
-//! models into one file. Under MPI every rank runs the same command; rank
-//! 0 reports, and a failure or a stop is said once, by the rank it
-//! concerns, while the others end quietly with the same exit status.
+//! One `nst3d train` process, alone or as one rank of an MPI job
+//! (`mpirun -n N`, `srun --mpi=pmix`). A build without the `mpi` feature
+//! refuses to run as several copies of one job, in one line, rather than
+//! train N models into one file. Under MPI every rank runs the same
+//! command; rank 0 reports, and a failure or a stop is said once, by the
+//! rank it concerns, while the others end quietly with the same exit
+//! status ([`Quiet`]).
 
 use anyhow::Result;
-use nst3d_train::distributed::{launched_as, Launch};
-use nst3d_train::{TrainReport, TrainSettings};
-
-#[cfg(feature = "mpi")]
 use nst3d_core::Reporter;
 
-use crate::console::Console;
+use super::{launched_as, Launch};
+use crate::{TrainReport, TrainSettings};
 
 /// An exit status with nothing to print: another rank says why.
 #[derive(Debug)]
@@ -27,20 +25,31 @@ impl std::fmt::Display for Quiet {
 impl std::error::Error for Quiet {}
 
 /// Trains with the settings `settings` builds: alone, or as one rank of
-/// the MPI job that started this process. The report on rank 0 (or alone),
-/// `None` on the other ranks.
-pub fn train(settings: impl FnOnce() -> Result<TrainSettings>) -> Result<Option<TrainReport>> {
+/// the MPI job that started this process. `reporter` is rank 0's (or the
+/// lone process's); `stop_signal` is the stop signal this process
+/// received, if any. The report on rank 0 (or alone), `None` on the other
+/// ranks.
+pub fn train_as_launched(
+    settings: impl FnOnce() -> Result<TrainSettings>,
+    reporter: &mut dyn Reporter,
+    stop_signal: fn() -> Option<i32>,
+) -> Result<Option<TrainReport>> {
     match launched_as() {
-        None => Ok(Some(nst3d_train::train(&settings()?, &mut Console::default())?)),
+        None => Ok(Some(crate::train(&settings()?, reporter)?)),
         Some(launch) if launch.rank != 0 && !(cfg!(feature = "mpi") && launch.mpi) => Err(Quiet(1).into()),
-        Some(launch) => as_rank(launch, settings),
+        Some(launch) => as_rank(launch, settings, reporter, stop_signal),
     }
 }
 
 /// Rank 0 of several processes a launcher started, with no MPI to join
 /// them (the others end quietly).
 #[cfg(not(feature = "mpi"))]
-fn as_rank(launch: Launch, _: impl FnOnce() -> Result<TrainSettings>) -> Result<Option<TrainReport>> {
+fn as_rank(
+    launch: Launch,
+    _: impl FnOnce() -> Result<TrainSettings>,
+    _: &mut dyn Reporter,
+    _: fn() -> Option<i32>,
+) -> Result<Option<TrainReport>> {
     anyhow::bail!(
         "this nst3d was built without MPI and was started as {} copies of one job: build it with MPI \
          (tools/build_mpi.sh, docs/guide/farm.md) or start one copy",
@@ -50,8 +59,13 @@ fn as_rank(launch: Launch, _: impl FnOnce() -> Result<TrainSettings>) -> Result<
 
 /// One rank of an MPI job.
 #[cfg(feature = "mpi")]
-fn as_rank(launch: Launch, settings: impl FnOnce() -> Result<TrainSettings>) -> Result<Option<TrainReport>> {
-    use nst3d_train::distributed::{agree, mpi_team::MpiTeam, Team};
+fn as_rank(
+    launch: Launch,
+    settings: impl FnOnce() -> Result<TrainSettings>,
+    reporter: &mut dyn Reporter,
+    stop_signal: fn() -> Option<i32>,
+) -> Result<Option<TrainReport>> {
+    use super::{agree, mpi_team::MpiTeam, Team};
     if !launch.mpi {
         anyhow::bail!(
             "srun started {} tasks without MPI's process manager: start them with `srun --mpi=pmix` \
@@ -73,8 +87,8 @@ fn as_rank(launch: Launch, settings: impl FnOnce() -> Result<TrainSettings>) -> 
     let _ = rayon::ThreadPoolBuilder::new().num_threads((cores / team.ranks_on_this_node()).max(1)).build_global();
     let rank = team.rank();
     let outcome = agree(&team, settings()).and_then(|s| {
-        let (mut console, mut silent) = (Console::default(), nst3d_core::Silent);
-        let reporter: &mut dyn Reporter = if rank == 0 { &mut console } else { &mut silent };
+        let mut silent = nst3d_core::Silent;
+        let reporter: &mut dyn Reporter = if rank == 0 { reporter } else { &mut silent };
         reporter.status(&format!(
             "nst3d: training on {} MPI ranks ({}), batch {}, {} threads a rank",
             team.size(),
@@ -82,24 +96,24 @@ fn as_rank(launch: Launch, settings: impl FnOnce() -> Result<TrainSettings>) -> 
             s.batch,
             rayon::current_num_threads()
         ));
-        nst3d_train::train_on(&team, &s, reporter)
+        crate::train_on(&team, &s, reporter)
     });
-    let outcome = said_once(rank, outcome);
+    let outcome = said_once(rank, outcome, stop_signal());
     // MPI_Finalize, which every rank reaches.
     drop(team);
     outcome.map(|r| (rank == 0).then_some(r))
 }
 
 /// A rank's outcome with the message said once: a failure by the rank that
-/// failed, a stop by rank 0.
+/// failed, a stop by rank 0 (`signal`: the stop signal this rank received).
 #[cfg(feature = "mpi")]
-fn said_once(rank: usize, outcome: Result<TrainReport>) -> Result<TrainReport> {
+fn said_once(rank: usize, outcome: Result<TrainReport>, signal: Option<i32>) -> Result<TrainReport> {
     use nst3d_core::stop::Interrupted;
     let e = match outcome {
         Ok(r) => return Ok(r),
         Err(e) => e,
     };
-    if e.is::<nst3d_train::distributed::RankFailed>() {
+    if e.is::<super::RankFailed>() {
         return Err(Quiet(1).into());
     }
     if !e.is::<Interrupted>() {
@@ -107,7 +121,7 @@ fn said_once(rank: usize, outcome: Result<TrainReport>) -> Result<TrainReport> {
     }
     // Every rank stopped after the same step; a signal may have reached
     // only some of them.
-    match (rank, crate::signals::received()) {
+    match (rank, signal) {
         (0, Some(_)) => Err(e),
         (0, None) => {
             eprintln!(
