@@ -366,7 +366,7 @@ pub fn style_loss_guided(
     if guides.len() != feats.len() {
         return Err(LossError::LayerCount { got: guides.len(), expected: feats.len() });
     }
-    // Per layer: the scale of every value, in `data`'s order.
+    // Per layer: the scale of each cell, `t_p √(P / Σ t²)`.
     let mut scales = Vec::with_capacity(feats.len());
     for (layer, (f, t)) in feats.iter().zip(guides).enumerate() {
         let area: f64 = t.iter().map(|&v| v as f64 * v as f64).sum();
@@ -374,23 +374,36 @@ pub fn style_loss_guided(
             return Err(LossError::EmptyLayer { layer, channels: f.channels, height: f.height, width: f.width });
         }
         let s = (f.pixels() as f64 / area).sqrt() as f32;
-        let (cs, ps) = f.strides();
-        let mut scale = vec![0.0f32; f.data.len()];
-        for (p, &v) in t.iter().enumerate().filter(|(_, &v)| v != 0.0) {
-            for c in 0..f.channels {
-                scale[c * cs + p * ps] = s * v;
-            }
-        }
-        scales.push(scale);
+        scales.push(t.iter().map(|v| v * s).collect::<Vec<f32>>());
     }
-    let guided: Vec<Vec<f32>> =
-        feats.iter().zip(&scales).map(|(f, s)| f.data.iter().zip(s).map(|(v, s)| v * s).collect()).collect();
+    let guided: Vec<Vec<f32>> = feats
+        .iter()
+        .zip(&scales)
+        .map(|(f, s)| {
+            let mut v = f.data.to_vec();
+            scale_cells(f, s, &mut v);
+            v
+        })
+        .collect();
     let views: Vec<FeatureView<'_>> = feats.iter().zip(&guided).map(|(f, d)| FeatureView { data: d, ..*f }).collect();
     let (loss, mut grads) = style_loss(&views, target)?;
-    for (g, s) in grads.iter_mut().zip(&scales) {
-        g.iter_mut().zip(s).for_each(|(g, s)| *g *= s);
+    for ((f, s), g) in feats.iter().zip(&scales).zip(&mut grads) {
+        scale_cells(f, s, g);
     }
     Ok((loss, grads))
+}
+
+/// Multiplies `values` (laid out as `f`'s features) cell by cell by
+/// `scale`, in place and in parallel: no scale per value, which cost an
+/// allocation and a pass the size of the features for every region.
+fn scale_cells(f: &FeatureView<'_>, scale: &[f32], values: &mut [f32]) {
+    use rayon::prelude::*;
+    match f.strides() {
+        // Planar: each channel's plane is one row of cells.
+        (_, 1) => values.par_chunks_mut(f.pixels()).for_each(|v| v.iter_mut().zip(scale).for_each(|(v, s)| *v *= s)),
+        // Channels last: each cell's channels are contiguous.
+        (_, c) => values.par_chunks_mut(c).zip(scale.par_iter()).for_each(|(v, s)| v.iter_mut().for_each(|v| *v *= s)),
+    }
 }
 
 #[cfg(test)]

@@ -20,8 +20,8 @@ pub use camera_file::{fov_y_from_lens, world_to_index, Aim, CameraFileError, Cam
 pub use equalize::{equalize, equalize_backward, EqCache, EqualizeParams};
 pub use march::{march, march_backward, march_emission, march_emission_backward};
 pub use render::{
-    march_color, march_color_backward, render, render_backward, render_color_backward, render_color_view, render_view,
-    ColorRenderCache, RenderCache,
+    march_color, march_color_backward, march_color_on, render, render_backward, render_color_backward,
+    render_color_view, render_view, ColorRenderCache, RenderCache,
 };
 pub use sphere::{min_angular_distance_deg, omniview, poisson_disk_sphere, ring, sphere_uniform};
 pub use upsample::{upsample2x, upsample2x_backward};

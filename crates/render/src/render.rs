@@ -160,6 +160,13 @@ pub fn render_color_view(
     Ok((img, ColorRenderCache { view, lattice, emission, gamma }))
 }
 
+/// [`render_color_view`]'s picture on the lattice a grey render of the same
+/// grid and view already made (`cache`): only the emissions are resampled.
+pub fn march_color_on(cache: &RenderCache, g: &Grid3, color: &[Grid3]) -> Image {
+    let emission: Vec<Grid3> = color.iter().map(|c| to_lattice(&premultiply(g, c), &cache.view)).collect();
+    march_emission(&cache.lattice, &emission, cache.gamma)
+}
+
 /// Backward of [`render_color_view`]: `(∂L/∂g, ∂L/∂color)`, through the
 /// march, the resampling's adjoint and the product `e = c · d`.
 ///

@@ -102,7 +102,9 @@ impl<'a> ViewLoss<'a> {
     pub fn loss_and_grad(&self, d: &Grid3, view: &ViewSpec) -> Result<(f32, Grid3), ViewError> {
         // The Gram loss reads the network's channels-last activations in
         // place and hands its gradients back in the same layout.
-        grey_loss_and_grad(self.vgg, &self.layers, d, view, &|feats| Ok(nst3d_loss::style_loss(feats, &self.target)?))
+        grey_loss_and_grad(self.vgg, &self.layers, d, view, &|feats, _| {
+            Ok(nst3d_loss::style_loss(feats, &self.target)?)
+        })
     }
 }
 
@@ -114,13 +116,13 @@ pub(crate) fn grey_loss_and_grad(
     layers: &[VggLayer],
     d: &Grid3,
     view: &ViewSpec,
-    gram: &dyn Fn(&[FeatureView]) -> Result<(f32, Vec<Vec<f32>>), ViewError>,
+    gram: &dyn Fn(&[FeatureView], Option<&render::RenderCache>) -> Result<(f32, Vec<Vec<f32>>), ViewError>,
 ) -> Result<(f32, Grid3), ViewError> {
     let (grey, trace) = grey(d, view)?;
     let rgb = grey_to_rgb(&render::upsample2x(&grey));
     let fwd = vgg.forward(&rgb, layers, true);
     let feats = fwd.features();
-    let (loss, tap_grads) = gram(&feats)?;
+    let (loss, tap_grads) = gram(&feats, trace.render_cache.as_ref())?;
     let grads: Vec<FeatureView> = feats.iter().zip(&tap_grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
     let grad_rgb = vgg.backward(&fwd, &grads);
 
