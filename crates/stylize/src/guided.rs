@@ -128,8 +128,7 @@ pub fn region_guides(d: &Grid3, regions: &[Grid3], view: &ViewSpec) -> Result<Im
 /// (`lattice`, where the view has a camera): the density is not resampled
 /// again, and the last region's light is the grey picture's less the
 /// others' (the regions sum to 1 per voxel), so two regions cost one
-/// emission resampled instead of three grids. It cost 0.3 of an
-/// iteration's time otherwise (docs/design/volumes.md).
+/// emission resampled instead of three grids (docs/design/volumes.md).
 pub fn region_guides_on(
     d: &Grid3,
     regions: &[Grid3],
