@@ -77,17 +77,7 @@ fn parse_precision(s: &str) -> Result<nst3d_core::precision::Precision, String> 
 }
 
 fn main() {
-    // A bug must still read as one line, not a backtrace, for an artist.
-    std::panic::set_hook(Box::new(|info| {
-        let msg = info
-            .payload()
-            .downcast_ref::<&str>()
-            .map(|s| s.to_string())
-            .or_else(|| info.payload().downcast_ref::<String>().cloned())
-            .unwrap_or_else(|| "unknown".into());
-        let at = info.location().map(|l| format!(" at {}:{}", l.file(), l.line())).unwrap_or_default();
-        eprintln!("nst3d: internal error: {msg}{at} (please report this)");
-    }));
+    nst3d_core::report::one_line_panics();
     keep_freed_pages();
     let cli = Cli::parse();
     // The docs test (crates/cli/tests/docs.rs) checks that every command

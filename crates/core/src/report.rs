@@ -44,6 +44,22 @@ pub struct Silent;
 
 impl Reporter for Silent {}
 
+/// Makes a panic (a bug) print one line, `nst3d: internal error: MESSAGE at
+/// FILE:LINE (please report this)`, instead of a backtrace an artist cannot
+/// act on.
+pub fn one_line_panics() {
+    std::panic::set_hook(Box::new(|info| {
+        let payload = info.payload();
+        let msg = payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown".into());
+        let at = info.location().map(|l| format!(" at {}:{}", l.file(), l.line())).unwrap_or_default();
+        eprintln!("nst3d: internal error: {msg}{at} (please report this)");
+    }));
+}
+
 /// An error and its causes on one line: the message a user sees (the
 /// command line after `nst3d: error:`, the Python package in its
 /// exception). Library errors often repeat their cause in their own
