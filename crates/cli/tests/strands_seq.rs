@@ -210,3 +210,41 @@ fn a_killed_sequence_resumes_after_its_last_finished_frame() {
     let redone = std::fs::read(dir.path().join("killed/fur_0004.ply")).unwrap();
     assert!(redone == std::fs::read(dir.path().join("clean/fur_0004.ply")).unwrap());
 }
+
+/// A generated grass patch stylized on its own ground moves: every blade's
+/// root normal is the ground's, perpendicular to the preset's front views,
+/// and Table 1's visibility threshold culled them all (loss unchanged,
+/// held-out loss NaN).
+#[test]
+fn grass_stylized_on_its_ground_moves() {
+    let dir = tempfile::tempdir().unwrap();
+    let style = shared("styles/starry_night.jpg");
+    ok(&nst3d(
+        dir.path(),
+        &["strands", "generate", "grass", "--strands", "200", "--out", "g.ply", "--mesh-out", "ground.ply"],
+    ));
+    let out = ok(&nst3d(
+        dir.path(),
+        &[
+            "strands",
+            "--groom",
+            "g.ply",
+            "--mesh",
+            "ground.ply",
+            "--preset",
+            "grass",
+            "--render-size",
+            "64",
+            "--iters",
+            "3",
+            "--style",
+            style.to_str().unwrap(),
+            "--out",
+            "o.ply",
+        ],
+    ));
+    assert!(!out.contains("NaN"), "{out}");
+    let (a, b) = (read_groom(&dir.path().join("g.ply")).unwrap(), read_groom(&dir.path().join("o.ply")).unwrap());
+    let moved = a.strands.iter().zip(&b.strands).any(|(s, t)| s.points.last() != t.points.last());
+    assert!(moved, "no blade moved: {out}");
+}
