@@ -85,14 +85,17 @@ pub fn volume_iter_with(n: usize, mode: Mode, iters: usize, look: Look) -> Bench
         Image::from_vec(3, 2 * n, 2 * n, pseudo_random(3 * 4 * n * n, 7).iter().map(|v| 0.5 * (v + 1.0)).collect());
     let loss = ViewLoss::new(&vgg, &style, &StyleSpec::default()).expect("default style layers are valid");
     let view = ViewSpec { camera: None, gamma: 8.0 / n as f32, exposure: 1.0, equalize: false };
-    let second =
-        Image::from_vec(3, 2 * n, 2 * n, pseudo_random(3 * 4 * n * n, 8).iter().map(|v| 0.5 * (v + 1.0)).collect());
-    let map_loss = MapLoss::new(vec![
-        ViewLoss::new(&vgg, &style, &StyleSpec::default()).expect("default style layers are valid"),
-        ViewLoss::new(&vgg, &second, &StyleSpec::default()).expect("default style layers are valid"),
-    ]);
-    let upper = Grid3::from_vec(d.dims, (0..d.len()).map(|i| (i / (n * n) >= n / 2) as u8 as f32).collect());
-    let regions = [Grid3::from_vec(d.dims, upper.data.iter().map(|u| 1.0 - u).collect()), upper];
+    // Only a style-map run builds the second painting's target and the halves.
+    let mapped = (look == Look::StyleMap).then(|| {
+        let second = pseudo_random(3 * 4 * n * n, 8).iter().map(|v| 0.5 * (v + 1.0)).collect();
+        let second = Image::from_vec(3, 2 * n, 2 * n, second);
+        let loss = MapLoss::new(vec![
+            ViewLoss::new(&vgg, &style, &StyleSpec::default()).expect("default style layers are valid"),
+            ViewLoss::new(&vgg, &second, &StyleSpec::default()).expect("default style layers are valid"),
+        ]);
+        let upper = Grid3::from_vec(d.dims, (0..d.len()).map(|i| (i / (n * n) >= n / 2) as u8 as f32).collect());
+        (loss, [Grid3::from_vec(d.dims, upper.data.iter().map(|u| 1.0 - u).collect()), upper])
+    });
     let mut field = Field::identity(mode, d.len());
     // The peer's velocity lives in grid_sample's [-1, 1] coordinates; ours
     // is in voxels, so the same step is (N-1)/2 times larger here.
@@ -108,8 +111,8 @@ pub fn volume_iter_with(n: usize, mode: Mode, iters: usize, look: Look) -> Bench
     for it in 0..=iters {
         let t0 = Instant::now();
         let (dstar, tape) = field.forward(&d);
-        let (l, grad_dstar) = if look == Look::StyleMap {
-            let moved = carried_regions(&field, &regions);
+        let (l, grad_dstar) = if let Some((map_loss, regions)) = &mapped {
+            let moved = carried_regions(&field, regions);
             map_loss.loss_and_grad(&dstar, &moved, &view).expect("the benchmark view renders")
         } else if look == Look::Color {
             let (c, tape) = crate::color::chroma(&crate::color::raw_of(&raw), d.dims, crate::color::SMOOTH_PASSES);

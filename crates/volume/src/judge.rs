@@ -89,9 +89,7 @@ impl JudgeSettings {
             absorption: None,
         }
     }
-}
 
-impl JudgeSettings {
     /// `style`, then `more_styles`.
     pub fn styles(&self) -> Vec<PathBuf> {
         std::iter::once(self.style.clone()).chain(self.more_styles.iter().cloned()).collect()
