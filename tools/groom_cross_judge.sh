@@ -5,8 +5,10 @@
 # Stylizes GROOM toward each geometric style of tools/strand_ref/styles.py
 # (stripes of two widths, a spiral, a triangle tessellation, checks), each
 # shared painting and a textureless grey ramp (the control), then judges
-# every result against every style with tools/strand_ref/judge.py, twice: a
-# VGG-19 Gram loss, and the distance between stroke-direction histograms, of
+# every result against every style with tools/strand_ref/judge.py, three
+# times: a VGG-19 Gram loss, the distance between stroke-direction
+# histograms, and the misalignment of the render's strokes with the style's
+# strokes laid over the hair's box as the orientation term lays them; each of
 # the hair's box in nine frontal views inside the preset's camera range (the
 # views the optimiser faced), as result / input. It then
 # checks every pair of styles A, B: the result toward A must be nearer A
@@ -59,9 +61,10 @@ done
 args=()
 for s in "${ALL[@]}"; do args+=(--result "$s=$OUT/$s.ply"); done
 for s in "${ALL[@]}"; do [ "$s" = ramp ] || args+=(--style "$s=$(style_of "$s")"); done
-# Two judges: the Gram loss (texture statistics) and the distance of the
-# stroke-direction histograms (which way the strands and strokes run).
-for judge in gram orient; do
+# Three judges: the Gram loss (texture statistics), the distance of the
+# stroke-direction histograms (which way the strands and strokes run) and
+# the strokes' misalignment in place (whether they run where the style's do).
+for judge in gram orient layout; do
   echo "== judge: $judge"
   "$PY" tools/strand_ref/judge.py --judge "$judge" --rest "$GROOM" "${args[@]}" --up "$UP" --ang "$ANGLE" --crop "${cull_args[@]}" \
     --painting-margin 0.05 --paintings "$(IFS=,; echo "${PAINTINGS[*]}")" \

@@ -61,6 +61,46 @@ def orient_dist(ha, hb):
     return 0.5 * float(np.abs(ha - hb).sum())
 
 
+def stroke_field(img, sigma=2.0, gate=None):
+    """Doubled-angle stroke field (c cos 2t, c sin 2t, c) of a grey image:
+    the structure tensor's minor eigenvector, weighted by coherence and, with
+    `gate`, by E/(E + (gate/h)^2) of the gradient energy (as nst3d's
+    orientation term weighs a painting's strokes)."""
+    a = img.numpy().astype(np.float64)
+    gy, gx = np.gradient(a)
+    from scipy.ndimage import gaussian_filter
+    jxx, jxy, jyy = (gaussian_filter(t, sigma) for t in (gx * gx, gx * gy, gy * gy))
+    tr = jxx + jyy
+    disc = np.sqrt((jxx - jyy) ** 2 + 4 * jxy ** 2)
+    c = (disc / (tr + 1e-12)) ** 2
+    c = c * (tr / (tr + (gate / a.shape[0]) ** 2) if gate else tr)
+    # the stroke runs across the gradient: angle of the minor eigenvector, doubled
+    t2 = np.arctan2(-2 * jxy, -(jxx - jyy))
+    return c * np.cos(t2), c * np.sin(t2), c
+
+
+def cover(img, h, w):
+    """The style laid over an h x w box as nst3d lays it: cover fit, centred."""
+    sh, sw = img.shape
+    k = max(h / sh, w / sw)
+    t = torch.nn.functional.interpolate(img[None, None], size=(max(h, round(sh * k)), max(w, round(sw * k))),
+                                        mode='bilinear', align_corners=False)[0, 0]
+    y0, x0 = (t.shape[0] - h) // 2, (t.shape[1] - w) // 2
+    return t[y0:y0 + h, x0:x0 + w]
+
+
+def layout_dist(render_field, style_img):
+    """Mean misalignment, 1/2 (1 - cos 2(phi - theta)), of the render's strokes
+    against the style's strokes laid over the same box, weighted by both
+    fields' coherence: 0 = every visible stroke along the style's, 0.5 = at
+    random, 1 = across."""
+    rc, rs, rw = render_field
+    h, w = rw.shape
+    sc, ss, sw = stroke_field(cover(style_img, h, w), gate=4.0)
+    num = (rw * sw - (rc * sc + rs * ss)).sum()
+    return float(0.5 * num / max((rw * sw).sum(), 1e-12))
+
+
 def edge_stats(img):
     """Share of edge energy at diagonal angles (30-60 and 120-150 degrees)."""
     a = img.numpy()
@@ -89,8 +129,9 @@ def main():
     ap.add_argument('--cull', type=float, default=None,
                     help='draw only strands whose root faces the camera (cos of the rest root direction and the '
                          'view >= CULL), as nst3d draws a groom on a mesh; default: every strand')
-    ap.add_argument('--judge', default='gram', choices=['gram', 'orient'],
-                    help='gram: VGG-19 Gram loss; orient: distance of stroke-direction histograms')
+    ap.add_argument('--judge', default='gram', choices=['gram', 'orient', 'layout'],
+                    help='gram: VGG-19 Gram loss; orient: distance of stroke-direction histograms; '
+                         'layout: stroke misalignment against the style laid over the hair box')
     a = ap.parse_args()
     rest = load(a.rest)
     results = [('rest', rest)] + [(r.split('=', 1)[0], load(r.split('=', 1)[1])) for r in a.result]
@@ -142,17 +183,24 @@ def main():
                 if ci == 0:
                     renders[name] = img
                 ed.append(edge_stats(img))
-                g = grams(img)
+                g = grams(img) if a.judge == 'gram' else None
                 oh = orient_hist(img)
-                for s, gs, _ in styles:
-                    per[s].append(gram_dist(g, gs) if a.judge == 'gram' else orient_dist(oh, shist[s]))
+                rf = stroke_field(img) if a.judge == 'layout' else None
+                for s, gs, simg in styles:
+                    if a.judge == 'gram':
+                        per[s].append(gram_dist(g, gs))
+                    elif a.judge == 'orient':
+                        per[s].append(orient_dist(oh, shist[s]))
+                    else:
+                        per[s].append(layout_dist(rf, simg))
             dist[name] = per
             edges[name] = float(np.median(ed))
     rel = {n: {s: float(np.median(np.array(dist[n][s]) / np.array(dist['rest'][s]))) for s, _, _ in styles}
            for n, _ in results}
     snames = [s for s, _, _ in styles]
     print('result / rest, %s, median of %d frontal views (lower = nearer the style)'
-          % ('Gram loss' if a.judge == 'gram' else 'stroke-direction histogram distance', len(cams)))
+          % ({'gram': 'Gram loss', 'orient': 'stroke-direction histogram distance',
+              'layout': 'stroke misalignment against the style laid over the hair'}[a.judge], len(cams)))
     print('%-12s' % 'toward' + ''.join(' | %-10s' % s for s in snames) + ' | diag-edge')
     for n, _ in results:
         print('%-12s' % n + ''.join(' | %-10.3f' % rel[n][s] for s in snames) + ' | %.2f' % edges[n])
