@@ -7,7 +7,7 @@ use anyhow::{bail, Context, Result};
 use nst3d_core::UpAxis;
 use nst3d_job::expand_pattern;
 use nst3d_strands::pipeline::StylizeParams;
-use nst3d_strands::{EmaClock, Preset, TemporalParams};
+use nst3d_strands::{EmaClock, Preset, TemporalParams, ORIENTATION_EMA_NU};
 
 /// Which temporal coherence an animated groom gets (Sec. 3.3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -105,8 +105,8 @@ pub struct StrandSettings {
     /// `None`: the preset's.
     pub field_neighbors: Option<usize>,
     /// Weight of the orientation term (`StylizeParams::orientation`); 0 runs
-    /// the paper's NNST loss alone; `None`: the preset's for a single
-    /// frame, 0 for a sequence (see [`StrandSettings::stylize_params`]).
+    /// the paper's NNST loss alone; `None`: the preset's. With it a
+    /// sequence's EMA period is at least [`ORIENTATION_EMA_NU`].
     pub orientation: Option<f32>,
     /// VGG-19 weights file; `None`: `$NST3D_VGG19`, else the user cache.
     pub weights: Option<PathBuf>,
@@ -276,14 +276,7 @@ impl StrandSettings {
         if let Some(k) = self.field_neighbors {
             params.preset.neighbors = k;
         }
-        // A sequence runs the paper's loss alone unless asked: with the
-        // orientation term the fur ball in the wind flickered more with
-        // EMA + 1€ than stylized frame by frame (1.24x), without it 0.41x.
-        params.orientation = match (self.orientation, &self.frames) {
-            (Some(w), _) => w,
-            (None, Some(_)) => 0.0,
-            (None, None) => params.orientation,
-        };
+        params.orientation = self.orientation.unwrap_or(params.orientation);
         // Every scale matches on the rest groom by default, as eq. 2 is
         // written: targets re-matched on the stylization so far feed its
         // gaps back into the targets, which gave every style the same
@@ -307,6 +300,11 @@ impl StrandSettings {
                 *dst = v;
             }
         };
+        // With the orientation term the EMA holds on to the previous
+        // frame's field longer ([`ORIENTATION_EMA_NU`]).
+        if self.orientation.unwrap_or(preset.orientation) > 0.0 {
+            t.ema_nu = t.ema_nu.max(ORIENTATION_EMA_NU);
+        }
         set(&mut t.ema_sigma, self.ema_sigma);
         set(&mut t.ema_nu, self.ema_nu);
         set(&mut t.blend_alpha, self.one_euro_alpha);
@@ -359,17 +357,23 @@ pub fn is_pattern(path: &Path) -> bool {
 mod tests {
     use super::*;
 
-    /// The orientation term is the preset's for one frame, off for a
-    /// sequence unless asked for, and what was asked for either way.
+    /// The orientation term is the preset's, for one frame or a sequence,
+    /// unless asked for; with it a sequence's EMA holds on longer, unless
+    /// `--ema-nu` says otherwise.
     #[test]
-    fn orientation_is_the_presets_for_a_frame_and_off_for_a_sequence() {
+    fn orientation_is_the_presets_and_holds_the_ema_in_a_sequence() {
         let mut s = StrandSettings::new("g.ply", "m.obj", "s.png", "o.ply");
         s.preset = Preset::FurBall;
         assert_eq!(s.stylize_params(10).orientation, 1.0);
         s.frames = Some("1-3".into());
+        assert_eq!(s.stylize_params(10).orientation, 1.0);
+        assert_eq!(s.temporal_params().0.ema_nu, ORIENTATION_EMA_NU);
+        s.orientation = Some(0.0);
         assert_eq!(s.stylize_params(10).orientation, 0.0);
+        assert_eq!(s.temporal_params().0.ema_nu, Preset::FurBall.params().temporal.unwrap().ema_nu);
         s.orientation = Some(0.5);
-        assert_eq!(s.stylize_params(10).orientation, 0.5);
+        s.ema_nu = Some(0.8);
+        assert_eq!(s.temporal_params().0.ema_nu, 0.8);
         s.preset = Preset::ShortHair;
         s.frames = None;
         s.orientation = None;

@@ -56,7 +56,7 @@ pub use densify::{densify, densify_weighted, DensifyParams, ProxyBlend};
 pub use field::{velocity_sample_indices, DeformationField, Kernel, RbfWeights, SampleDensity};
 pub use generators::{fur_ball, grass_patch, uv_sphere, FurBallParams, GrassParams, Wind};
 pub use kdtree::KdTree;
-pub use preset::{Preset, PresetParams, TemporalParams};
+pub use preset::{Preset, PresetParams, TemporalParams, ORIENTATION_EMA_NU};
 pub use sequence::{
     check_topology, EmaClock, Flow, FrameFlicker, FrameResult, SequenceError, SequenceParams, SequenceReport,
     SequenceStylizer,

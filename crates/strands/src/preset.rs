@@ -211,6 +211,18 @@ const BASE: PresetParams = PresetParams {
     collision_kappa: 0.5,
 };
 
+/// The EMA's decaying period `ν` of a sequence stylized with the orientation
+/// term, where the preset's is shorter. Table 1's periods (0.6 for the fur
+/// ball) let the field go from the previous frame's for the last 40 % of
+/// each scale's iterations; the term keeps combing through them, so the
+/// field grew frame over frame (the fur ball in the wind: the NNST loss of
+/// the output rose from 1.52e1 to 1.74e1 over 12 frames, and the sequence
+/// flickered 1.24× as much as frames stylized alone). With `ν = 3` the blend
+/// never lets go (`f` falls from 1 to 2/3 over a scale) and the same
+/// sequence flickered 0.3× per-frame at the per-frame loss
+/// (docs/design/strands.md).
+pub const ORIENTATION_EMA_NU: f32 = 3.0;
+
 const fn temporal(ema_nu: f32, blend_alpha: f32, beta: f32, min_cutoff_hz: f32) -> Option<TemporalParams> {
     Some(TemporalParams { ema_sigma: 1.0, ema_nu, blend_alpha, beta, min_cutoff_hz, fps: 24.0 })
 }

@@ -60,7 +60,8 @@ pub struct StrandsArgs {
     /// EMA coefficient σ (default: the preset's, Table 1).
     #[arg(long)]
     ema_sigma: Option<f32>,
-    /// EMA decaying period ν, as a fraction of the iterations (default: the preset's).
+    /// EMA decaying period ν, as a fraction of the iterations (default: the preset's, held
+    /// longer with the orientation term).
     #[arg(long)]
     ema_nu: Option<f32>,
     /// What the EMA's iteration count m runs over: each `scale` (Alg. 1's
@@ -130,8 +131,8 @@ pub struct StrandsArgs {
     field_neighbors: Option<usize>,
     /// Weight of the orientation term: the painting's stroke directions as targets for
     /// the strands' directions, relative to the NNST loss (0: the paper's NNST alone;
-    /// default: the preset's, 1 for fur-ball and long-hair, 0 for the others and for --frames,
-    /// where it flickers more).
+    /// default: the preset's, 1 for fur-ball and long-hair, 0 for the others; with --frames
+    /// it makes the EMA hold on to the previous frame's field longer, see --ema-nu).
     #[arg(long)]
     orientation: Option<f32>,
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).
