@@ -11,7 +11,8 @@
 
 use nst3d_core::Grid3;
 use nst3d_optim::Adam;
-use nst3d_stylize::{color, Field, FrameParams, ViewError, ViewLoss, ViewSpec};
+use nst3d_stylize::guided::carried_regions;
+use nst3d_stylize::{color, Field, FrameParams, MapLoss, ViewError, ViewLoss, ViewSpec};
 use nst3d_transport as transport;
 
 /// Why a sequence could not be stylised.
@@ -205,13 +206,65 @@ pub struct SweepProgress {
     pub loss: f32,
 }
 
-/// A frame's density at octave `level` (0 = full resolution).
-fn density_at(sim: &dyn Simulation, t: usize, level: usize) -> Result<Grid3, SequenceError> {
-    let mut d = sim.density(t)?;
+/// Frame `t`'s region weights of a style map over the common domain at
+/// full resolution, one grid per painting summing to 1 per voxel, given
+/// the frame's density there (a label map checks its labels where there is
+/// smoke).
+pub type RegionsOf<'a> = dyn Fn(usize, &Grid3) -> Result<Vec<Grid3>, SequenceError> + 'a;
+
+/// What every frame is stylized toward: one painting over the whole
+/// picture (the paper's case), or a style map's paintings, each over its
+/// region of the frame (guided Gram loss, [`nst3d_stylize::guided`]), the
+/// regions read per frame.
+#[derive(Clone, Copy)]
+pub enum Paintings<'a> {
+    /// One painting everywhere.
+    One(&'a ViewLoss<'a>),
+    /// Several paintings and where each goes, frame by frame.
+    Map(&'a MapLoss<'a>, &'a RegionsOf<'a>),
+}
+
+impl<'a> From<&'a ViewLoss<'a>> for Paintings<'a> {
+    fn from(loss: &'a ViewLoss<'a>) -> Self {
+        Paintings::One(loss)
+    }
+}
+
+impl Paintings<'_> {
+    /// Frame `t`'s regions at octave `level` as `field` carries them (the
+    /// guides follow the smoke, as in a single frame); none for one
+    /// painting. `full`: the frame's density at full resolution.
+    fn regions_at(&self, t: usize, full: &Grid3, level: usize, field: &Field) -> Result<Vec<Grid3>, SequenceError> {
+        let Paintings::Map(_, regions_of) = self else { return Ok(Vec::new()) };
+        let here: Vec<Grid3> = regions_of(t, full)?.into_iter().map(|r| downsample(r, level)).collect();
+        Ok(carried_regions(field, &here))
+    }
+
+    /// One view's loss of the transported density `dstar` and its gradient
+    /// (`regions`: the frame's, carried by its field; unused by one painting).
+    pub fn loss_and_grad(&self, dstar: &Grid3, regions: &[Grid3], view: &ViewSpec) -> Result<(f32, Grid3), ViewError> {
+        match self {
+            Paintings::One(loss) => loss.loss_and_grad(dstar, view),
+            Paintings::Map(loss, _) => loss.loss_and_grad(dstar, regions, view),
+        }
+    }
+
+    /// One view's loss of `d` without gradient (`regions` as in
+    /// [`Paintings::loss_and_grad`]).
+    pub fn loss(&self, d: &Grid3, regions: &[Grid3], view: &ViewSpec) -> Result<f32, ViewError> {
+        match self {
+            Paintings::One(loss) => loss.loss(d, view),
+            Paintings::Map(loss, _) => loss.loss(d, regions, view),
+        }
+    }
+}
+
+/// `d` box-filtered down `level` octaves, as the single-frame pyramid is.
+fn downsample(mut d: Grid3, level: usize) -> Grid3 {
     for _ in 0..level {
         d = transport::downsample2(&d);
     }
-    Ok(d)
+    d
 }
 
 /// A frame's simulation velocity at octave `level`, in voxels of that level.
@@ -234,17 +287,19 @@ pub fn stylize_sequence(
 }
 
 /// [`stylize_sequence`] with a camera set per frame (a camera path: `views(t)`
-/// is Θ for frame `t`, full resolution). If `store` has a
+/// is Θ for frame `t`, full resolution), toward one painting or a style
+/// map's ([`Paintings`]). If `store` has a
 /// [`StateStore::resume_point`], the run picks up after it; every completed
 /// sweep is [`StateStore::commit`]ted, so a killed run loses at most one sweep.
-pub fn stylize_sequence_with(
+pub fn stylize_sequence_with<'a>(
     sim: &dyn Simulation,
-    loss: &ViewLoss,
+    paintings: impl Into<Paintings<'a>>,
     views: &dyn Fn(usize) -> Vec<ViewSpec>,
     params: &SequenceParams,
     store: &mut dyn StateStore,
     progress: &mut dyn FnMut(&SweepProgress),
 ) -> Result<(), SequenceError> {
+    let paintings = paintings.into();
     let n = sim.len();
     let fp = &params.frame;
     let dims = octave_dims(sim.dims(), fp.octaves);
@@ -273,7 +328,7 @@ pub fn stylize_sequence_with(
             // The previous frame's updated field (and colour), already carried to this frame's time.
             let mut carried: Option<Carried> = None;
             for &t in &order {
-                let d = density_at(sim, t, level)?;
+                let full = sim.density(t)?;
                 let u = velocity_at(sim, t, here)?;
                 let mut st = load_sized(store, t, here)?
                     .ok_or_else(|| SequenceError::Frame { frame: t, message: "lost its optimisation state".into() })?;
@@ -291,22 +346,22 @@ pub fn stylize_sequence_with(
                         own.constrain();
                     }
                 }
+                // The style map's regions, read for this frame and carried
+                // by its field before the step, as the single frame does.
+                let regions = paintings.regions_at(t, &full, level, &st.field)?;
+                let d = downsample(full, level);
                 let (dstar, tape) = st.field.forward(&d);
                 let mut grad_dstar = vec![0.0f32; d.len()];
-                let mut total = 0.0;
-                match &mut st.color {
-                    None => {
-                        for view in &level_views(t) {
-                            let (l, g) = loss.loss_and_grad(&dstar, view)?;
-                            total += l;
-                            grad_dstar.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
-                        }
+                let views = level_views(t);
+                let total = match (&mut st.color, paintings) {
+                    (None, _) => grey_step(&paintings, &regions, (&dstar, &mut grad_dstar), &views)?,
+                    (Some(cs), Paintings::One(loss)) => {
+                        color_step(loss, cs, (t, st.step), (&dstar, &mut grad_dstar), &views)?
                     }
-                    Some(cs) => {
-                        let views = level_views(t);
-                        total = color_step(loss, cs, (t, st.step), (&dstar, &mut grad_dstar), &views)?;
+                    (Some(_), Paintings::Map(..)) => {
+                        return Err(SequenceError::Frame { frame: t, message: "colour with a style map".into() })
                     }
-                }
+                };
                 // The transport's backward is linear in ∂L/∂d*: one pass for all views.
                 let grad = st.field.descent(st.field.backward(&d, &tape, &grad_dstar), d.dims);
                 let mut adam = Adam::new(st.field.len(), fp.learning_rate);
@@ -394,6 +449,24 @@ fn start_octave(
         store.save(t, FrameState { field, m: vec![0.0; len], v: vec![0.0; len], step: 0, color })?;
     }
     Ok(())
+}
+
+/// The grey loss of the transported density `dstar` over `views`, its
+/// gradient added to `grad_dstar`: one painting's, or each painting's over
+/// its region (`regions`, carried by the frame's field). Returns the loss.
+fn grey_step(
+    paintings: &Paintings,
+    regions: &[Grid3],
+    (dstar, grad_dstar): (&Grid3, &mut [f32]),
+    views: &[ViewSpec],
+) -> Result<f32, SequenceError> {
+    let mut total = 0.0;
+    for view in views {
+        let (l, g) = paintings.loss_and_grad(dstar, regions, view)?;
+        total += l;
+        grad_dstar.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
+    }
+    Ok(total)
 }
 
 /// One sweep's step of a frame's colour: the colour loss over `views` of
@@ -496,11 +569,30 @@ pub fn stylized_frame(
     store: &mut dyn StateStore,
     t: usize,
 ) -> Result<(Grid3, Option<Vec<Grid3>>), SequenceError> {
+    let (d, color, _) = stylized_frame_carrying(sim, store, t, &[])?;
+    Ok((d, color))
+}
+
+/// A stylized frame: its density, its colour (in a run with colour), and
+/// the grids carried with it.
+pub type CarriedFrame = (Grid3, Option<Vec<Grid3>>, Vec<Grid3>);
+
+/// [`stylized_frame`] and `grids` (a style map's regions, full resolution)
+/// as the frame's field carries them: moved with the smoke in velocity
+/// mode, unchanged by a density scale, so the written frame is scored over
+/// the regions its smoke holds.
+pub fn stylized_frame_carrying(
+    sim: &dyn Simulation,
+    store: &mut dyn StateStore,
+    t: usize,
+    grids: &[Grid3],
+) -> Result<CarriedFrame, SequenceError> {
     let d = sim.density(t)?;
     let st = load_sized(store, t, d.dims)?
         .ok_or_else(|| SequenceError::Frame { frame: t, message: "was never stylized".into() })?;
     let out = st.field.transport(&d);
     let color = st.color.as_ref().map(|c| c.color(d.dims));
+    let carried = carried_regions(&st.field, grids);
     store.save(t, st)?;
-    Ok((out, color))
+    Ok((out, color, carried))
 }

@@ -26,7 +26,7 @@ use crate::dense::pad;
 use crate::look::{absorption_for, display, views_of, HeldOut, PREVIEW_HEIGHT};
 use crate::output::write_stylized;
 use crate::settings::VolumeSettings;
-use crate::style::load_style_and_vgg;
+use crate::style::{load_paintings, load_style_and_vgg};
 use crate::style_map::{self, MapBox, MapSource};
 use crate::upsample::{refine_density, refine_origin, refine_transform};
 
@@ -228,17 +228,9 @@ fn stylize_mapped(
 ) -> Result<(nst3d_stylize::FrameResult, Grid3)> {
     let source = MapSource::parse(s.style_map.as_deref().unwrap_or_default())?;
     let labels = source.labels(s.style_map_labels);
-    let paintings = s.styles();
     let map = style_map::sample(&source, input, at, labels)?;
-    let regions = style_map::regions(&map, padded, paintings.len(), labels)?;
-    let mut pictures = Vec::new();
-    let mut losses = Vec::new();
-    for p in &paintings {
-        let picture = nst3d_io::image::load_style(p, s.style_scale)?;
-        let picture = if s.style_color { picture } else { nst3d_io::image::luminance_rgb(&picture) };
-        losses.push(ViewLoss::new(vgg, &picture, &s.style_spec())?);
-        pictures.push(picture);
-    }
+    let regions = style_map::regions(&map, padded, s.styles().len(), labels)?;
+    let (pictures, losses) = load_paintings(s, vgg)?;
     let loss = MapLoss::new(losses);
     reporter.begin((s.octaves() * s.iterations()) as u64);
     let result = stylize_frame_map(padded, &loss, &regions, params, views, &mut |p| reporter.step(&progress_line(p)))?;

@@ -27,6 +27,7 @@ pub mod look;
 pub mod output;
 pub mod preview;
 pub mod sequence;
+mod sequence_map;
 pub mod settings;
 pub mod simulation;
 pub mod style;

@@ -108,15 +108,6 @@ impl HeldOut {
     }
 }
 
-/// Mean style loss of `d` over `views` (0 for none).
-pub fn mean_loss(loss: &ViewLoss, d: &Grid3, views: &[ViewSpec]) -> Result<f32> {
-    let mut total = 0.0;
-    for v in views {
-        total += loss.loss(d, v)?;
-    }
-    Ok(total / views.len().max(1) as f32)
-}
-
 /// The picture an artist sees of a density: the network's grey image, 2x.
 pub fn display(loss: &ViewLoss, d: &Grid3, view: &ViewSpec) -> Result<Image> {
     Ok(nst3d_render::upsample2x(&loss.image(d, view)?))

@@ -22,16 +22,17 @@ use nst3d_core::{Grid3, Reporter};
 use nst3d_io::vdb::{read_vdb, GridValues, Transform};
 use nst3d_job::{default_work_dir, expand_pattern, settings_key, FrameSpec, JobId, Resume, StateFiles};
 use nst3d_render::Camera;
-use nst3d_sequence::ema::{stylize_sequence_with, SequenceParams, Simulation, StateStore};
+use nst3d_sequence::ema::{stylize_sequence_with, Paintings, SequenceParams, Simulation, StateStore};
 use nst3d_sequence::DiskStore;
-use nst3d_stylize::{color_view_image, view_image, Mode, ViewLoss, ViewSpec};
+use nst3d_stylize::{color_view_image, view_image, MapLoss, Mode, ViewLoss, ViewSpec};
 
 use crate::cameras::Cameras;
-use crate::look::{absorption_for, mean_loss, smallest_absorption, views_of};
+use crate::look::{absorption_for, smallest_absorption, views_of};
 use crate::output::write_stylized;
+use crate::sequence_map::{FrameMaps, ShotBox};
 use crate::settings::{SequenceSettings, VolumeSettings};
 use crate::simulation::{VdbSimulation, VELOCITY_NAMES};
-use crate::style::load_style_and_vgg;
+use crate::style::{load_paintings, load_style_and_vgg};
 use crate::upsample::{refine_origin, refine_transform, Refined};
 
 /// What a sequence job did.
@@ -240,6 +241,9 @@ struct Shot {
     origin: [i32; 3],
     transform: Transform,
     full: VdbSimulation,
+    /// The frames' smoke (the union of their active boxes) inside the box:
+    /// offset and size in fine voxels.
+    inner: ([usize; 3], [usize; 3]),
 }
 
 fn shot(
@@ -288,7 +292,8 @@ fn shot(
             None => full.calibrate()?,
         };
     }
-    Ok(Shot { k, vmax, dims, origin, transform, full })
+    let inner = ([margin as usize * k; 3], active.map(|n| n * k));
+    Ok(Shot { k, vmax, dims, origin, transform, full, inner })
 }
 
 /// The densest frame and view of the whole sequence set the absorption
@@ -369,6 +374,7 @@ fn job_id(s: &VolumeSettings, run_paths: &[PathBuf]) -> Result<JobId> {
     let settings = settings_key(&a, false);
     let mut read = vec![s.style.clone()];
     read.extend(s.camera_file.clone());
+    read.extend(s.more_styles.iter().cloned());
     Ok(JobId::new(STATE_KIND, settings, &read, run_paths)?)
 }
 
@@ -392,21 +398,16 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
     let is_empty = |f: i64| all.iter().position(|&a| a == f).is_some_and(|i| sv.empty[i]);
     let passed: Vec<i64> = todo.iter().map(|&i| run_frames[i]).filter(|&f| is_empty(f)).collect();
     note_empty_frames(&passed, &s.grid, reporter);
-    let Shot { k, vmax, dims, origin, transform, full } = shot(s, seq, &sv, velocity_grid, &paths, reporter)?;
-    // The frames optimised: the run's frames with smoke. `run_index[k]` is
-    // frame k's place in `run_frames`; two are linked when adjacent there.
-    let run_index: Vec<usize> = (0..run_frames.len()).filter(|&i| !is_empty(run_frames[i])).collect();
+    let Shot { k, vmax, dims, origin, transform, full, inner } = shot(s, seq, &sv, velocity_grid, &paths, reporter)?;
+    let (run_index, sim) = live_frames(s, &run_frames, &is_empty, &full)?;
     let live: Vec<i64> = run_index.iter().map(|&i| run_frames[i]).collect();
     let sim_of = |i: usize| run_index.iter().position(|&r| r == i);
-    let input = s.input.to_string_lossy().to_string();
-    let sim = VdbSimulation {
-        paths: live.iter().map(|&f| expand_pattern(&input, f).map(PathBuf::from)).collect::<Result<_, _>>()?,
-        linked: (0..run_index.len()).map(|k| k == 0 || run_index[k] == run_index[k - 1] + 1).collect(),
-        ..full.clone()
-    };
     let (full, sim) = (Refined { inner: full, k }, Refined { inner: sim, k });
     let warmup = run_frames.iter().filter(|&&f| !(start..=end).contains(&f)).count();
     reporter.status(&run_status(run_frames.len(), todo.len(), warmup, &sim, dims, origin));
+    let frame_files = live.iter().copied().zip(sim.inner.paths.iter().cloned()).collect();
+    let at = ShotBox { dims, origin, transform: transform.clone(), inner };
+    let maps = FrameMaps::checked(s, frame_files, at, &sim)?;
 
     let id = job_id(s, &sim.inner.paths)?;
     let work = seq.work_dir.clone().unwrap_or_else(|| default_work_dir(&s.out, id.hash));
@@ -422,6 +423,12 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
     let gamma = shot_absorption(s, &full, &live_all, &|t| cams_at(all[t]))?;
     let views: Vec<Vec<ViewSpec>> = live.iter().map(|&f| views_of(&cams_at(f), gamma, s.equalize)).collect();
     let loss = ViewLoss::new(&vgg, &style, &s.style_spec())?;
+    let map_loss = maps.as_ref().map(|_| load_paintings(s, &vgg).map(|(_, l)| MapLoss::new(l))).transpose()?;
+    let regions_of = |t: usize, d: &Grid3| maps.as_ref().map_or(Ok(Vec::new()), |m| m.sweep_regions(t, d));
+    let paintings = match &map_loss {
+        Some(m) => Paintings::Map(m, &regions_of),
+        None => Paintings::One(&loss),
+    };
     // Unused by the sweeps (each frame has its views); any view of the run will do.
     let first_view = match views.first() {
         Some(v) => v[0].clone(),
@@ -440,7 +447,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
     // A chunk of empty frames only has nothing to optimise.
     let mut store = if sim.is_empty() { None } else { Some(DiskStore::open(&work, job.files().clone())?) };
     if let Some(store) = &mut store {
-        optimise(s, &work, &sim, &loss, &views, &live, &params, store, reporter)?;
+        optimise(s, &work, &sim, paintings, &views, &live, &params, store, reporter)?;
     }
 
     let sources = todo
@@ -456,7 +463,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         sim_index: (0..run_frames.len()).map(sim_of).collect(),
     };
     let Tally { stylized, unchanged, losses, flicker_sum, pairs } =
-        write_frames(s, &frames, &sim, store.as_mut(), &loss, &views, (&transform, origin), reporter)?;
+        write_frames(s, &frames, &sim, store.as_mut(), paintings, &views, (&transform, origin), reporter)?;
     // Every frame landed: the states are no longer needed (they are large).
     // Only the store's own files go: the work folder may hold other things.
     let _ = DiskStore::remove(&work);
@@ -470,6 +477,28 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
         flicker: if pairs > 0 { flicker_sum / pairs as f64 } else { 0.0 },
         output: s.out.to_string_lossy().to_string(),
     }))
+}
+
+/// The frames a run optimises: those of `run_frames` with smoke, as a
+/// simulation of their own (`full`'s box and velocity), two frames linked
+/// when adjacent in the run; and each one's place in `run_frames`.
+fn live_frames(
+    s: &VolumeSettings,
+    run_frames: &[i64],
+    is_empty: &dyn Fn(i64) -> bool,
+    full: &VdbSimulation,
+) -> Result<(Vec<usize>, VdbSimulation)> {
+    let run_index: Vec<usize> = (0..run_frames.len()).filter(|&i| !is_empty(run_frames[i])).collect();
+    let input = s.input.to_string_lossy().to_string();
+    let sim = VdbSimulation {
+        paths: run_index
+            .iter()
+            .map(|&i| expand_pattern(&input, run_frames[i]).map(PathBuf::from))
+            .collect::<Result<_, _>>()?,
+        linked: (0..run_index.len()).map(|k| k == 0 || run_index[k] == run_index[k - 1] + 1).collect(),
+        ..full.clone()
+    };
+    Ok((run_index, sim))
 }
 
 /// Says which frames to write have an empty grid (they are copied, not stylized).
@@ -506,18 +535,23 @@ fn run_status(
 }
 
 /// The style loss of a written frame, mean over its views: of the grey
-/// render, or with colour of the colour render.
-fn frame_loss(loss: &ViewLoss, d: &Grid3, color: Option<&Vec<Grid3>>, views: &[ViewSpec]) -> Result<f32> {
-    Ok(match color {
-        None => mean_loss(loss, d, views)?,
-        Some(c) => {
-            let mut sum = 0.0;
-            for v in views {
-                sum += loss.loss_color(d, c, v)?;
-            }
-            sum / views.len().max(1) as f32
-        }
-    })
+/// render (with a style map, each painting's over the frame's `regions`
+/// as its field carried them), or with colour of the colour render.
+fn frame_loss(
+    paintings: Paintings,
+    d: &Grid3,
+    color: Option<&Vec<Grid3>>,
+    regions: &[Grid3],
+    views: &[ViewSpec],
+) -> Result<f32> {
+    let mut sum = 0.0;
+    for v in views {
+        sum += match (color, paintings) {
+            (Some(c), Paintings::One(loss)) => loss.loss_color(d, c, v)?,
+            _ => paintings.loss(d, regions, v)?,
+        };
+    }
+    Ok(sum / views.len().max(1) as f32)
 }
 
 /// Where each frame of a run comes from and goes to.
@@ -546,6 +580,10 @@ struct Tally {
     pairs: usize,
 }
 
+/// A written frame: its density, its colour (with colour), the input's
+/// grids not copied, its style loss.
+type Written = (Grid3, Option<Vec<Grid3>>, Vec<String>, f32);
+
 /// Writes the frames of `frames.todo`: an optimised frame transported by
 /// its stored field (every other grid of its file kept), an empty one
 /// copied byte for byte; scores what it wrote.
@@ -555,7 +593,7 @@ fn write_frames(
     frames: &RunFrames<'_>,
     sim: &Refined<VdbSimulation>,
     store: Option<&mut DiskStore>,
-    loss: &ViewLoss,
+    paintings: Paintings,
     views: &[Vec<ViewSpec>],
     placement: (&Transform, [i32; 3]),
     reporter: &mut dyn Reporter,
@@ -583,9 +621,13 @@ fn write_frames(
             }
             continue;
         };
-        let result = (|| -> Result<(Grid3, Option<Vec<Grid3>>, Vec<String>)> {
+        let result = (|| -> Result<Written> {
             let store = store.as_deref_mut().context("frames with smoke were not optimised")?;
-            let (d, color) = nst3d_sequence::ema::stylized_frame(sim, store, t)?;
+            let regions = match paintings {
+                Paintings::Map(_, regions_of) => regions_of(t, &sim.density(t)?)?,
+                Paintings::One(_) => Vec::new(),
+            };
+            let (d, color, regions) = nst3d_sequence::ema::stylized_frame_carrying(sim, store, t, &regions)?;
             if d.data.iter().any(|v| !v.is_finite()) {
                 bail!("stylization produced non-finite densities (try a smaller --lr)");
             }
@@ -595,34 +637,24 @@ fn write_frames(
                 s.color_grid.clone().unwrap_or_else(|| crate::output::color_grid_name(&file, s.up).to_string());
             let named = color.as_ref().map(|c| (color_name.as_str(), &c[..]));
             let dropped = write_stylized(&outs[i], &file, &s.grid, transform, origin, &d, named)?;
-            Ok((d, color, dropped))
+            let loss = frame_loss(paintings, &d, color.as_ref(), &regions, &views[t])?;
+            Ok((d, color, dropped, loss))
         })();
         match result {
-            Ok((d, color, dropped)) => {
+            Ok((d, color, dropped, loss)) => {
                 // Said once: every frame of a simulation has the same grids.
                 if !dropped.is_empty() && !dropped_noted {
                     reporter.note(&format!("{} not copied to the outputs", dropped.join(", ")));
                     dropped_noted = true;
                 }
                 tally.stylized += 1;
-                let view = &views[t][0];
-                tally.losses += frame_loss(loss, &d, color.as_ref(), &views[t])?;
+                tally.losses += loss;
                 // Flicker of consecutive written frames, computed pairwise so
-                // memory holds two frames; with colour, of the colour picture.
+                // memory holds two frames.
                 if let Some((tp, dp, cp)) = &prev {
                     if *tp + 1 == t && sim.linked(t) {
                         let vel = sim.velocity(*tp)?;
-                        tally.flicker_sum += match (cp, &color) {
-                            (Some(cp), Some(c)) => {
-                                let render = |f: &(Grid3, Vec<Grid3>)| color_view_image(&f.0, &f.1, view);
-                                let pair = [(dp.clone(), cp.clone()), (d.clone(), c.clone())];
-                                nst3d_sequence::flicker::flicker_color(&pair, &[vel, None], render)? as f64
-                            }
-                            _ => {
-                                let render = |g: &Grid3| loss.image(g, view);
-                                nst3d_sequence::flicker::flicker(&[dp.clone(), d.clone()], &[vel, None], render)? as f64
-                            }
-                        };
+                        tally.flicker_sum += pair_flicker((dp, cp.as_ref()), (&d, color.as_ref()), vel, &views[t][0])?;
                         tally.pairs += 1;
                     }
                 }
@@ -645,6 +677,25 @@ fn write_frames(
     Ok(tally)
 }
 
+/// The flicker of a frame against the one before it (`prev`, carried along
+/// `vel`), seen from `view`: of the grey picture, or with colour of the
+/// colour picture.
+fn pair_flicker(
+    (dp, cp): (&Grid3, Option<&Vec<Grid3>>),
+    (d, c): (&Grid3, Option<&Vec<Grid3>>),
+    vel: Option<Vec<[f32; 3]>>,
+    view: &ViewSpec,
+) -> Result<f64> {
+    Ok(match (cp, c) {
+        (Some(cp), Some(c)) => {
+            let render = |f: &(Grid3, Vec<Grid3>)| color_view_image(&f.0, &f.1, view);
+            let pair = [(dp.clone(), cp.clone()), (d.clone(), c.clone())];
+            nst3d_sequence::flicker::flicker_color(&pair, &[vel, None], render)? as f64
+        }
+        _ => nst3d_sequence::flicker::flicker(&[dp.clone(), d.clone()], &[vel, None], |g| view_image(g, view))? as f64,
+    })
+}
+
 /// Runs Algorithm 1 over the frames with smoke (`sim`), each state saved
 /// in `store`, or resumes it where a killed run stopped; the progress bar
 /// counts only the steps left.
@@ -653,7 +704,7 @@ fn optimise(
     s: &VolumeSettings,
     work: &Path,
     sim: &Refined<VdbSimulation>,
-    loss: &ViewLoss,
+    paintings: Paintings,
     views: &[Vec<ViewSpec>],
     live: &[i64],
     params: &SequenceParams,
@@ -679,7 +730,7 @@ fn optimise(
     }
     // A resumed run counts only the steps left.
     reporter.begin((s.octaves() * per_octave).saturating_sub(done_steps) as u64);
-    stylize_sequence_with(sim, loss, &|t| views[t].clone(), params, store, &mut |p| {
+    stylize_sequence_with(sim, paintings, &|t| views[t].clone(), params, store, &mut |p| {
         reporter.step(&format!(
             "octave {} sweep {}/{} frame {} loss {:.4e}",
             p.octave + 1,

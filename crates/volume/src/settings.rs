@@ -278,9 +278,6 @@ impl VolumeSettings {
         if self.model.is_some() {
             bail!("--style-map works with the optimisation, not with a trained --model (yet)");
         }
-        if self.sequence.is_some() {
-            bail!("--style-map stylizes single frames for now, not --frames");
-        }
         Ok(())
     }
 

@@ -3,6 +3,7 @@
 use anyhow::Result;
 use nst3d_core::Image;
 use nst3d_features::Vgg19;
+use nst3d_stylize::ViewLoss;
 
 use crate::settings::VolumeSettings;
 
@@ -13,4 +14,19 @@ pub fn load_style_and_vgg(s: &VolumeSettings) -> Result<(Image, Vgg19)> {
     let style = nst3d_io::image::load_style(&s.style, s.style_scale)?;
     let style = if s.style_color || s.color { style } else { nst3d_io::image::luminance_rgb(&style) };
     Ok((style, Vgg19::load(s.weights.as_deref())?))
+}
+
+/// A style map's paintings in the map's order (`style`, then
+/// `more_styles`), each at `style_scale` and in luminance unless
+/// `style_color`, with the loss that matches it.
+pub fn load_paintings<'a>(s: &VolumeSettings, vgg: &'a Vgg19) -> Result<(Vec<Image>, Vec<ViewLoss<'a>>)> {
+    let mut pictures = Vec::new();
+    let mut losses = Vec::new();
+    for p in &s.styles() {
+        let picture = nst3d_io::image::load_style(p, s.style_scale)?;
+        let picture = if s.style_color { picture } else { nst3d_io::image::luminance_rgb(&picture) };
+        losses.push(ViewLoss::new(vgg, &picture, &s.style_spec())?);
+        pictures.push(picture);
+    }
+    Ok((pictures, losses))
 }

@@ -50,6 +50,22 @@ impl MapSource {
     pub fn labels(&self, flag: bool) -> bool {
         flag || matches!(self, MapSource::Height { split: true })
     }
+
+    /// The map of frame `frame` of a sequence: a file given as a pattern
+    /// (`####`, `%04d`, as the input's) names that frame's file; anything
+    /// else is the same for every frame (a grid of the input is read from
+    /// each frame's own file by the caller).
+    pub fn at_frame(&self, frame: i64) -> Result<Self> {
+        Ok(match self {
+            MapSource::File(path, name) if path.to_string_lossy().contains(['#', '%']) => {
+                let pattern = path.to_string_lossy();
+                let one =
+                    nst3d_job::expand_pattern(&pattern, frame).with_context(|| format!("--style-map '{pattern}'"))?;
+                MapSource::File(one.into(), name.clone())
+            }
+            other => other.clone(),
+        })
+    }
 }
 
 /// A map grid ready to sample at world positions.
@@ -227,6 +243,12 @@ mod tests {
         assert_eq!(MapSource::parse("m.vdb:mask").unwrap(), MapSource::File("m.vdb".into(), "mask".into()));
         assert_eq!(MapSource::parse("@height").unwrap(), MapSource::Height { split: false });
         assert!(MapSource::parse("@nope").is_err());
+        let per_frame = MapSource::parse("maps/m_####.vdb:mask").unwrap();
+        assert_eq!(per_frame.at_frame(7).unwrap(), MapSource::File("maps/m_0007.vdb".into(), "mask".into()));
+        assert_eq!(
+            MapSource::parse("m.vdb:mask").unwrap().at_frame(7).unwrap(),
+            MapSource::parse("m.vdb:mask").unwrap()
+        );
     }
 
     /// A map on a grid twice as coarse, shifted, is sampled where the
