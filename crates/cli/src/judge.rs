@@ -108,6 +108,9 @@ fn judge_map(s: &JudgeSettings, map: &str, labels: bool) -> Result<()> {
                 .collect();
             println!("{} region {r} | {}", v.file.display(), cells.join(" | "));
         }
+        if let Some(seam) = nst3d_volume::SeamSummary::of(&v.seams) {
+            println!("{} seam | {seam}", v.file.display());
+        }
     }
     Ok(())
 }

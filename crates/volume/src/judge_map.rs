@@ -8,17 +8,20 @@
 //!
 //! Every file is judged over the same pixels: each region's guide is
 //! rendered through the baseline's smoke, with the map sampled on the
-//! baseline's box as `nst3d volume` samples it.
+//! baseline's box as `nst3d volume` samples it. With two paintings each
+//! view also measures the boundary's seam ([`crate::seam`]).
 
 use std::path::PathBuf;
 
 use anyhow::{bail, Result};
+use nst3d_core::Grid3;
 use nst3d_core::Reporter;
 use nst3d_features::Vgg19;
 use nst3d_io::vdb::read_vdb;
-use nst3d_stylize::{MapLoss, ViewLoss};
+use nst3d_stylize::{region_guides, view_image, MapLoss, ViewLoss, ViewSpec};
 
 use crate::judge::{ratio, scene, JudgeSettings, Ratios};
+use crate::seam::{seam, Seam};
 use crate::style_map::{regions, sample, MapBox, MapSource};
 
 /// One result's region-by-region verdict.
@@ -29,6 +32,9 @@ pub struct MapVerdict {
     /// `[region][painting]`: loss ratios over the views that show the
     /// region (`None` where no view does).
     pub regions: Vec<Vec<Option<Ratios>>>,
+    /// Per view, the seam between the two regions (`None` for a view that
+    /// shows no boundary, and for maps of more than two paintings).
+    pub seams: Vec<Option<Seam>>,
 }
 
 /// Judges every result region by region; `style_map` as `nst3d volume
@@ -59,12 +65,14 @@ pub fn judge_map(
     }
     let judge = MapLoss::new(losses);
     reporter.begin(scene.files.len() as u64);
-    // Per file, per view: [region] -> per painting.
+    // Per file, per view: [region] -> per painting; and the seams.
     let mut tables = Vec::new();
+    let mut seams = Vec::new();
     for (d, _) in &scene.files {
         let per_view =
             scene.views.iter().map(|v| judge.region_table(d, base, &regions, v)).collect::<Result<Vec<_>, _>>()?;
         tables.push(per_view);
+        seams.push(scene.views.iter().map(|v| view_seam(base, d, &regions, v)).collect::<Result<Vec<_>>>()?);
         reporter.step("judged");
     }
     reporter.end();
@@ -74,8 +82,10 @@ pub fn judge_map(
     Ok(s.results
         .iter()
         .zip(&tables[1..])
-        .map(|(file, t)| MapVerdict {
+        .zip(seams.into_iter().skip(1))
+        .map(|((file, t), seams)| MapVerdict {
             file: file.clone(),
+            seams,
             regions: (0..regions.len())
                 .map(|r| {
                     (0..paintings.len())
@@ -88,4 +98,16 @@ pub fn judge_map(
                 .collect(),
         })
         .collect())
+}
+
+/// The seam of `d` against the baseline `base` in `view`, over the
+/// boundary of the baseline's two regions; `None` for other region counts.
+fn view_seam(base: &Grid3, d: &Grid3, regions: &[Grid3], view: &ViewSpec) -> Result<Option<Seam>> {
+    if regions.len() != 2 {
+        return Ok(None);
+    }
+    let guides = region_guides(base, regions, view)?;
+    let plane = guides.plane();
+    let smoke: Vec<bool> = (0..plane).map(|p| guides.data[p] + guides.data[plane + p] > 0.0).collect();
+    Ok(seam(&view_image(base, view)?, &view_image(d, view)?, &guides.data[plane..], &smoke))
 }
