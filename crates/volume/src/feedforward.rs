@@ -19,6 +19,7 @@ use nst3d_stylize::Mode;
 
 use crate::output::write_stylized_grid;
 use crate::settings::{ModelSettings, VolumeSettings};
+use crate::style_map::{weights, MapSource, VoxelMap};
 
 /// What a feed-forward job did.
 #[derive(Clone, Debug)]
@@ -219,17 +220,41 @@ fn stylize_sparse(
     (out, dims.iter().product::<usize>() as u64)
 }
 
-/// One frame file in, one out.
-#[allow(clippy::too_many_arguments)]
+/// The models of a job (one, or one per painting of a style map), all of
+/// one mode, each with the distance its velocity may move smoke.
+struct Models {
+    list: Vec<(Model, f32)>,
+    mode: Mode,
+}
+
+impl Models {
+    /// `m.path` and `m.more`, checked to share a mode.
+    fn load(m: &ModelSettings) -> Result<Self> {
+        let (model, mode, vmax) = load_model(m)?;
+        let mut list = vec![(model, vmax)];
+        for path in &m.more {
+            let (model, other, vmax) = load_model(&ModelSettings { path: path.clone(), ..m.clone() })?;
+            if other != mode {
+                bail!(
+                    "{}: a {other:?}-mode model, but {} is {mode:?}-mode: a style map blends models of one mode",
+                    path.display(),
+                    m.path.display()
+                );
+            }
+            list.push((model, vmax));
+        }
+        Ok(Self { list, mode })
+    }
+}
+
+/// One frame file in, one out; `frame`: its number in a sequence (a style
+/// map file given as a pattern is that frame's).
 fn one_frame(
     s: &VolumeSettings,
-    model: &Model,
-    mode: Mode,
-    vmax: f32,
+    models: &Models,
     m: &ModelSettings,
-    input: &Path,
-    out: &Path,
-    progress: Option<&mut (dyn Reporter + '_)>,
+    (input, out, frame): (&Path, &Path, Option<i64>),
+    mut progress: Option<&mut (dyn Reporter + '_)>,
 ) -> Result<Option<(u64, f64)>> {
     let file = read_vdb(input)?;
     let grid = file.grid(&s.grid).with_context(|| format!("{}: no grid named '{}'", input.display(), s.grid))?;
@@ -240,9 +265,30 @@ fn one_frame(
     if let Some(ijk) = grid.first_non_finite() {
         bail!("{}: grid '{}' has a non-finite value at {ijk:?}", input.display(), s.grid);
     }
+    // Every map is read before the slow part.
+    let map = match &s.style_map {
+        None => None,
+        Some(spec) => {
+            let source = MapSource::parse(spec)?;
+            let source = frame.map_or(Ok(source.clone()), |f| source.at_frame(f))?;
+            let labels = source.labels(s.style_map_labels);
+            let smoke = (bbox.0, std::array::from_fn(|a| (bbox.1[a] - bbox.0[a] + 1) as usize));
+            Some((VoxelMap::new(&source, Some((&file, input)), &grid.transform, smoke, s.up, labels)?, labels))
+        }
+    };
     let t0 = Instant::now();
-    let (styled, voxels) = stylize_sparse(model, mode, vmax, sparse, bbox, m, progress);
-    nst3d_core::stop::check()?;
+    let mut results = Vec::new();
+    let mut voxels = 0;
+    for (model, vmax) in &models.list {
+        let (styled, n) = stylize_sparse(model, models.mode, *vmax, sparse, bbox, m, progress.as_deref_mut());
+        nst3d_core::stop::check()?;
+        results.push(styled);
+        voxels = voxels.max(n);
+    }
+    let styled = match &map {
+        None => results.remove(0),
+        Some((map, labels)) => blend(&results, map, sparse, *labels)?,
+    };
     let secs = t0.elapsed().as_secs_f64();
     if styled.iter_active().any(|(_, v)| !v.is_finite()) {
         bail!("{}: the network produced non-finite densities", input.display());
@@ -253,15 +299,38 @@ fn one_frame(
     Ok(Some((voxels, secs)))
 }
 
-/// Stylizes `s.input` (one frame, or the frames of `s.sequence`) with the
-/// model `m`, each frame on its own.
-pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut dyn Reporter) -> Result<ModelReport> {
-    let (model, mode, vmax) = load_model(m)?;
+/// The models' results blended voxel by voxel by the style map's weights
+/// (`map` read at each voxel, as [`crate::style_map::regions`] weighs a
+/// dense box; `input`: the frame's density, where a label must name a
+/// model). Each result keeps the frame's mass, and the weights sum to 1,
+/// so the blend keeps it too where the results overlap.
+fn blend(
+    results: &[SparseGrid<f32>],
+    map: &VoxelMap,
+    input: &SparseGrid<f32>,
+    labels: bool,
+) -> Result<SparseGrid<f32>> {
+    let mut out = SparseGrid::new(0.0f32);
+    let mut w = vec![0.0; results.len()];
+    for (k, r) in results.iter().enumerate() {
+        for (ijk, v) in r.iter_active() {
+            weights(map.at(ijk), input.get(ijk) > 0.0, labels, &mut w)?;
+            if w[k] > 0.0 {
+                out.set_active(ijk, out.get(ijk) + w[k] * v);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// What a user should know about a model file before trusting its result:
+/// trained before the density pin, or along one axis only.
+fn notes_on(model: &Model, mode: Mode, path: &Path, reporter: &mut dyn Reporter) {
     if mode == Mode::Density && model.info.get("mass").map(String::as_str) != Some(MASS_PINNED) {
         reporter.note(&format!(
             "{} was trained before the density scale pin: on smoke unlike its training data it can lift faint \
              haze many times over (docs/design/feedforward.md); retrain it to fix that",
-            m.path.display()
+            path.display()
         ));
     }
     if !model.info.contains_key("view_axes") {
@@ -269,13 +338,24 @@ pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut 
             "{} was trained on pictures along its patches' z axis only: its strokes are stretched into \
              columns along the grid's z, streaks from the side (docs/design/feedforward.md); \
              retrain it to fix that",
-            m.path.display()
+            path.display()
         ));
+    }
+}
+
+/// Stylizes `s.input` (one frame, or the frames of `s.sequence`) with the
+/// model `m`, each frame on its own.
+pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut dyn Reporter) -> Result<ModelReport> {
+    s.check()?;
+    let models = Models::load(m)?;
+    let mode = models.mode;
+    for ((model, _), path) in models.list.iter().zip(std::iter::once(&m.path).chain(&m.more)) {
+        notes_on(model, mode, path, reporter);
     }
     let input = s.input.to_string_lossy().to_string();
     let output = s.out.to_string_lossy().to_string();
-    let jobs: Vec<(PathBuf, PathBuf, bool)> = match &s.sequence {
-        None => vec![(s.input.clone(), s.out.clone(), true)],
+    let jobs: Vec<(PathBuf, PathBuf, bool, Option<i64>)> = match &s.sequence {
+        None => vec![(s.input.clone(), s.out.clone(), true, None)],
         Some(seq) => {
             let spec = FrameSpec::parse(&seq.frames)?;
             let frames: Vec<i64> = match &seq.chunk {
@@ -290,7 +370,7 @@ pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut 
             for f in frames {
                 let o = PathBuf::from(expand_pattern(&output, f)?);
                 let todo = seq.force || !o.exists();
-                v.push((PathBuf::from(expand_pattern(&input, f)?), o, todo));
+                v.push((PathBuf::from(expand_pattern(&input, f)?), o, todo, Some(f)));
             }
             v
         }
@@ -302,14 +382,14 @@ pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut 
     if !per_tile {
         reporter.begin(jobs.len() as u64);
     }
-    for (inp, out, todo) in &jobs {
+    for (inp, out, todo, frame) in &jobs {
         if !todo {
             skipped += 1;
             reporter.step(&format!("{} exists, kept", out.display()));
             continue;
         }
         let progress = if per_tile { Some(&mut *reporter) } else { None };
-        match one_frame(s, &model, mode, vmax, m, inp, out, progress)? {
+        match one_frame(s, &models, m, (inp, out, *frame), progress)? {
             Some((n, t)) => {
                 frames += 1;
                 voxels += n;

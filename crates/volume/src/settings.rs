@@ -253,12 +253,22 @@ impl VolumeSettings {
         std::iter::once(self.style.clone()).chain(self.more_styles.iter().cloned()).collect()
     }
 
+    /// The paintings a style map places: the `--style` paintings, or with
+    /// a trained model its models (one per painting).
+    pub fn regions(&self) -> usize {
+        match &self.model {
+            Some(m) => 1 + m.more.len(),
+            None => 1 + self.more_styles.len(),
+        }
+    }
+
     /// A style map's settings fit together, before any file is read.
     fn check_style_map(&self) -> Result<()> {
-        let n = 1 + self.more_styles.len();
+        let n = self.regions();
+        let what = if self.model.is_some() { "--model files" } else { "--style paintings" };
         let Some(map) = &self.style_map else {
             if n > 1 {
-                bail!("{n} --style paintings need a --style-map saying where each goes");
+                bail!("{n} {what} need a --style-map saying where each goes");
             }
             if self.style_map_labels {
                 bail!("--style-map-labels needs a --style-map");
@@ -267,16 +277,13 @@ impl VolumeSettings {
         };
         let source = crate::style_map::MapSource::parse(map)?;
         if n < 2 {
-            bail!("--style-map needs at least two --style paintings (got one)");
+            bail!("--style-map needs at least two {what} (got one)");
         }
         if n > 2 && !source.labels(self.style_map_labels) {
             bail!("a float --style-map blends two paintings, got {n}; pass --style-map-labels for a label map");
         }
         if self.color {
             bail!("--color is not supported with --style-map yet");
-        }
-        if self.model.is_some() {
-            bail!("--style-map works with the optimisation, not with a trained --model (yet)");
         }
         Ok(())
     }
@@ -391,6 +398,10 @@ mod tests {
 pub struct ModelSettings {
     /// The model file written by `nst3d train`.
     pub path: PathBuf,
+    /// Further models, one per painting of a style map after `path`, in
+    /// the map's order: every model stylizes the frame and the results are
+    /// blended voxel by voxel by the map's weights.
+    pub more: Vec<PathBuf>,
     /// Tile side in voxels (rounded up to a multiple of 4).
     pub tile: usize,
     /// Context around each tile, in voxels (rounded up to a multiple of 4).
@@ -411,6 +422,13 @@ impl ModelSettings {
 
     /// The command line's defaults for the model file `path`.
     pub fn new(path: impl Into<PathBuf>) -> Self {
-        Self { path: path.into(), tile: Self::DEFAULT_TILE, margin: Self::DEFAULT_MARGIN, mode: None, strength: 1.0 }
+        Self {
+            path: path.into(),
+            more: Vec::new(),
+            tile: Self::DEFAULT_TILE,
+            margin: Self::DEFAULT_MARGIN,
+            mode: None,
+            strength: 1.0,
+        }
     }
 }

@@ -160,41 +160,85 @@ pub struct MapBox<'a> {
     pub up: UpAxis,
 }
 
-/// The map sampled on `b` (see [`MapSource`]), labels rounded where `nearest`.
-pub fn sample(source: &MapSource, input: Option<(&VdbFile, &Path)>, b: &MapBox, nearest: bool) -> Result<Grid3> {
-    let mut out = Grid3::zeros(b.dims);
-    if let MapSource::Height { split } = source {
-        let axis = match b.up {
-            UpAxis::Y => 1,
-            UpAxis::Z => 2,
+/// A map ready to be read at any voxel of the density's index space: a
+/// grid sampled at the voxel's world position, or the height ramp over
+/// the smoke's index box. A sparse frame reads it voxel by voxel, with no
+/// dense box.
+pub struct VoxelMap<'a> {
+    values: Values,
+    transform: &'a Transform,
+    nearest: bool,
+}
+
+enum Values {
+    Grid(Sampled),
+    /// The ramp along index axis `axis` from `lo` over `size` voxels.
+    Height {
+        axis: usize,
+        lo: f32,
+        size: f32,
+        split: bool,
+    },
+}
+
+impl<'a> VoxelMap<'a> {
+    /// `source` for a density whose index space maps to the world by
+    /// `transform` and whose smoke spans the index box `smoke` (first
+    /// voxel, size), which a height ramp spans; `input` is the input's
+    /// file for [`MapSource::Input`]; labels are read at the nearest voxel
+    /// where `nearest`.
+    pub fn new(
+        source: &MapSource,
+        input: Option<(&VdbFile, &Path)>,
+        transform: &'a Transform,
+        smoke: ([i32; 3], [usize; 3]),
+        up: UpAxis,
+        nearest: bool,
+    ) -> Result<Self> {
+        let values = match source {
+            MapSource::Height { split } => {
+                let axis = match up {
+                    UpAxis::Y => 1,
+                    UpAxis::Z => 2,
+                };
+                Values::Height { axis, lo: smoke.0[axis] as f32, size: smoke.1[axis].max(2) as f32, split: *split }
+            }
+            MapSource::Input(name) => {
+                let (file, path) =
+                    input.context("--style-map NAME reads a grid of the input file; pass FILE.vdb:NAME")?;
+                Values::Grid(grid_of(file, name, path)?)
+            }
+            MapSource::File(path, name) => Values::Grid(grid_of(&read_vdb(path)?, name, path)?),
         };
-        let (off, size) = (b.inner.0[axis] as f32, b.inner.1[axis].max(2) as f32);
-        for z in 0..b.dims[2] {
-            for y in 0..b.dims[1] {
-                for x in 0..b.dims[0] {
-                    let h = (([x, y, z][axis] as f32 - off) / (size - 1.0)).clamp(0.0, 1.0);
-                    let i = out.index(x, y, z);
-                    out.data[i] = if *split { (h >= 0.5) as u8 as f32 } else { h };
+        Ok(Self { values, transform, nearest })
+    }
+
+    /// The map's value at index `ijk`.
+    pub fn at(&self, ijk: [i32; 3]) -> f32 {
+        match &self.values {
+            Values::Height { axis, lo, size, split } => {
+                let h = ((ijk[*axis] as f32 - lo) / (size - 1.0)).clamp(0.0, 1.0);
+                if *split {
+                    (h >= 0.5) as u8 as f32
+                } else {
+                    h
                 }
             }
+            Values::Grid(g) => g.value(self.transform.index_to_world(ijk.map(|v| v as f64)), self.nearest),
         }
-        return Ok(out);
     }
-    let sampled = match source {
-        MapSource::Input(name) => {
-            let (file, path) = input.context("--style-map NAME reads a grid of the input file; pass FILE.vdb:NAME")?;
-            grid_of(file, name, path)?
-        }
-        MapSource::File(path, name) => grid_of(&read_vdb(path)?, name, path)?,
-        MapSource::Height { .. } => unreachable!("handled above"),
-    };
+}
+
+/// The map sampled on `b` (see [`MapSource`]), labels rounded where `nearest`.
+pub fn sample(source: &MapSource, input: Option<(&VdbFile, &Path)>, b: &MapBox, nearest: bool) -> Result<Grid3> {
+    let smoke_lo: [i32; 3] = std::array::from_fn(|a| b.origin[a] + b.inner.0[a] as i32);
+    let map = VoxelMap::new(source, input, b.transform, (smoke_lo, b.inner.1), b.up, nearest)?;
+    let mut out = Grid3::zeros(b.dims);
     for z in 0..b.dims[2] {
         for y in 0..b.dims[1] {
             for x in 0..b.dims[0] {
-                let ijk = [x as i32 + b.origin[0], y as i32 + b.origin[1], z as i32 + b.origin[2]];
-                let world = b.transform.index_to_world(ijk.map(|v| v as f64));
                 let i = out.index(x, y, z);
-                out.data[i] = sampled.value(world, nearest);
+                out.data[i] = map.at([x as i32 + b.origin[0], y as i32 + b.origin[1], z as i32 + b.origin[2]]);
             }
         }
     }
@@ -207,30 +251,39 @@ pub fn sample(source: &MapSource, input: Option<(&VdbFile, &Path)>, b: &MapBox, 
 /// there is smoke, is an error.
 pub fn regions(map: &Grid3, density: &Grid3, paintings: usize, labels: bool) -> Result<Vec<Grid3>> {
     let mut out = vec![Grid3::zeros(map.dims); paintings];
+    let mut w = vec![0.0; paintings];
     for (i, &m) in map.data.iter().enumerate() {
-        if !m.is_finite() {
-            bail!("--style-map holds a non-finite value ({m})");
-        }
-        if labels {
-            let k = m.round();
-            if k < 0.0 || k >= paintings as f32 || (m - k).abs() > 0.01 {
-                if density.data[i] > 0.0 {
-                    bail!(
-                        "--style-map label {m} is not one of the {paintings} paintings (labels 0 to {})",
-                        paintings - 1
-                    );
-                }
-                out[0].data[i] = 1.0;
-                continue;
-            }
-            out[k as usize].data[i] = 1.0;
-        } else {
-            let m = m.clamp(0.0, 1.0);
-            out[0].data[i] = 1.0 - m;
-            out[1].data[i] = m;
-        }
+        weights(m, density.data[i] > 0.0, labels, &mut w)?;
+        out.iter_mut().zip(&w).for_each(|(r, w)| r.data[i] = *w);
     }
     Ok(out)
+}
+
+/// One voxel's weights, one per painting (`w`, overwritten), from its map
+/// value `m` as [`regions`] makes them; `smoke`: the voxel holds smoke (a
+/// label outside the paintings is an error there, the first painting
+/// elsewhere).
+pub fn weights(m: f32, smoke: bool, labels: bool, w: &mut [f32]) -> Result<()> {
+    let paintings = w.len();
+    if !m.is_finite() {
+        bail!("--style-map holds a non-finite value ({m})");
+    }
+    w.iter_mut().for_each(|v| *v = 0.0);
+    if labels {
+        let k = m.round();
+        if k < 0.0 || k >= paintings as f32 || (m - k).abs() > 0.01 {
+            if smoke {
+                bail!("--style-map label {m} is not one of the {paintings} paintings (labels 0 to {})", paintings - 1);
+            }
+            w[0] = 1.0;
+        } else {
+            w[k as usize] = 1.0;
+        }
+    } else {
+        let m = m.clamp(0.0, 1.0);
+        (w[0], w[1]) = (1.0 - m, m);
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -70,9 +70,10 @@ pub struct VolumeArgs {
     #[arg(long)]
     pub mode: Option<Mode>,
     /// A feed-forward model from `nst3d train`: stylize each frame with it in
-    /// one pass, from every viewpoint, no optimisation (paper Sec. 4).
+    /// one pass, from every viewpoint, no optimisation (paper Sec. 4). Give
+    /// it once per painting with --style-map: the results are blended by the map.
     #[arg(long)]
-    pub model: Option<PathBuf>,
+    pub model: Vec<PathBuf>,
     /// --model: tile side in voxels (memory follows it; Sec. 5.2).
     #[arg(long, default_value_t = ModelSettings::DEFAULT_TILE)]
     pub tile: usize,
@@ -231,8 +232,9 @@ impl VolumeArgs {
             eval_cameras: self.eval_cameras,
             upsample: self.upsample,
             sequence,
-            model: self.model.map(|path| ModelSettings {
+            model: self.model.first().cloned().map(|path| ModelSettings {
                 path,
+                more: self.model.iter().skip(1).cloned().collect(),
                 tile: self.tile,
                 margin: self.tile_margin,
                 mode: self.mode,
