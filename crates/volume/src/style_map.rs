@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use nst3d_core::Grid3;
-use nst3d_io::vdb::{read_vdb, Transform, VdbFile};
+use nst3d_io::vdb::{read_vdb, GridValues, Transform, VdbFile};
 
 /// Where a map's values come from.
 #[derive(Clone, Debug, PartialEq)]
@@ -136,10 +136,17 @@ fn grid_of(file: &VdbFile, name: &str, what: &Path) -> Result<Sampled> {
         let names: Vec<&str> = file.grids.iter().map(|g| g.name.as_str()).collect();
         format!("--style-map: {} has no grid named '{name}' (grids: {})", what.display(), names.join(", "))
     })?;
+    let world_to_index = invert(&grid.transform)?;
+    // A simulation's field may have no voxels yet where its smoke already
+    // has some (the first frames of a sequence): 0 everywhere, as outside
+    // any grid's active box.
+    if matches!(grid.values, GridValues::Float(_)) && grid.active_voxel_count() == 0 {
+        return Ok(Sampled { values: Grid3::zeros([1, 1, 1]), origin: [0; 3], world_to_index });
+    }
     let (bx, values) = grid
         .to_dense()
         .with_context(|| format!("--style-map: grid '{name}' of {} is not a float grid", what.display()))?;
-    Ok(Sampled { values, origin: bx.origin, world_to_index: invert(&grid.transform)? })
+    Ok(Sampled { values, origin: bx.origin, world_to_index })
 }
 
 /// The map's value at every voxel of a box of `dims` voxels whose voxel
@@ -320,6 +327,23 @@ mod tests {
             assert!((s.value([x, 0.0, 0.0], false) - (x as f32 - 1.0) / 2.0).abs() < 1e-5);
         }
         assert_eq!(s.value([6.2, 0.0, 0.0], true), 3.0);
+    }
+
+    /// A map grid with no active voxel reads 0 everywhere (the first
+    /// painting), not an error.
+    #[test]
+    fn an_empty_map_grid_is_zero() {
+        let t = Transform::uniform(1.0);
+        let empty = nst3d_io::vdb::VdbGrid::from_dense("temperature", t.clone(), [0; 3], &Grid3::zeros([4, 4, 4]), 0.0);
+        let file = VdbFile {
+            format_version: 224,
+            library_version: (10, 0),
+            file_metadata: Default::default(),
+            grids: vec![empty],
+        };
+        assert_eq!(file.grids[0].active_voxel_count(), 0);
+        let s = grid_of(&file, "temperature", Path::new("f.vdb")).unwrap();
+        assert_eq!((s.value([1.0, 2.0, 3.0], false), s.value([0.0; 3], true)), (0.0, 0.0));
     }
 
     #[test]
