@@ -14,6 +14,10 @@
 //!   and 0.9 (a label map's boundary is blurred only by the transmittance);
 //! - the texture's: the width of the ramp from one level to another that
 //!   fits the binned energy best (least squares over every width);
+//! - the strokes' orientation's: the same fit to the binned share of the
+//!   energy across the picture's columns against its rows, which tells two
+//!   paintings apart when their strokes lie differently (level stripes
+//!   against upright ones) even where their energies match;
 //! - the step: the mean energy in the [`STEP`] pixels on the second
 //!   painting's side less that on the first's, over the levels' mean (a
 //!   hard seam is a step; a soft map should have none);
@@ -60,6 +64,14 @@ pub struct Seam {
     pub undershoot: f32,
     /// The largest departure from the fit outside the band, over the mean.
     pub elsewhere: f32,
+    /// Width in pixels of the ramp that best fits the strokes' orientation
+    /// across the boundary (see [`Seam::orientations`]).
+    pub orientation_width: f32,
+    /// The fitted orientation on the first side and the second:
+    /// `(E_x − E_y) / (E_x + E_y)` of the energy across the picture's
+    /// columns and rows, +1 for strokes all upright, −1 all level. Two
+    /// paintings whose strokes lie differently show their boundary here.
+    pub orientations: [f32; 2],
     /// Bins of the profile (pixels of distance covered).
     pub bins: usize,
 }
@@ -87,6 +99,10 @@ pub struct SeamSummary {
     pub contrast: f32,
     /// Median of [`Seam::step`].
     pub step: f32,
+    /// Median of [`Seam::orientation_width`].
+    pub orientation_width: f32,
+    /// Medians of [`Seam::orientations`].
+    pub orientations: [f32; 2],
     /// Largest [`Seam::overshoot`].
     pub overshoot: f32,
     /// Largest [`Seam::undershoot`].
@@ -114,6 +130,8 @@ impl SeamSummary {
             texture_width: median(&|s| s.texture_width),
             contrast: median(&Seam::contrast),
             step: median(&|s| s.step),
+            orientation_width: median(&|s| s.orientation_width),
+            orientations: [median(&|s| s.orientations[0]), median(&|s| s.orientations[1])],
             overshoot: worst(&|s| s.overshoot),
             undershoot: worst(&|s| s.undershoot),
             elsewhere: worst(&|s| s.elsewhere),
@@ -125,8 +143,18 @@ impl std::fmt::Display for SeamSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "map width {:.0} px, texture width {:.0} px, contrast {:.2}, step {:+.2} (median of {} views); band rise {:.2} dip {:.2}, elsewhere {:.2} (worst)",
-            self.map_width, self.texture_width, self.contrast, self.step, self.views, self.overshoot, self.undershoot, self.elsewhere
+            "map width {:.0} px, texture width {:.0} px, contrast {:.2}, step {:+.2}, orientation {:+.2} to {:+.2} over {:.0} px (median of {} views); band rise {:.2} dip {:.2}, elsewhere {:.2} (worst)",
+            self.map_width,
+            self.texture_width,
+            self.contrast,
+            self.step,
+            self.orientations[0],
+            self.orientations[1],
+            self.orientation_width,
+            self.views,
+            self.overshoot,
+            self.undershoot,
+            self.elsewhere
         )
     }
 }
@@ -136,58 +164,10 @@ impl std::fmt::Display for SeamSummary {
 /// painting's share of each pixel's light, `smoke` the pixels that show
 /// smoke. `None` when the view shows no boundary or too few pixels.
 pub fn seam(input: &Image, result: &Image, share: &[f32], smoke: &[bool]) -> Option<Seam> {
-    let (h, w) = (input.height, input.width);
-    let energy = change_energy(input, result, smoke);
-    let side = |p: usize| share[p] >= 0.5;
-    // Midpoints between 4-neighbours on either side of the boundary.
-    let mut crossings = Vec::new();
-    for y in 0..h {
-        for x in 0..w {
-            let p = y * w + x;
-            for (q, mid) in [
-                (x + 1 < w).then(|| (p + 1, [x as f32 + 0.5, y as f32])),
-                (y + 1 < h).then(|| (p + w, [x as f32, y as f32 + 0.5])),
-            ]
-            .into_iter()
-            .flatten()
-            {
-                if smoke[p] && smoke[q] && side(p) != side(q) {
-                    crossings.push(mid);
-                }
-            }
-        }
-    }
-    if crossings.is_empty() {
-        return None;
-    }
-    // Bins by signed distance, one pixel each: bin i holds [i − n, i − n + 1).
-    let n = h.max(w);
-    let mut e_sum = vec![0.0f64; 2 * n];
-    let mut e_count = vec![0usize; 2 * n];
-    let mut m_sum = vec![0.0f64; 2 * n];
-    let mut m_count = vec![0usize; 2 * n];
-    for p in (0..h * w).filter(|&p| smoke[p]) {
-        let (x, y) = ((p % w) as f32, (p / w) as f32);
-        let d2 = crossings.iter().map(|c| (c[0] - x).powi(2) + (c[1] - y).powi(2)).fold(f32::INFINITY, f32::min);
-        let d = if side(p) { d2.sqrt() } else { -d2.sqrt() };
-        let bin = (d.floor() as i64 + n as i64).clamp(0, 2 * n as i64 - 1) as usize;
-        m_sum[bin] += share[p] as f64;
-        m_count[bin] += 1;
-        if let Some(e) = energy[p] {
-            e_sum[bin] += e as f64;
-            e_count[bin] += 1;
-        }
-    }
-    // The profile: contiguous bins on each side of the boundary with enough pixels.
-    let lo = (0..n).rev().take_while(|&b| e_count[b] >= MIN_PIXELS).last()?;
-    let hi = (n..2 * n).take_while(|&b| e_count[b] >= MIN_PIXELS).last()?;
-    let bins: Vec<usize> = (lo..=hi).collect();
-    let centre: Vec<f32> = bins.iter().map(|&b| b as f32 - n as f32 + 0.5).collect();
-    let e: Vec<f32> = bins.iter().map(|&b| (e_sum[b] / e_count[b] as f64) as f32).collect();
-    let weight: Vec<f32> = bins.iter().map(|&b| e_count[b] as f32).collect();
-    let map_width =
-        bins.iter().filter(|&&b| m_count[b] > 0 && (0.1..0.9).contains(&(m_sum[b] / m_count[b] as f64))).count() as f32;
+    let Profile { centre, energy: e, orientation, weight, share } = profile(input, result, share, smoke)?;
+    let map_width = share.iter().filter(|m| (0.1..0.9).contains(*m)).count() as f32;
     let (texture_width, levels) = fit_ramp(&centre, &e, &weight);
+    let (orientation_width, orientations) = fit_ramp(&centre, &orientation, &weight);
     let ramp = |c: f32| levels[0] + (levels[1] - levels[0]) * ramp_at(c, texture_width);
     let smooth: Vec<f32> = (0..e.len())
         .map(|i| {
@@ -214,7 +194,84 @@ pub fn seam(input: &Image, result: &Image, share: &[f32], smoke: &[bool]) -> Opt
             elsewhere = elsewhere.max((smooth[i] - ramp(c)).abs() / mean);
         }
     }
-    Some(Seam { map_width, texture_width, levels, step, overshoot, undershoot, elsewhere, bins: bins.len() })
+    let bins = centre.len();
+    Some(Seam {
+        map_width,
+        texture_width,
+        levels,
+        step,
+        overshoot,
+        undershoot,
+        elsewhere,
+        orientation_width,
+        orientations,
+        bins,
+    })
+}
+
+/// The smoke pixels binned by signed distance to the boundary, one pixel a
+/// bin: each bin's centre, mean energy, orientation, pixel count and mean
+/// share, over the bins contiguous with the boundary that hold
+/// [`MIN_PIXELS`] pixels with an energy.
+struct Profile {
+    centre: Vec<f32>,
+    energy: Vec<f32>,
+    orientation: Vec<f32>,
+    weight: Vec<f32>,
+    share: Vec<f32>,
+}
+
+fn profile(input: &Image, result: &Image, share: &[f32], smoke: &[bool]) -> Option<Profile> {
+    let (h, w) = (input.height, input.width);
+    let energy = change_energy(input, result, smoke);
+    let side = |p: usize| share[p] >= 0.5;
+    // Midpoints between 4-neighbours on either side of the boundary.
+    let mut crossings = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            let p = y * w + x;
+            for (q, mid) in [
+                (x + 1 < w).then(|| (p + 1, [x as f32 + 0.5, y as f32])),
+                (y + 1 < h).then(|| (p + w, [x as f32, y as f32 + 0.5])),
+            ]
+            .into_iter()
+            .flatten()
+            {
+                if smoke[p] && smoke[q] && side(p) != side(q) {
+                    crossings.push(mid);
+                }
+            }
+        }
+    }
+    if crossings.is_empty() {
+        return None;
+    }
+    // Bin i holds signed distances [i − n, i − n + 1): sums of the energy
+    // across the columns and the rows, pixels with an energy, share, pixels.
+    let n = h.max(w);
+    let mut sums = vec![[0.0f64; 5]; 2 * n];
+    for p in (0..h * w).filter(|&p| smoke[p]) {
+        let (x, y) = ((p % w) as f32, (p / w) as f32);
+        let d2 = crossings.iter().map(|c| (c[0] - x).powi(2) + (c[1] - y).powi(2)).fold(f32::INFINITY, f32::min);
+        let d = if side(p) { d2.sqrt() } else { -d2.sqrt() };
+        let bin = &mut sums[(d.floor() as i64 + n as i64).clamp(0, 2 * n as i64 - 1) as usize];
+        if let Some([gx, gy]) = energy[p] {
+            (bin[0], bin[1], bin[2]) = (bin[0] + gx as f64, bin[1] + gy as f64, bin[2] + 1.0);
+        }
+        (bin[3], bin[4]) = (bin[3] + share[p] as f64, bin[4] + 1.0);
+    }
+    let enough = |b: usize| sums[b][2] >= MIN_PIXELS as f64;
+    let lo = (0..n).rev().take_while(|&b| enough(b)).last()?;
+    let hi = (n..2 * n).take_while(|&b| enough(b)).last()?;
+    let bins = &sums[lo..=hi];
+    let of = |f: &dyn Fn(&[f64; 5]) -> f64| bins.iter().map(|b| f(b) as f32).collect::<Vec<f32>>();
+    Some(Profile {
+        centre: (lo..=hi).map(|b| b as f32 - n as f32 + 0.5).collect(),
+        energy: of(&|b| (b[0] + b[1]) / b[2]),
+        orientation: of(&|b| if b[0] + b[1] > 0.0 { (b[0] - b[1]) / (b[0] + b[1]) } else { 0.0 }),
+        weight: of(&|b| b[2]),
+        share: of(&|b| b[3] / b[4]),
+    })
 }
 
 /// The share of the second level at signed distance `c` on a ramp of
@@ -254,9 +311,10 @@ fn fit_ramp(c: &[f32], e: &[f32], weight: &[f32]) -> (f32, [f32; 2]) {
     (best.1, best.2)
 }
 
-/// `|∇(result − input)|²` per pixel (central differences), where the pixel
-/// and its four neighbours all show smoke.
-fn change_energy(input: &Image, result: &Image, smoke: &[bool]) -> Vec<Option<f32>> {
+/// `|∇(result − input)|²` per pixel (central differences) in its two
+/// parts, across the columns (`x`) and across the rows (`y`), where the
+/// pixel and its four neighbours all show smoke.
+fn change_energy(input: &Image, result: &Image, smoke: &[bool]) -> Vec<Option<[f32; 2]>> {
     let (h, w) = (input.height, input.width);
     let c = |p: usize| result.data[p] - input.data[p];
     (0..h * w)
@@ -270,7 +328,7 @@ fn change_energy(input: &Image, result: &Image, smoke: &[bool]) -> Vec<Option<f3
                 return None;
             }
             let (gx, gy) = (0.5 * (c(p + 1) - c(p - 1)), 0.5 * (c(p + w) - c(p - w)));
-            Some(gx * gx + gy * gy)
+            Some([gx * gx, gy * gy])
         })
         .collect()
 }
@@ -354,6 +412,33 @@ mod tests {
         );
         let s = dead.unwrap();
         assert!(s.undershoot > 0.5 && s.undershoot > 2.0 * s.elsewhere, "{s:?}");
+    }
+
+    /// Level stripes on one side and upright ones on the other, of the same
+    /// energy: no step in energy, but the orientation turns from −1 to +1
+    /// at a hard boundary and over the blend's width at a soft one.
+    #[test]
+    fn stripes_that_turn_show_the_transition() {
+        let (h, w) = (80, 40);
+        let run = |t: &dyn Fn(usize) -> f32| {
+            let input = Image::from_vec(1, h, w, vec![0.5; h * w]);
+            let mut result = input.clone();
+            for y in 0..h {
+                for x in 0..w {
+                    // Stripes of period 4, level (varying along y) and upright (along x), mixed by t.
+                    let (level, upright) =
+                        (if (y / 2) % 2 == 0 { 0.1 } else { -0.1 }, if (x / 2) % 2 == 0 { 0.1 } else { -0.1 });
+                    result.data[y * w + x] += (1.0 - t(y)) * level + t(y) * upright;
+                }
+            }
+            let share: Vec<f32> = (0..h * w).map(|p| t(p / w)).collect();
+            seam(&input, &result, &share, &vec![true; h * w]).unwrap()
+        };
+        let hard = run(&|y| (y >= 40) as u8 as f32);
+        assert!(hard.orientations[0] < -0.9 && hard.orientations[1] > 0.9, "{hard:?}");
+        assert!(hard.orientation_width <= 3.0 && hard.contrast() < 0.1, "{hard:?}");
+        let soft = run(&|y| ((y as f32 - 20.0) / 40.0).clamp(0.0, 1.0));
+        assert!(soft.orientation_width >= 20.0 && soft.map_width >= 25.0, "{soft:?}");
     }
 
     /// No boundary in view: nothing to measure.
