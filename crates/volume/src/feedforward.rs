@@ -30,6 +30,8 @@ pub struct ModelReport {
     pub skipped: usize,
     /// The model's mode.
     pub mode: Mode,
+    /// Models run on every frame (one per painting of a style map).
+    pub models: usize,
     /// Voxels of the frames' boxes (active box plus room for the velocity).
     pub voxels: u64,
     /// Seconds spent in the network and transport (not reading or writing).
@@ -416,7 +418,8 @@ pub fn stylize_with_model(s: &VolumeSettings, m: &ModelSettings, reporter: &mut 
         Some(_) => crate::flicker_of_outputs(&VolumeSettings { mode, ..s.clone() }, reporter)?,
         None => None,
     };
-    Ok(ModelReport { frames, skipped, mode, voxels, seconds, flicker, out: output })
+    let models = models.list.len();
+    Ok(ModelReport { frames, skipped, mode, models, voxels, seconds, flicker, out: output })
 }
 
 #[cfg(test)]

@@ -51,10 +51,13 @@ impl VolumeReport {
                 ));
             }
             VolumeReport::Model(r) => out.push(format!(
-                "{} frame{} stylized by the {:?}-mode model ({:.2} Mvoxels/s of the frames' boxes){}{}; wrote {}",
+                "{} frame{} stylized by {} ({:.2} Mvoxels/s of the frames' boxes){}{}; wrote {}",
                 r.frames,
                 plural(r.frames),
-                r.mode,
+                match r.models {
+                    1 => format!("the {:?}-mode model", r.mode),
+                    n => format!("{n} {:?}-mode models blended by the style map", r.mode),
+                },
                 r.voxels as f64 / r.seconds.max(1e-9) / 1e6,
                 if r.skipped > 0 { format!(", {} kept or copied unchanged", r.skipped) } else { String::new() },
                 r.flicker.map_or(String::new(), |f| format!("; flicker {f:.5}")),

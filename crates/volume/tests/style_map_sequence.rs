@@ -130,6 +130,15 @@ fn a_map_missing_in_one_frame_fails_before_writing() {
         assert!(!line.contains('\n'));
         assert!(!out.exists(), "nothing is written, not even the work folder");
     }
+    // A farm chunk reads its warm-up frames' maps too, each its own frame's.
+    let out = dir.path().join("out");
+    let mut s = settings([a.as_path(), &b], out.join("o_####.vdb"), Some("20-22"));
+    s.style_map = Some(format!("{}:temperature", pattern.display()));
+    let seq = s.sequence.as_mut().unwrap();
+    (seq.chunk, seq.warmup) = (Some("22-22".into()), 1);
+    let line = nst3d_core::report::one_line(stylize_sequence_files(&s, &mut Silent).unwrap_err().as_ref());
+    assert!(line.contains("frame 21: --style-map") && line.contains("m_0021.vdb"), "{line}");
+    assert!(!out.exists());
     // Frame 22's map file does not exist at all.
     std::fs::copy(shared("volumes/plume48/fluid_data_0021.vdb"), maps.join("m_0021.vdb")).unwrap();
     let out = dir.path().join("out");
