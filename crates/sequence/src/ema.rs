@@ -359,7 +359,10 @@ pub fn stylize_sequence_with<'a>(
                         color_step(loss, cs, (t, st.step), (&dstar, &mut grad_dstar), &views)?
                     }
                     (Some(_), Paintings::Map(..)) => {
-                        return Err(SequenceError::Frame { frame: t, message: "colour with a style map".into() })
+                        return Err(SequenceError::Frame {
+                            frame: t,
+                            message: "colour is not supported with a style map yet".into(),
+                        })
                     }
                 };
                 // The transport's backward is linear in ∂L/∂d*: one pass for all views.
