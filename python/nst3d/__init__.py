@@ -190,8 +190,10 @@ def stylize_volume(
 def stylize_vdb(
     input: PathLike,
     out: PathLike,
-    style: Optional[PathLike] = None,
+    style: Union[PathLike, Sequence[PathLike], None] = None,
     *,
+    style_map: Optional[str] = None,
+    style_map_labels: Optional[bool] = None,
     grid: Optional[str] = None,
     frames: Optional[str] = None,
     ema: Optional[float] = None,
@@ -242,8 +244,15 @@ def stylize_vdb(
     stylizes each frame instead (``style`` is then not needed). Every other
     grid of the file is kept; outputs are written atomically. Returns the
     report as a dict (``kind`` is ``"frame"``, ``"sequence"`` or ``"model"``).
+
+    Several paintings (``style=[a, b]``) go where ``style_map`` puts them,
+    as ``nst3d volume --style a --style b --style-map``: a grid of the file
+    (``"temperature"``), of another file (``"map.vdb:mask"``) or
+    ``"@height"``; a float map blends two paintings, a label map
+    (``style_map_labels=True``) picks one of several.
     """
     opts = _options(
+        style_map=style_map, style_map_labels=style_map_labels,
         grid=grid, frames=frames, ema=ema, ema_settle=ema_settle, velocity_grid=velocity_grid,
         velocity_scale=velocity_scale, chunk=chunk, warmup=warmup, force=force, work_dir=work_dir,
         model=model, tile=tile, tile_margin=tile_margin, mode=mode, octaves=octaves, iters=iters,
@@ -255,8 +264,13 @@ def stylize_vdb(
     )
     if style is None and model is None:
         raise ValueError("stylize_vdb needs a style painting (or a trained model)")
-    style_path = os.fspath(style) if style is not None else ""
-    return _nst3d.stylize_vdb(os.fspath(input), os.fspath(out), style_path, opts, progress, _to_log)
+    if style is None:
+        styles = [""]
+    elif isinstance(style, (str, os.PathLike)):
+        styles = [os.fspath(style)]
+    else:
+        styles = [os.fspath(s) for s in style]
+    return _nst3d.stylize_vdb(os.fspath(input), os.fspath(out), styles, opts, progress, _to_log)
 
 
 def stylize_groom(

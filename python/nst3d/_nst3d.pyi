@@ -47,6 +47,8 @@ class VolumeOptions(TypedDict, total=False):
     camera_file: str
     camera_seed: int
     eval_cameras: str
+    style_map: str
+    style_map_labels: bool
     upsample: Union[Literal["auto"], int]
     frames: str
     ema: float
@@ -127,7 +129,7 @@ def stylize_volume(
     progress: _Progress = None, log: _Log = None,
 ) -> Tuple[bytes, Dict[str, Any]]: ...
 def stylize_vdb(
-    input: str, out: str, style: str, options: VolumeOptions, progress: _Progress = None, log: _Log = None
+    input: str, out: str, styles: List[str], options: VolumeOptions, progress: _Progress = None, log: _Log = None
 ) -> Dict[str, Any]: ...
 def stylize_groom(
     points: bytes, counts: Sequence[int], style: str, options: GroomOptions,

@@ -47,6 +47,21 @@ def test_the_file_job_matches_the_command_line_byte_for_byte(tmp_path, data, sty
     assert (tmp_path / "py.png").stat().st_size > 0
 
 
+def test_two_paintings_by_a_style_map_match_the_command_line(tmp_path, data, style, nst3d_bin):
+    src = data / "volumes" / "smoke_000003.vdb"
+    other = data / "styles" / "shipwreck.jpg"
+    ours = tmp_path / "py.vdb"
+    rep = nst3d.stylize_vdb(src, ours, [style, other], style_map="@height", mode="density", **FAST)
+    assert rep["kind"] == "frame"
+    cli = tmp_path / "cli.vdb"
+    run_cli(nst3d_bin, "volume", "--input", src, "--style", style, "--style", other, "--style-map", "@height",
+            "--mode", "density", "--out", cli, "--iters", 3, "--octaves", 1)
+    assert ours.read_bytes() == cli.read_bytes()
+    # One painting and a map is one error line, as on the command line.
+    with pytest.raises(nst3d.Nst3dError, match="style-map"):
+        nst3d.stylize_vdb(src, tmp_path / "one.vdb", style, style_map="@height", **FAST)
+
+
 def test_openvdb_reads_what_the_package_writes(tmp_path, data, style):
     src = data / "volumes" / "smoke_000003.vdb"
     out = tmp_path / "styled.vdb"

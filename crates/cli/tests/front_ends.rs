@@ -134,9 +134,7 @@ const PAIRINGS: &[Pairing] = &[
         python: "stylize_vdb",
         rust: "apply_volume",
         not_options: &["input", "out", "style", "progress", "projection"],
-        // Style maps (several paintings, each where a grid puts it) are the
-        // command line's alone until the Python package takes a map.
-        cli_only: &["style_map", "style_map_labels"],
+        cli_only: &[],
         // The old name of `camera`, still accepted with a DeprecationWarning.
         python_only: &["projection"],
     },

@@ -100,17 +100,20 @@ fn stylize_volume<'py>(
 
 /// Stylizes an OpenVDB file or sequence into files (`nst3d volume`).
 #[pyfunction]
-#[pyo3(signature = (input, out, style, options, progress=None, log=None))]
+#[pyo3(signature = (input, out, styles, options, progress=None, log=None))]
 fn stylize_vdb<'py>(
     py: Python<'py>,
     input: PathBuf,
     out: PathBuf,
-    style: PathBuf,
+    styles: Vec<PathBuf>,
     options: &Dict<'py>,
     progress: Option<Py<PyAny>>,
     log: Option<Py<PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let mut s = VolumeSettings::new(input, style, out);
+    // Several paintings go where a style map puts them, in its order.
+    let mut styles = styles.into_iter();
+    let mut s = VolumeSettings::new(input, styles.next().unwrap_or_default(), out);
+    s.more_styles = styles.collect();
     apply_volume(&mut s, Options::new(options)?)?;
     let r = run_job(py, progress, log, move |rep| nst3d_volume::stylize(&s, rep))?;
     let d = PyDict::new(py);

@@ -154,6 +154,8 @@ pub fn apply_volume(s: &mut VolumeSettings, mut o: Options<'_>) -> PyResult<()> 
     set!(o.path("camera_file") => Some s.camera_file);
     set!(o.u64("camera_seed") => s.camera_seed);
     set!(o.string("eval_cameras") => Some s.eval_cameras);
+    set!(o.string("style_map") => Some s.style_map);
+    set!(o.bool("style_map_labels") => s.style_map_labels);
     if let Some(u) = o.typed("upsample", "'auto' or a factor", |v| {
         v.extract::<String>().or_else(|_| v.extract::<usize>().map(|k| k.to_string()))
     })? {
