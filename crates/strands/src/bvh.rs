@@ -234,6 +234,12 @@ struct DistanceGate {
     cell: f32,
     dims: [usize; 3],
     signed: Vec<f32>,
+    /// Every edge is shared by exactly two triangles: only then is a point
+    /// outside the mesh's box outside the mesh. A ground plane's box is
+    /// flat, and a blade bent below the plane is outside the box but under
+    /// the ground; trusting the box there let such points skip the
+    /// collision projection.
+    closed: bool,
 }
 
 impl DistanceGate {
@@ -273,7 +279,7 @@ impl DistanceGate {
                 }
             })
             .collect();
-        DistanceGate { mesh_lo, mesh_hi, lo, cell, dims, signed }
+        DistanceGate { mesh_lo, mesh_hi, lo, cell, dims, signed, closed: bvh.is_closed() }
     }
 
     /// A lower bound on the distance of `p` to the surface when `p` is
@@ -299,7 +305,8 @@ impl DistanceGate {
             e2 += d * d;
         }
         let s = self.signed[idx[0] + self.dims[0] * (idx[1] + self.dims[1] * idx[2])];
-        let bound = (s - e2.sqrt()).max(outside_box);
+        let near = s - e2.sqrt();
+        let bound = if self.closed { near.max(outside_box) } else { near };
         (bound > 0.0).then_some(bound)
     }
 }
@@ -599,6 +606,17 @@ impl MeshBvh {
         self.closest_point(p).signed_distance
     }
 
+    /// Every edge borders exactly two of the triangles (a closed surface).
+    fn is_closed(&self) -> bool {
+        let mut count: HashMap<(u32, u32), u32> = HashMap::new();
+        for t in &self.tris {
+            for k in 0..3 {
+                *count.entry(edge_key(t[k], t[(k + 1) % 3])).or_default() += 1;
+            }
+        }
+        count.values().all(|&n| n == 2)
+    }
+
     /// Inside test by the pseudo-normal sign of the closest point.
     pub fn is_inside(&self, p: [f32; 3]) -> bool {
         self.signed_distance(p) < 0.0
@@ -756,6 +774,24 @@ pub(crate) mod tests {
                 dist2(p, closest_point_on_triangle(p, a, b, c).0)
             })
             .fold(f32::INFINITY, f32::min)
+    }
+
+    /// A point under an open ground plane, deeper than τ, is found: the
+    /// plane's box is flat, so the point is outside the box, which says
+    /// nothing about an open mesh.
+    #[test]
+    fn the_gate_finds_a_point_under_an_open_ground() {
+        let ground = TriMesh {
+            vertices: vec![[-0.5, 0.0, -0.5], [0.5, 0.0, -0.5], [0.5, 0.0, 0.5], [-0.5, 0.0, 0.5]],
+            triangles: vec![[0, 2, 1], [0, 3, 2]],
+            ..TriMesh::default()
+        };
+        let bvh = MeshBvh::new(&ground).unwrap();
+        assert!(!bvh.is_closed());
+        let under = [0.1, -0.03, 0.2];
+        let hit = bvh.closest_point_within(under, 0.005).expect("a point under the ground skips the search");
+        assert!((hit.signed_distance + 0.03).abs() < 1e-6, "{}", hit.signed_distance);
+        assert!(bvh.closest_point_within([0.1, 0.03, 0.2], 0.005).is_none());
     }
 
     /// The distance gate never lets a point that is inside skip the
