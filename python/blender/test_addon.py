@@ -56,9 +56,10 @@ PICTURES = "--pictures" in ARGS
 REPO = os.path.dirname(os.path.dirname(HERE))
 SHARED = os.environ.get("NST3D_SHARED", os.path.join(os.path.dirname(REPO), "shared"))
 STYLE = os.path.join(SHARED, "data", "styles", "starry_night.jpg")
+STYLE_B = os.path.join(SHARED, "data", "styles", "shipwreck.jpg")
 MODEL = os.path.join(REPO, "models", "starry_density.safetensors")
 FRAME = 30
-for need in (STYLE, MODEL, os.path.join(SHARED, "tools", "blender_bake_smoke.py")):
+for need in (STYLE, STYLE_B, MODEL, os.path.join(SHARED, "tools", "blender_bake_smoke.py")):
     if not os.path.exists(need):
         raise SystemExit(f"test data missing: {need}")
 os.makedirs(OUT, exist_ok=True)
@@ -132,6 +133,7 @@ def main():
     styled, pv = smoke.stylize(mod, domain, OUT, cache, STYLE, FRAME, iters, legacy=EXTENSION is None)
     bg = smoke.pictures(mod, scene, domain, styled, pv, FRAME, OUT, cache)
     smoke.model(mod, domain, OUT, MODEL, FRAME)
+    smoke.two_paintings(mod, domain, OUT, STYLE, STYLE_B, MODEL, FRAME)
     smoke.cancel(mod, domain, OUT, STYLE, FRAME)
     smoke.bad_output(domain, OUT, STYLE, FRAME)
     scalp = hair.particle_hair()

@@ -62,6 +62,15 @@ class SmokeTask:
         else:
             opts = dict(model=model)
         style = _painting(s, needed=model is None)
+        second = bpy.path.abspath(s.style_b) if s.style_b else ""
+        if second:
+            if model is not None or s.color:
+                raise RuntimeError("Two paintings need the optimisation without colour: clear Second painting, "
+                                   "or clear Model and turn Colour off")
+            if not os.path.isfile(second):
+                raise RuntimeError(f"second painting not found: {second}")
+            style = [style, second]
+            opts["style_map"] = s.style_map or "@height"
         self.color = bool(s.color)
         if self.color:
             opts.update(color=True, color_grid=volume_io.COLOR_GRID)

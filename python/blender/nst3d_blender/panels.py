@@ -32,6 +32,10 @@ class NST3D_PT_smoke(bpy.types.Panel):
         col = layout.column()
         col.active = optimise
         col.prop(s, "style")
+        col.prop(s, "style_b")
+        sub = col.column()
+        sub.active = bool(s.style_b)
+        sub.prop(s, "style_map")
         col.prop(s, "mode")
         layout.prop(s, "strength")
         row = layout.row(align=True)

@@ -57,6 +57,13 @@ _PRESETS = [("short-hair", "Short hair", ""), ("short-hair-360", "Short hair 360
 
 class Nst3dSettings(bpy.types.PropertyGroup):
     style: StringProperty(name="Painting", subtype="FILE_PATH", description="The style painting (PNG or JPEG)")
+    style_b: StringProperty(name="Second painting", subtype="FILE_PATH", default="",
+                            description="Smoke: a second painting, placed by Style map (empty: one painting "
+                                        "everywhere)")
+    style_map: StringProperty(name="Style map", default="@height",
+                              description="Where the second painting goes: a grid of the domain's cache such as "
+                                          "temperature (0: the first painting, 1: the second), @height (bottom to top) or "
+                                          "@height-split (a cut at mid-height)")
     mode: EnumProperty(name="Mode", items=_MODES, default="velocity")
     strength: EnumProperty(name="Strength", items=_STRENGTHS, default="default")
     frame_start: IntProperty(name="Start", default=1, min=0)

@@ -143,6 +143,31 @@ def model(addon, domain, out, model_path, frame):
     obj.hide_render = True
 
 
+def two_paintings(addon, domain, out, style, style_b, model_path, frame):
+    """Two paintings on one frame, the second above mid-height (a style map);
+    a second painting with a model is one error line."""
+    s = domain.nst3d
+    s.style, s.style_b, s.style_map, s.color, s.model = style, style_b, "@height-split", False, ""
+    s.iters, s.use_scene_camera, s.cameras = 2, False, "front"
+    s.output_dir = os.path.join(out, "styled_map")
+    with bpy.context.temp_override(object=domain, active_object=domain, selected_objects=[domain]):
+        result = bpy.ops.nst3d.stylize_smoke()
+    check(result == {"FINISHED"}, f"Stylize smoke with two paintings by a style map finished ({result})")
+    obj = next(o for o in bpy.data.objects if o.type == "VOLUME" and o.data.filepath.startswith(s.output_dir))
+    obj.data.grids.load()
+    check(obj.data.grids.is_loaded and "density" in [g.name for g in obj.data.grids],
+          "Blender reads the two paintings' density")
+    obj.hide_render = True
+    s.model = model_path
+    with bpy.context.temp_override(object=domain, active_object=domain, selected_objects=[domain]):
+        try:
+            result, message = bpy.ops.nst3d.stylize_smoke(), ""
+        except RuntimeError as e:  # an operator's error report raises in background mode
+            result, message = {"CANCELLED"}, str(e).strip()
+    check(result == {"CANCELLED"} and "Two paintings" in message, f"a second painting with a model is one line: '{message}'")
+    s.model, s.style_b = "", ""
+
+
 def cancel(addon, domain, out, style, frame):
     """Esc while Stylize smoke runs: the run stops and the scene and the
     output folder (holding an earlier result) are as they were."""
