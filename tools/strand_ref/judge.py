@@ -42,13 +42,18 @@ def gram_dist(ga, gs):
     return sum(((a - s) ** 2).sum().item() / (s ** 2).sum().item() for a, s in zip(ga, gs))
 
 
-def orient_hist(img, bins=18, sigma=2.0):
-    """Coherence- and energy-weighted histogram of stroke directions (the
-    structure tensor's minor eigenvector) over [0, 180) degrees."""
+def structure_tensor(img, sigma):
+    """The smoothed structure tensor's entries (jxx, jxy, jyy) of a grey image."""
     a = img.numpy().astype(np.float64)
     gy, gx = np.gradient(a)
     from scipy.ndimage import gaussian_filter
-    jxx, jxy, jyy = (gaussian_filter(t, sigma) for t in (gx * gx, gx * gy, gy * gy))
+    return tuple(gaussian_filter(t, sigma) for t in (gx * gx, gx * gy, gy * gy))
+
+
+def orient_hist(img, bins=18, sigma=2.0):
+    """Coherence- and energy-weighted histogram of stroke directions (the
+    structure tensor's minor eigenvector) over [0, 180) degrees."""
+    jxx, jxy, jyy = structure_tensor(img, sigma)
     tr = jxx + jyy
     disc = np.sqrt((jxx - jyy) ** 2 + 4 * jxy ** 2)
     coh = (disc / (tr + 1e-12)) ** 2
@@ -66,14 +71,11 @@ def stroke_field(img, sigma=2.0, gate=None):
     the structure tensor's minor eigenvector, weighted by coherence and, with
     `gate`, by E/(E + (gate/h)^2) of the gradient energy (as nst3d's
     orientation term weighs a painting's strokes)."""
-    a = img.numpy().astype(np.float64)
-    gy, gx = np.gradient(a)
-    from scipy.ndimage import gaussian_filter
-    jxx, jxy, jyy = (gaussian_filter(t, sigma) for t in (gx * gx, gx * gy, gy * gy))
+    jxx, jxy, jyy = structure_tensor(img, sigma)
     tr = jxx + jyy
     disc = np.sqrt((jxx - jyy) ** 2 + 4 * jxy ** 2)
     c = (disc / (tr + 1e-12)) ** 2
-    c = c * (tr / (tr + (gate / a.shape[0]) ** 2) if gate else tr)
+    c = c * (tr / (tr + (gate / jxx.shape[0]) ** 2) if gate else tr)
     # the stroke runs across the gradient: angle of the minor eigenvector, doubled
     t2 = np.arctan2(-2 * jxy, -(jxx - jyy))
     return c * np.cos(t2), c * np.sin(t2), c
