@@ -126,21 +126,28 @@ def pictures(addon, scene, domain, styled, pv_styled, frame, out, cache):
     return bg
 
 
+def _stylize_and_load(domain, what):
+    """Runs Stylize smoke into the domain's output folder as set; checks that
+    it finished and that Blender reads the result's density, then hides it."""
+    s = domain.nst3d
+    t0 = time.time()
+    with bpy.context.temp_override(object=domain, active_object=domain, selected_objects=[domain]):
+        result = bpy.ops.nst3d.stylize_smoke()
+    check(result == {"FINISHED"}, f"Stylize smoke with {what} finished ({result}, {time.time() - t0:.1f} s)")
+    obj = next(o for o in bpy.data.objects if o.type == "VOLUME" and o.data.filepath.startswith(s.output_dir))
+    obj.data.grids.load()
+    check(obj.data.grids.is_loaded and "density" in [g.name for g in obj.data.grids],
+          f"Blender reads the density stylized with {what}")
+    obj.hide_render = True
+
+
 def model(addon, domain, out, model_path, frame):
     """Stylize smoke with a feed-forward model: no painting, one pass."""
     s = domain.nst3d
     s.style, s.color, s.model = "", False, model_path
     s.output_dir = os.path.join(out, "styled_model")
-    t0 = time.time()
-    with bpy.context.temp_override(object=domain, active_object=domain, selected_objects=[domain]):
-        result = bpy.ops.nst3d.stylize_smoke()
-    check(result == {"FINISHED"}, f"Stylize smoke with a feed-forward model finished ({result}, {time.time() - t0:.1f} s)")
-    obj = next(o for o in bpy.data.objects if o.type == "VOLUME" and o.data.filepath.startswith(s.output_dir))
-    obj.data.grids.load()
-    check(obj.data.grids.is_loaded and "density" in [g.name for g in obj.data.grids],
-          "Blender reads the model's stylized density")
+    _stylize_and_load(domain, "a feed-forward model")
     s.model = ""
-    obj.hide_render = True
 
 
 def two_paintings(addon, domain, out, style, style_b, model_path, frame):
@@ -150,14 +157,7 @@ def two_paintings(addon, domain, out, style, style_b, model_path, frame):
     s.style, s.style_b, s.style_map, s.color, s.model = style, style_b, "@height-split", False, ""
     s.iters, s.use_scene_camera, s.cameras = 2, False, "front"
     s.output_dir = os.path.join(out, "styled_map")
-    with bpy.context.temp_override(object=domain, active_object=domain, selected_objects=[domain]):
-        result = bpy.ops.nst3d.stylize_smoke()
-    check(result == {"FINISHED"}, f"Stylize smoke with two paintings by a style map finished ({result})")
-    obj = next(o for o in bpy.data.objects if o.type == "VOLUME" and o.data.filepath.startswith(s.output_dir))
-    obj.data.grids.load()
-    check(obj.data.grids.is_loaded and "density" in [g.name for g in obj.data.grids],
-          "Blender reads the two paintings' density")
-    obj.hide_render = True
+    _stylize_and_load(domain, "two paintings by a style map")
     s.model = model_path
     with bpy.context.temp_override(object=domain, active_object=domain, selected_objects=[domain]):
         try:
