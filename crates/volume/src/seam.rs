@@ -380,37 +380,21 @@ mod tests {
     #[test]
     fn a_band_along_the_boundary_is_a_halo() {
         let hard = |y: usize| (y >= 40) as u8 as f32;
-        let bright = split(
-            80,
-            40,
-            |y| {
-                if (38..42).contains(&y) {
-                    0.3
+        // 0.1 above the boundary, 0.15 below, `v` in the rows `band`.
+        let with_band = |band: std::ops::Range<usize>, v: f32| {
+            move |y: usize| {
+                if band.contains(&y) {
+                    v
                 } else if y < 40 {
                     0.1
                 } else {
                     0.15
                 }
-            },
-            hard,
-        );
-        let s = bright.unwrap();
+            }
+        };
+        let s = split(80, 40, with_band(38..42, 0.3), hard).unwrap();
         assert!(s.overshoot > 1.0 && s.overshoot > 2.0 * s.elsewhere, "{s:?}");
-        let dead = split(
-            80,
-            40,
-            |y| {
-                if (37..43).contains(&y) {
-                    0.0
-                } else if y < 40 {
-                    0.1
-                } else {
-                    0.15
-                }
-            },
-            hard,
-        );
-        let s = dead.unwrap();
+        let s = split(80, 40, with_band(37..43, 0.0), hard).unwrap();
         assert!(s.undershoot > 0.5 && s.undershoot > 2.0 * s.elsewhere, "{s:?}");
     }
 
