@@ -45,6 +45,7 @@ use nst3d_core::Grid3;
 use nst3d_optim::{optimise_in_turn, Adam};
 
 use crate::field::{Field, Limits};
+use crate::guided::MapLoss;
 use crate::view::{ViewError, ViewLoss, ViewSpec};
 
 pub use nst3d_optim::color_stage::{COLOR_VIEWS, GREY_GUARD};
@@ -186,6 +187,43 @@ pub fn stylize_color(
     params: &ColorStageParams,
     progress: &mut dyn FnMut(&ColorProgress),
 ) -> Result<ColorResult, ViewError> {
+    let guard = (params.grey_guard > 0.0).then_some((grey, params.grey_guard));
+    let step: &ColorStep =
+        &|density, color, view| loss.loss_and_grad_color_guarded(density, color, view, params.smoke_term, guard);
+    stylize_color_with(d, views, params, step, progress)
+}
+
+/// [`stylize_color`] with a style map: `loss` and `grey` hold the colour
+/// paintings and their luminance in the map's order, each matched over its
+/// region of `regions` (one weight grid per painting over `d`'s voxels, as
+/// the density's field left them). A scale of the density leaves the
+/// regions where they are.
+pub fn stylize_color_map(
+    d: &Grid3,
+    (loss, grey, regions): (&MapLoss, &MapLoss, &[Grid3]),
+    views: &[ViewSpec],
+    params: &ColorStageParams,
+    progress: &mut dyn FnMut(&ColorProgress),
+) -> Result<ColorResult, ViewError> {
+    let guard = (params.grey_guard > 0.0).then_some((grey, params.grey_guard));
+    let step: &ColorStep = &|density, color, view| {
+        loss.loss_and_grad_color_guarded(density, color, regions, view, params.smoke_term, guard)
+    };
+    stylize_color_with(d, views, params, step, progress)
+}
+
+/// One view's colour loss, guard loss and gradients w.r.t. the density and
+/// each colour channel.
+type ColorStep<'s> = dyn Fn(&Grid3, &[Grid3], &ViewSpec) -> Result<(f32, f32, Grid3, Vec<Grid3>), ViewError> + 's;
+
+/// The stage's loop over the views, each iteration's loss from `step`.
+fn stylize_color_with(
+    d: &Grid3,
+    views: &[ViewSpec],
+    params: &ColorStageParams,
+    step: &ColorStep,
+    progress: &mut dyn FnMut(&ColorProgress),
+) -> Result<ColorResult, ViewError> {
     let iterations = params.iterations.max(1);
     let (lo, hi) = COLOR_RANGE;
     let (guard_w, lr) = (params.grey_guard, params.learning_rate);
@@ -196,12 +234,10 @@ pub fn stylize_color(
         let limits = Limits { vmax: 0.0, smin: j.smin, smax: j.smax };
         (Field::identity(crate::Mode::Density, d.len()), Adam::new(d.len(), j.learning_rate), limits)
     });
-    let guard = (guard_w > 0.0).then_some((grey, guard_w));
     let sweeps = optimise_in_turn(views, iterations, |it, view| {
         let scaled = joint.as_ref().map(|(field, _, _)| field.forward(d));
         let density = scaled.as_ref().map_or(d, |(dd, _)| dd);
-        let (l, l_grey, grad_d, grad) =
-            loss.loss_and_grad_color_guarded(density, &color, view, params.smoke_term, guard)?;
+        let (l, l_grey, grad_d, grad) = step(density, &color, view)?;
         let l = l + guard_w * l_grey;
         for ((c, a), g) in color.iter_mut().zip(&mut adam).zip(&grad) {
             a.step(&mut c.data, &g.data);

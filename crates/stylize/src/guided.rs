@@ -17,7 +17,7 @@ use crate::view::{grey_to_rgb, ViewError, ViewLoss, ViewSpec, SMOKE_PIXEL};
 /// The paintings of a style map: one [`ViewLoss`] per region, all with the
 /// same network and layers.
 pub struct MapLoss<'a> {
-    paintings: Vec<ViewLoss<'a>>,
+    pub(crate) paintings: Vec<ViewLoss<'a>>,
 }
 
 impl<'a> MapLoss<'a> {

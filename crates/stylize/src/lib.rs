@@ -5,7 +5,8 @@
 //! - [`field`]: the optimised quantity and its transport `T` (one type for both modes).
 //! - [`color`]: the smoke's colour as a luminance-1, smoothed chroma layer.
 //! - [`view`]: one camera's loss `L(R_θ(d*))` and its gradient w.r.t. `d*`.
-//! - [`guided`]: several paintings split by a style map (guided Gram loss).
+//! - [`guided`]: several paintings split by a style map (guided Gram loss);
+//!   [`guided_color`]: their colour, each over its region.
 //! - [`frame`]: the multi-octave Adam loop over a single density grid.
 //! - [`bench`]: the `volume-iter` benchmark work of `shared/bench/README.md`.
 
@@ -17,9 +18,12 @@ pub mod color_stage;
 pub mod field;
 pub mod frame;
 pub mod guided;
+pub mod guided_color;
 pub mod view;
 
-pub use color_stage::{stylize_color, ColorProgress, ColorResult, ColorStageParams, JointDensity, COLOR_VIEWS};
+pub use color_stage::{
+    stylize_color, stylize_color_map, ColorProgress, ColorResult, ColorStageParams, JointDensity, COLOR_VIEWS,
+};
 pub use field::{Field, Limits, Mode, Tape};
 pub use frame::{stylize_frame, stylize_frame_map, stylize_frame_views, FrameParams, FrameResult, Progress};
 pub use guided::{region_guides, MapLoss};

@@ -212,13 +212,7 @@ impl ViewLoss<'_> {
             let back = Image::luminance3_backward(&grad_lum);
             grad.data.iter_mut().zip(&back.data).for_each(|(a, b)| *a += w * b);
         }
-        if view.exposure != 1.0 {
-            grad.data.iter_mut().for_each(|v| *v *= view.exposure);
-        }
-        let (grad_d, grad_c) = match &cache {
-            RgbCache::Camera(cache) => render::render_color_backward(d, color, cache, &grad),
-            RgbCache::March(emission) => render::march_color_backward(d, color, emission, view.gamma, &grad),
-        };
+        let (grad_d, grad_c) = color_backward(d, color, view, &cache, grad);
         Ok((loss, guard_loss, grad_d, grad_c))
     }
 
@@ -306,12 +300,31 @@ pub(crate) fn rgb_picture(d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result
 
 /// What the colour render keeps for its backward: the camera's, or the
 /// emission of the camera-less march.
-enum RgbCache {
+pub(crate) enum RgbCache {
     Camera(render::ColorRenderCache),
     March(Vec<Grid3>),
 }
 
-fn rgb(d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result<(Image, RgbCache), ViewError> {
+/// The gradients w.r.t. `d` and each colour channel from `grad`, the
+/// gradient w.r.t. the colour picture [`rgb`] made (before its exposure).
+pub(crate) fn color_backward(
+    d: &Grid3,
+    color: &[Grid3],
+    view: &ViewSpec,
+    cache: &RgbCache,
+    mut grad: Image,
+) -> (Grid3, Vec<Grid3>) {
+    if view.exposure != 1.0 {
+        grad.data.iter_mut().for_each(|v| *v *= view.exposure);
+    }
+    match cache {
+        RgbCache::Camera(cache) => render::render_color_backward(d, color, cache, &grad),
+        RgbCache::March(emission) => render::march_color_backward(d, color, emission, view.gamma, &grad),
+    }
+}
+
+/// The colour picture of `d` (render and exposure) and what its backward needs.
+pub(crate) fn rgb(d: &Grid3, color: &[Grid3], view: &ViewSpec) -> Result<(Image, RgbCache), ViewError> {
     let (mut img, cache) = match &view.camera {
         Some(cam) => {
             let (img, cache) = render::render_color_view(d, color, cam.view(d.dims)?, view.gamma)?;

@@ -7,8 +7,8 @@ use nst3d_core::{Grid3, Image};
 use nst3d_features::{Vgg19, VggFlavor, VggLayer};
 use nst3d_render::{Camera, Projection};
 use nst3d_stylize::{
-    bench::synthetic_smoke, stylize_color, stylize_frame, ColorStageParams, Field, FrameParams, JointDensity, Limits,
-    Mode, StyleSpec, ViewLoss, ViewSpec,
+    bench::synthetic_smoke, stylize_color, stylize_color_map, stylize_frame, ColorStageParams, Field, FrameParams,
+    JointDensity, Limits, MapLoss, Mode, StyleSpec, ViewLoss, ViewSpec,
 };
 
 fn style(n: usize) -> Image {
@@ -334,6 +334,37 @@ fn color_stage_moves_the_density_within_its_limits() {
     }
     assert!(moved > 0.1, "the density did not move (largest scale change {moved})");
     assert!(r.loss_last_sweep < r.loss_first_sweep, "{} -> {}", r.loss_first_sweep, r.loss_last_sweep);
+}
+
+/// The colour stage with a style map of one painting that holds every
+/// voxel is the colour stage of that painting alone, bit for bit: the same
+/// colour, the same density (moved with the colour) and the same losses.
+#[test]
+fn color_stage_with_a_one_painting_map_is_the_color_stage() {
+    let vgg = Vgg19::random(VggFlavor::Torchvision, 2);
+    let spec = StyleSpec::default();
+    let d = synthetic_smoke(16, 9);
+    let views: Vec<ViewSpec> = [0.0, 180.0]
+        .iter()
+        .map(|az| ViewSpec {
+            camera: Some(Camera::orbit(d.dims, *az, 15.0)),
+            gamma: 0.2,
+            exposure: 0.2,
+            equalize: false,
+        })
+        .collect();
+    let density = Some(JointDensity { learning_rate: 0.05, smin: 0.5, smax: 1.5 });
+    let params = ColorStageParams { iterations: 4, learning_rate: 0.05, grey_guard: 1.0, smoke_term: 0.5, density };
+    let loss = ViewLoss::new(&vgg, &color_style(16), &spec).unwrap();
+    let grey = ViewLoss::new(&vgg, &color_style(16).luminance3(), &spec).unwrap();
+    let alone = stylize_color(&d, &loss, &grey, &views, &params, &mut |_| {}).unwrap();
+    let map = MapLoss::new(vec![ViewLoss::new(&vgg, &color_style(16), &spec).unwrap()]);
+    let map_grey = MapLoss::new(vec![ViewLoss::new(&vgg, &color_style(16).luminance3(), &spec).unwrap()]);
+    let all = [Grid3::from_vec(d.dims, vec![1.0; d.len()])];
+    let mapped = stylize_color_map(&d, (&map, &map_grey, &all), &views, &params, &mut |_| {}).unwrap();
+    assert_eq!(mapped.density.data, alone.density.data);
+    assert!(mapped.color.iter().zip(&alone.color).all(|(a, b)| a.data == b.data));
+    assert_eq!((mapped.loss_first_sweep, mapped.loss_last_sweep), (alone.loss_first_sweep, alone.loss_last_sweep));
 }
 
 /// d(RGB loss)/d(density, colour) through render, upsampling, VGG and the
