@@ -11,7 +11,9 @@
 //! AVX512-BF16 but no AMX the bf16 path was measured 1.3–2.7x *slower*
 //! than fp32 (the fp32 convolutions are Winograd, `vdpbf16ps` only doubles
 //! the FMA's width; docs/design/performance.md), so there
-//! `bf16` must be asked for.
+//! `bf16` must be asked for. The 3D network's convolutions are the
+//! exception ([`path_for`]): their direct bf16 kernels beat fp32 on
+//! AVX512-BF16 as well.
 //! `fp32` is the reference every finite-difference check runs on.
 //!
 //! The setting is process-wide (a job runs one precision); a thread may
@@ -197,22 +199,21 @@ pub fn path() -> Path {
     current().resolve()
 }
 
-/// Products whose bf16 path `auto` skips because it was measured slower
-/// than their fp32 one on a CPU with AMX (docs/design/performance.md).
+/// Products whose `auto` differs from the other products'
+/// (docs/design/performance.md).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Product {
-    /// The 3D network's convolutions: the bf16 path packs an im2col copy per
-    /// call, and that made a training step and an inference about 2x slower
-    /// than the fp32 im2col + micro-kernel path on AMX (2026-11-26).
+    /// The 3D network's convolutions: direct kernels on `vdpbf16ps`, which
+    /// measured faster than their fp32 twins on an AVX512-BF16 CPU without
+    /// AMX too, so `auto` takes bf16 wherever the CPU has a bf16 unit.
     Conv3d,
 }
 
-/// The path `product` runs on: [`path`], except that `auto` keeps the
-/// products of [`Product`] on fp32. `bf16` asked for explicitly still runs
-/// them in bf16.
+/// The path `product` runs on: [`path`], except that `auto` runs the 3D
+/// network's convolutions in bf16 on any bf16 unit (AMX or AVX512-BF16).
 pub fn path_for(product: Product) -> Path {
     match (current(), product) {
-        (Precision::Auto, Product::Conv3d) => Path::Fp32,
+        (Precision::Auto, Product::Conv3d) => hardware().unwrap_or(Path::Fp32),
         (p, _) => p.resolve(),
     }
 }
@@ -241,9 +242,9 @@ pub fn fp32<R>(f: impl FnOnce() -> R) -> R {
 #[cfg(test)]
 mod tests {
     #[test]
-    fn auto_keeps_the_3d_network_on_fp32() {
+    fn auto_runs_the_3d_network_on_any_bf16_unit() {
         use super::*;
-        assert_eq!(scoped(Precision::Auto, || path_for(Product::Conv3d)), Path::Fp32);
+        assert_eq!(scoped(Precision::Auto, || path_for(Product::Conv3d)), hardware().unwrap_or(Path::Fp32));
         assert_eq!(scoped(Precision::Fp32, || path_for(Product::Conv3d)), Path::Fp32);
         assert_eq!(scoped(Precision::Bf16, || path_for(Product::Conv3d)), Precision::Bf16.resolve());
         assert_ne!(Precision::Bf16.resolve(), Path::Fp32);
