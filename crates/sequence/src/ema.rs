@@ -220,7 +220,9 @@ pub type RegionsOf<'a> = dyn Fn(usize, &Grid3) -> Result<Vec<Grid3>, SequenceErr
 pub enum Paintings<'a> {
     /// One painting everywhere.
     One(&'a ViewLoss<'a>),
-    /// Several paintings and where each goes, frame by frame.
+    /// Several paintings and where each goes, frame by frame (with
+    /// [`SequenceParams::color`], the paintings in colour, each colouring
+    /// its own region).
     Map(&'a MapLoss<'a>, &'a RegionsOf<'a>),
 }
 
@@ -353,16 +355,10 @@ pub fn stylize_sequence_with<'a>(
                 let (dstar, tape) = st.field.forward(&d);
                 let mut grad_dstar = vec![0.0f32; d.len()];
                 let views = level_views(t);
-                let total = match (&mut st.color, paintings) {
-                    (None, _) => grey_step(&paintings, &regions, (&dstar, &mut grad_dstar), &views)?,
-                    (Some(cs), Paintings::One(loss)) => {
-                        color_step(loss, cs, (t, st.step), (&dstar, &mut grad_dstar), &views)?
-                    }
-                    (Some(_), Paintings::Map(..)) => {
-                        return Err(SequenceError::Frame {
-                            frame: t,
-                            message: "colour is not supported with a style map yet".into(),
-                        })
+                let total = match &mut st.color {
+                    None => grey_step(&paintings, &regions, (&dstar, &mut grad_dstar), &views)?,
+                    Some(cs) => {
+                        color_step((&paintings, &regions), cs, (t, st.step), (&dstar, &mut grad_dstar), &views)?
                     }
                 };
                 // The transport's backward is linear in ∂L/∂d*: one pass for all views.
@@ -473,11 +469,12 @@ fn grey_step(
 }
 
 /// One sweep's step of a frame's colour: the colour loss over `views` of
-/// the transported density `dstar`, its density gradient added to
+/// the transported density `dstar` (with a style map, each painting's over
+/// its carried region of `regions`), its density gradient added to
 /// `grad_dstar`, and an Adam step (at frame `t`'s `step`) on the colour's
 /// raw channels through the luma-divided chroma. Returns the loss.
 fn color_step(
-    loss: &ViewLoss,
+    (paintings, regions): (&Paintings, &[Grid3]),
     cs: &mut ColorState,
     (t, step): (usize, u64),
     (dstar, grad_dstar): (&Grid3, &mut [f32]),
@@ -488,7 +485,13 @@ fn color_step(
     let mut grad_color: Vec<Grid3> = (0..3).map(|_| Grid3::zeros(dims)).collect();
     let mut total = 0.0;
     for view in views {
-        let (l, g, gc) = loss.loss_and_grad_color(dstar, &grids, view)?;
+        let (l, g, gc) = match paintings {
+            Paintings::One(loss) => loss.loss_and_grad_color(dstar, &grids, view)?,
+            Paintings::Map(loss, _) => {
+                let (l, _, g, gc) = loss.loss_and_grad_color_guarded(dstar, &grids, regions, view, 0.0, None)?;
+                (l, g, gc)
+            }
+        };
         total += l;
         grad_dstar.iter_mut().zip(&g.data).for_each(|(a, b)| *a += b);
         for (acc, g) in grad_color.iter_mut().zip(&gc) {

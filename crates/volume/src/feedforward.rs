@@ -19,7 +19,7 @@ use nst3d_stylize::Mode;
 
 use crate::output::write_stylized_grid;
 use crate::settings::{ModelSettings, VolumeSettings};
-use crate::style_map::{weights, MapSource, VoxelMap};
+use crate::style_map::{weights, VoxelMap};
 
 /// What a feed-forward job did.
 #[derive(Clone, Debug)]
@@ -268,10 +268,9 @@ fn one_frame(
         bail!("{}: grid '{}' has a non-finite value at {ijk:?}", input.display(), s.grid);
     }
     // Every map is read before the slow part.
-    let map = match &s.style_map {
+    let map = match s.map_source()? {
         None => None,
-        Some(spec) => {
-            let source = MapSource::parse(spec)?;
+        Some(source) => {
             let source = frame.map_or(Ok(source.clone()), |f| source.at_frame(f))?;
             let labels = source.labels(s.style_map_labels);
             let smoke = (bbox.0, std::array::from_fn(|a| (bbox.1[a] - bbox.0[a] + 1) as usize));

@@ -7,7 +7,8 @@
 //! `color`, the colour stage ([`nst3d_stylize::stylize_color`]) then colours
 //! the stylized density from [`nst3d_stylize::COLOR_VIEWS`] omniview cameras,
 //! scaling it with the colour, and the file gets that density.
-//! A before | after | painting preview is rendered from the first camera.
+//! A before | after | painting preview is rendered from the first camera
+//! (with a style map: input | map | result | paintings, [`crate::map_preview`]).
 
 use std::path::{Path, PathBuf};
 
@@ -24,10 +25,11 @@ use nst3d_stylize::{
 use crate::cameras::{CameraSet, Cameras, Lens};
 use crate::dense::pad;
 use crate::look::{absorption_for, display, views_of, HeldOut, PREVIEW_HEIGHT};
+use crate::map_preview::write_map_preview;
 use crate::output::write_stylized;
 use crate::settings::VolumeSettings;
 use crate::style::{load_paintings, load_style_and_vgg};
-use crate::style_map::{self, MapBox, MapSource};
+use crate::style_map::{self, MapBox};
 use crate::upsample::{refine_density, refine_origin, refine_transform};
 
 /// What a single-frame job did.
@@ -214,57 +216,68 @@ fn write_preview(
     Ok(())
 }
 
+/// What a style map's job made: the density (scaled by the colour stage
+/// with `color`) and its colour.
+struct Mapped {
+    result: nst3d_stylize::FrameResult,
+    density: Grid3,
+    color: Option<Vec<Grid3>>,
+}
+
 /// The single-frame job with a style map: every painting's loss over its
-/// region (`nst3d_stylize::guided`), the map sampled on the padded box `at`.
-/// The preview shows input | map | result | the paintings.
+/// region (`nst3d_stylize::guided`), the map sampled on the padded box `at`;
+/// with `--color` the colour stage then gives each region its own
+/// painting's colour (`nst3d_stylize::guided_color`) over the regions as
+/// the density's field carried them. The preview shows input | map |
+/// result | the paintings.
 fn stylize_mapped(
     s: &VolumeSettings,
     vgg: &nst3d_features::Vgg19,
-    padded: &Grid3,
+    (padded, gamma): (&Grid3, f32),
     at: &MapBox,
     input: Option<(&VdbFile, &Path)>,
     (params, views): (&FrameParams, &[ViewSpec]),
     reporter: &mut dyn Reporter,
-) -> Result<(nst3d_stylize::FrameResult, Grid3)> {
-    let source = MapSource::parse(s.style_map.as_deref().unwrap_or_default())?;
+) -> Result<Mapped> {
+    let source = s.map_source()?.context("a style map's job needs a map")?;
     let labels = source.labels(s.style_map_labels);
     let map = style_map::sample(&source, input, at, labels)?;
     let regions = style_map::regions(&map, padded, s.styles().len(), labels)?;
-    let (pictures, losses) = load_paintings(s, vgg)?;
+    let (grey_pictures, losses) = load_paintings(s, vgg, false)?;
     let loss = MapLoss::new(losses);
-    reporter.begin((s.octaves() * s.iterations()) as u64);
+    let (color_pictures, color_loss) = match s.color {
+        true => load_paintings(s, vgg, true).map(|(p, l)| (Some(p), Some(MapLoss::new(l))))?,
+        false => (None, None),
+    };
+    let color_params = color_stage_params(s, params);
+    let color_iterations = if s.color { color_params.iterations } else { 0 };
+    reporter.begin((s.octaves() * s.iterations() + color_iterations) as u64);
     let result = stylize_frame_map(padded, &loss, &regions, params, views, &mut |p| reporter.step(&progress_line(p)))?;
-    reporter.end();
     if result.density.data.iter().any(|v| !v.is_finite()) {
         bail!("stylization produced non-finite densities (try a smaller --lr)");
     }
+    let (density, color) = match &color_loss {
+        None => (result.density.clone(), None),
+        Some(color_loss) => {
+            let moved = nst3d_stylize::guided::carried_regions(&result.field, &regions);
+            let c = nst3d_stylize::stylize_color_map(
+                &result.density,
+                (color_loss, &loss, &moved),
+                &color_views(s, padded.dims, gamma),
+                &color_params,
+                &mut |p| reporter.step(&color_line(p)),
+            )?;
+            (c.density, Some(c.color))
+        }
+    };
+    reporter.end();
     if let Some(path) = &s.preview {
-        let plain = ViewLoss::new(vgg, &pictures[0], &s.style_spec())?;
-        let h = PREVIEW_HEIGHT;
-        let guide = map_picture(padded, &regions, &views[0])?;
-        let mut panels = vec![
-            resize_to_height(&display(&plain, padded, &views[0])?, h),
-            resize_to_height(&guide, h),
-            resize_to_height(&display(&plain, &result.density, &views[0])?, h),
-        ];
-        panels.extend(pictures.iter().map(|p| resize_to_height(p, h)));
-        write_png(path, &side_by_side(&panels.iter().collect::<Vec<_>>()))?;
+        let pictures = color_pictures.as_ref().unwrap_or(&grey_pictures);
+        let plain = ViewLoss::new(vgg, &grey_pictures[0], &s.style_spec())?;
+        let grids = (padded, &regions[..], &density, color.as_deref());
+        write_map_preview(path, &plain, &views[0], grids, pictures)?;
     }
-    let density = result.density.clone();
-    Ok((result, density))
-}
-
-/// The map as a grey picture from `view`: each pixel's region index,
-/// weighted by the region's share of its light, over the number of
-/// regions less one (so a two-painting blend shows its weight), as RGB.
-pub fn map_picture(d: &Grid3, regions: &[Grid3], view: &ViewSpec) -> Result<Image> {
-    let g = nst3d_stylize::region_guides(d, regions, view)?;
-    let (n, plane) = (regions.len(), g.plane());
-    let top = (n.max(2) - 1) as f32;
-    let grey: Vec<f32> =
-        (0..plane).map(|p| (0..n).map(|r| r as f32 * g.data[r * plane + p]).sum::<f32>() / top).collect();
-    let grey = Image::from_vec(1, g.height, g.width, grey);
-    Ok(nst3d_render::upsample2x(&nst3d_stylize::view::grey_to_rgb(&grey)))
+    Ok(Mapped { result, density, color })
 }
 
 /// The views of `--eval-cameras` around the padded grid (none without).
@@ -364,13 +377,13 @@ fn stylize_grid_mapped(
         inner: ([p.margin; 3], p.dims),
         up: s.up,
     };
-    let (result, density) = stylize_mapped(s, vgg, &p.padded, &at, input, (&params, &p.views), reporter)?;
+    let m = stylize_mapped(s, vgg, (&p.padded, p.gamma), &at, input, (&params, &p.views), reporter)?;
     Ok(StylizedGrid {
         cameras: p.views.len(),
-        loss_before: result.loss_before,
-        loss_after: result.loss_after,
-        density,
-        color: None,
+        loss_before: m.result.loss_before,
+        loss_after: m.result.loss_after,
+        density: m.density,
+        color: m.color,
         margin: p.margin,
         upsample: p.upsample,
         dims: p.dims,
@@ -378,6 +391,17 @@ fn stylize_grid_mapped(
         transform: p.transform,
         held_out: None,
     })
+}
+
+/// The colour stage's views: [`COLOR_VIEWS`] omniview cameras around a
+/// padded grid of `dims`, at the job's absorption `gamma`.
+fn color_views(s: &VolumeSettings, dims: [usize; 3], gamma: f32) -> Vec<ViewSpec> {
+    views_of(&CameraSet::Omniview(COLOR_VIEWS).cameras(&Lens::of(s), dims), gamma, false)
+}
+
+/// The progress bar's line for one colour iteration.
+fn color_line(p: &nst3d_stylize::ColorProgress) -> String {
+    format!("colour iteration {}/{} loss {:.4e}", p.iteration, p.iterations, p.loss)
 }
 
 /// [`stylize_grid`] of a grid read from `input` (the file and its path),
@@ -393,7 +417,7 @@ fn stylize_grid_in(
 ) -> Result<StylizedGrid> {
     let p = prepare(s, dense, transform, origin, name, reporter)?;
     let (style, vgg) = load_style_and_vgg(s)?;
-    if s.style_map.is_some() {
+    if s.map_source()?.is_some() {
         return stylize_grid_mapped(s, &vgg, p, input, reporter);
     }
     let Prepared { padded, transform, origin, dims, margin, upsample: k, vmax, gamma, views, .. } = p;
@@ -413,7 +437,7 @@ fn stylize_grid_in(
     // Woman with a Hat 0.822 of the grey result's held-out colour loss
     // against 0.592; docs/design/color.md.)
     let color_views = match s.color {
-        true => views_of(&CameraSet::Omniview(COLOR_VIEWS).cameras(&Lens::of(s), padded.dims), gamma, false),
+        true => color_views(s, padded.dims, gamma),
         false => Vec::new(),
     };
     let color_iterations = if s.color { color_params.iterations } else { 0 };
@@ -430,7 +454,7 @@ fn stylize_grid_in(
         None => (result.density, None),
         Some(cl) => {
             let c = stylize_color(&result.density, cl, &loss, &color_views, &color_params, &mut |p| {
-                reporter.step(&format!("colour iteration {}/{} loss {:.4e}", p.iteration, p.iterations, p.loss))
+                reporter.step(&color_line(p))
             })?;
             (c.density, Some(c.color))
         }

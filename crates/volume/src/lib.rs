@@ -24,6 +24,7 @@ pub mod frame;
 pub mod judge;
 pub mod judge_map;
 pub mod look;
+pub mod map_preview;
 pub mod output;
 pub mod preview;
 pub mod seam;

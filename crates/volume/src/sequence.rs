@@ -423,7 +423,7 @@ pub fn stylize_sequence_files(s: &VolumeSettings, reporter: &mut dyn Reporter) -
     let gamma = shot_absorption(s, &full, &live_all, &|t| cams_at(all[t]))?;
     let views: Vec<Vec<ViewSpec>> = live.iter().map(|&f| views_of(&cams_at(f), gamma, s.equalize)).collect();
     let loss = ViewLoss::new(&vgg, &style, &s.style_spec())?;
-    let map_loss = maps.as_ref().map(|_| load_paintings(s, &vgg).map(|(_, l)| MapLoss::new(l))).transpose()?;
+    let map_loss = maps.as_ref().map(|_| load_paintings(s, &vgg, s.color).map(|(_, l)| MapLoss::new(l))).transpose()?;
     let regions_of = |t: usize, d: &Grid3| maps.as_ref().map_or(Ok(Vec::new()), |m| m.sweep_regions(t, d));
     let paintings = match &map_loss {
         Some(m) => Paintings::Map(m, &regions_of),
@@ -548,6 +548,7 @@ fn frame_loss(
     for v in views {
         sum += match (color, paintings) {
             (Some(c), Paintings::One(loss)) => loss.loss_color(d, c, v)?,
+            (Some(c), Paintings::Map(loss, _)) => loss.loss_color(d, c, regions, v)?,
             _ => paintings.loss(d, regions, v)?,
         };
     }

@@ -30,6 +30,9 @@ pub struct VolumeSettings {
     pub style_map: Option<String>,
     /// The map's values are labels: `k` picks painting `k` (0 is `style`).
     pub style_map_labels: bool,
+    /// A map held in memory instead of `style_map` (the Python package's
+    /// numpy map), over the input grid's active bounding box; one frame only.
+    pub style_map_array: Option<crate::style_map::MapArray>,
     /// Output OpenVDB file (a pattern for a sequence), written atomically.
     pub out: PathBuf,
     /// Before | after | painting preview PNG (single frames).
@@ -160,6 +163,7 @@ impl VolumeSettings {
             style: style.into(),
             more_styles: Vec::new(),
             style_map: None,
+            style_map_array: None,
             style_map_labels: false,
             out: out.into(),
             preview: None,
@@ -262,11 +266,23 @@ impl VolumeSettings {
         }
     }
 
+    /// Where the style map comes from: `style_map` parsed, or the array
+    /// over the input grid; `None` without a map.
+    pub fn map_source(&self) -> Result<Option<crate::style_map::MapSource>> {
+        use crate::style_map::MapSource;
+        match (&self.style_map, &self.style_map_array) {
+            (Some(_), Some(_)) => bail!("give --style-map or a style map array, not both"),
+            (Some(spec), None) => Ok(Some(MapSource::parse(spec)?)),
+            (None, Some(a)) => Ok(Some(MapSource::Array { array: a.clone(), grid: self.grid.clone() })),
+            (None, None) => Ok(None),
+        }
+    }
+
     /// A style map's settings fit together, before any file is read.
     fn check_style_map(&self) -> Result<()> {
         let n = self.regions();
         let what = if self.model.is_some() { "--model files" } else { "--style paintings" };
-        let Some(map) = &self.style_map else {
+        let Some(source) = self.map_source()? else {
             if n > 1 {
                 bail!("{n} {what} need a --style-map saying where each goes");
             }
@@ -275,15 +291,14 @@ impl VolumeSettings {
             }
             return Ok(());
         };
-        let source = crate::style_map::MapSource::parse(map)?;
+        if self.style_map_array.is_some() && self.sequence.is_some() {
+            bail!("a style map array covers one frame's box; for a sequence give a grid name or a FILE.vdb pattern");
+        }
         if n < 2 {
             bail!("--style-map needs at least two {what} (got one)");
         }
         if n > 2 && !source.labels(self.style_map_labels) {
             bail!("a float --style-map blends two paintings, got {n}; pass --style-map-labels for a label map");
-        }
-        if self.color {
-            bail!("--color is not supported with --style-map yet");
         }
         Ok(())
     }

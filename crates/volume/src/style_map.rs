@@ -6,9 +6,14 @@
 //! (`@height`, soft, or `@height-split`, a label map cut at mid-height). A
 //! grid is sampled in world space, so its resolution and transform may
 //! differ from the density's: trilinear for a blend, nearest for labels.
+//! A front end holding the map as an array (the Python package's numpy
+//! map) passes a [`MapArray`]: one value per voxel of the input density
+//! grid's active bounding box, sampled as a grid of the input lying over
+//! that box with the density's transform.
 
 use nst3d_core::UpAxis;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anyhow::{bail, Context, Result};
 use nst3d_core::Grid3;
@@ -27,6 +32,28 @@ pub enum MapSource {
         /// Hard labels instead of the soft ramp.
         split: bool,
     },
+    /// An array over the active bounding box of the input's grid `grid`.
+    Array {
+        /// The values.
+        array: MapArray,
+        /// The density grid it lies over.
+        grid: String,
+    },
+}
+
+/// A style map held in memory: one value per voxel of the input density
+/// grid's active bounding box (`values.dims` its size, x fastest, voxel
+/// (0,0,0) at the box's first corner).
+#[derive(Clone, PartialEq)]
+pub struct MapArray {
+    /// The map's values.
+    pub values: Arc<Grid3>,
+}
+
+impl std::fmt::Debug for MapArray {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "MapArray({:?})", self.values.dims)
+    }
 }
 
 impl MapSource {
@@ -149,6 +176,29 @@ fn grid_of(file: &VdbFile, name: &str, what: &Path) -> Result<Sampled> {
     Ok(Sampled { values, origin: bx.origin, world_to_index })
 }
 
+/// `array` as a sampler: a grid lying over the active bounding box of
+/// `file`'s grid `name`, with that grid's transform; an array of another
+/// size than the box is an error naming both.
+fn array_over(file: &VdbFile, name: &str, array: &MapArray, what: &Path) -> Result<Sampled> {
+    let grid = file.grid(name).with_context(|| format!("{}: no grid named '{name}'", what.display()))?;
+    let (lo, hi) = grid.active_bbox().with_context(|| format!("{}: grid '{name}' is empty", what.display()))?;
+    let size: [usize; 3] = std::array::from_fn(|a| (hi[a] - lo[a] + 1) as usize);
+    let got = array.values.dims;
+    if got != size {
+        bail!(
+            "style_map array has shape ({}, {}, {}), but grid '{name}' of {} spans ({}, {}, {}) voxels (its active bounding box, indexed [x, y, z])",
+            got[0],
+            got[1],
+            got[2],
+            what.display(),
+            size[0],
+            size[1],
+            size[2]
+        );
+    }
+    Ok(Sampled { values: (*array.values).clone(), origin: lo, world_to_index: invert(&grid.transform)? })
+}
+
 /// The map's value at every voxel of a box of `dims` voxels whose voxel
 /// (0,0,0) is index `origin` under `transform` (the density's, after any
 /// refinement and padding); `input` is the input's file for
@@ -216,6 +266,10 @@ impl<'a> VoxelMap<'a> {
                 Values::Grid(grid_of(file, name, path)?)
             }
             MapSource::File(path, name) => Values::Grid(grid_of(&read_vdb(path)?, name, path)?),
+            MapSource::Array { array, grid } => {
+                let (file, path) = input.context("a style map array lies over the input file's density grid")?;
+                Values::Grid(array_over(file, grid, array, path)?)
+            }
         };
         Ok(Self { values, transform, nearest })
     }

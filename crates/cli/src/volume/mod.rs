@@ -204,6 +204,7 @@ impl VolumeArgs {
             more_styles: self.style.iter().skip(1).cloned().collect(),
             style_map: self.style_map,
             style_map_labels: self.style_map_labels,
+            style_map_array: None,
             out: self.out,
             preview: self.preview,
             grid: self.grid,
