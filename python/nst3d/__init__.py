@@ -192,7 +192,7 @@ def stylize_vdb(
     out: PathLike,
     style: Union[PathLike, Sequence[PathLike], None] = None,
     *,
-    style_map: Optional[str] = None,
+    style_map: Union[str, "NDArray[Any]", None] = None,
     style_map_labels: Optional[bool] = None,
     grid: Optional[str] = None,
     frames: Optional[str] = None,
@@ -250,7 +250,19 @@ def stylize_vdb(
     (``"temperature"``), of another file (``"map.vdb:mask"``) or
     ``"@height"``; a float map blends two paintings, a label map
     (``style_map_labels=True``) picks one of several.
+
+    ``style_map`` may also be a numpy array over the active bounding box of
+    the input's density grid (``grid``), indexed ``[x, y, z]`` like
+    ``pyopenvdb``'s ``copyToArray`` from the box's first corner: floats
+    blend two paintings (0 the first, 1 the second), integers or booleans
+    are labels (0 the first painting, 1 the second, ...). It is sampled as a grid of
+    the file lying over that box, so it follows the density through
+    ``upsample``. One frame only (not with ``frames``).
     """
+    map_array = None
+    if style_map is not None and not isinstance(style_map, str):
+        map_array, style_map_labels = _style_map_array(style_map, style_map_labels)
+        style_map = None
     opts = _options(
         style_map=style_map, style_map_labels=style_map_labels,
         grid=grid, frames=frames, ema=ema, ema_settle=ema_settle, velocity_grid=velocity_grid,
@@ -270,7 +282,27 @@ def stylize_vdb(
         styles = [os.fspath(style)]
     else:
         styles = [os.fspath(s) for s in style]
-    return _nst3d.stylize_vdb(os.fspath(input), os.fspath(out), styles, opts, progress, _to_log)
+    return _nst3d.stylize_vdb(os.fspath(input), os.fspath(out), styles, opts, progress, _to_log, map_array)
+
+
+def _style_map_array(
+    style_map: Any, labels: Optional[bool]
+) -> Tuple[Tuple[bytes, Tuple[int, int, int]], Optional[bool]]:
+    """A numpy style map as float32 bytes (x fastest) and its shape, and
+    whether it holds labels (an integer or boolean array does)."""
+    a = np.asarray(style_map)
+    if np.issubdtype(a.dtype, np.integer) or a.dtype == np.bool_:
+        if labels is False:
+            raise ValueError("style_map: an integer array holds labels; pass floats to blend two paintings")
+        labels = True
+    elif not np.issubdtype(a.dtype, np.floating):
+        raise TypeError(f"style_map: an array must hold floats (a blend) or integers (labels), got {a.dtype}")
+    if a.ndim != 3:
+        raise ValueError(
+            f"style_map: an array must be 3D, indexed [x, y, z] over the density grid's active box; got shape {a.shape}"
+        )
+    raw = np.ascontiguousarray(a.transpose(2, 1, 0), dtype="<f4").tobytes()
+    return (raw, (int(a.shape[0]), int(a.shape[1]), int(a.shape[2]))), labels
 
 
 def stylize_groom(

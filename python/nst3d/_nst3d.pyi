@@ -129,7 +129,8 @@ def stylize_volume(
     progress: _Progress = None, log: _Log = None,
 ) -> Tuple[bytes, Dict[str, Any]]: ...
 def stylize_vdb(
-    input: str, out: str, styles: List[str], options: VolumeOptions, progress: _Progress = None, log: _Log = None
+    input: str, out: str, styles: List[str], options: VolumeOptions, progress: _Progress = None, log: _Log = None,
+    style_map_array: Optional[Tuple[bytes, Tuple[int, int, int]]] = None,
 ) -> Dict[str, Any]: ...
 def stylize_groom(
     points: bytes, counts: Sequence[int], style: str, options: GroomOptions,

@@ -62,6 +62,44 @@ def test_two_paintings_by_a_style_map_match_the_command_line(tmp_path, data, sty
         nst3d.stylize_vdb(src, tmp_path / "one.vdb", style, style_map="@height", **FAST)
 
 
+def test_a_numpy_style_map_is_the_map_it_draws(tmp_path, data, style):
+    """A numpy map over the density's active box, [x, y, z]: integer labels
+    cut at mid-height are @height-split, byte for byte (booleans too); a
+    float ramp along z is @height; a wrong shape, dtype or rank is one line."""
+    src = data / "volumes" / "smoke_000003.vdb"
+    other = data / "styles" / "shipwreck.jpg"
+    _, _, a = read_density(src)
+    nz = a.shape[2]
+    ramp = np.broadcast_to((np.arange(nz, dtype=np.float32) / (nz - 1))[None, None, :], a.shape)
+    split = (ramp >= 0.5).astype(np.int32)
+    run = dict(mode="density", upsample=1, **FAST)
+    for name, array, spec in [("split", split, "@height-split"), ("ramp", ramp, "@height")]:
+        ours, want = tmp_path / f"{name}_array.vdb", tmp_path / f"{name}_spec.vdb"
+        nst3d.stylize_vdb(src, ours, [style, other], style_map=array, **run)
+        nst3d.stylize_vdb(src, want, [style, other], style_map=spec, **run)
+        if name == "split":
+            assert ours.read_bytes() == want.read_bytes()
+            nst3d.stylize_vdb(src, tmp_path / "bool.vdb", [style, other], style_map=array.astype(bool), **run)
+            assert (tmp_path / "bool.vdb").read_bytes() == want.read_bytes()
+        else:
+            _, lo, x = read_density(ours)
+            _, _, y = read_density(want)
+            np.testing.assert_allclose(x, y, rtol=0, atol=1e-5)
+    with pytest.raises(nst3d.Nst3dError) as e:
+        nst3d.stylize_vdb(src, tmp_path / "o.vdb", [style, other], style_map=ramp[:-1], **run)
+    assert "style_map array has shape (50, 49, 96)" in str(e.value) and "(51, 49, 96)" in str(e.value)
+    assert "\n" not in str(e.value)
+    with pytest.raises(TypeError, match="floats .* or integers"):
+        nst3d.stylize_vdb(src, tmp_path / "o.vdb", [style, other], style_map=split.astype(np.complex64), **run)
+    with pytest.raises(ValueError, match="must be 3D"):
+        nst3d.stylize_vdb(src, tmp_path / "o.vdb", [style, other], style_map=ramp[:, :, 0], **run)
+    with pytest.raises(ValueError, match="integer array holds labels"):
+        nst3d.stylize_vdb(src, tmp_path / "o.vdb", [style, other], style_map=split, style_map_labels=False, **run)
+    with pytest.raises(nst3d.Nst3dError, match="one frame"):
+        nst3d.stylize_vdb(src, tmp_path / "o_####.vdb", [style, other], style_map=ramp, frames="3", **run)
+    assert not (tmp_path / "o.vdb").exists()
+
+
 def test_openvdb_reads_what_the_package_writes(tmp_path, data, style):
     src = data / "volumes" / "smoke_000003.vdb"
     out = tmp_path / "styled.vdb"

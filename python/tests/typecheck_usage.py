@@ -16,6 +16,7 @@ def right() -> None:
     out.sum()
     nst3d.stylize_vdb(pathlib.Path("in.vdb"), "out.vdb", "p.jpg", frames="1-40", chunk="1-10", warmup=8,
                       color=True, upsample="auto", strength=1.5)
+    nst3d.stylize_vdb("in.vdb", "out.vdb", ["a.jpg", "b.jpg"], style_map=np.zeros((8, 8, 8), np.int32), color=True)
     points, counts = nst3d.read_groom("g.usda")
     nst3d.stylize_groom(points, counts, "p.jpg", preset="fur-ball", render_size=48, scale_iters=[0, 0, 3])
     nst3d.stylize_groom_file("g.usda", "o.usda", "p.jpg", temporal="ema", ema_clock="frame", style_flow=(0, 1, 0))

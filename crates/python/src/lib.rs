@@ -58,12 +58,12 @@ fn f32_bytes<'py>(py: Python<'py>, values: impl Iterator<Item = f32>) -> Bound<'
     PyBytes::new(py, &v)
 }
 
-/// A dense grid from `bytes` of `dims` (x fastest).
-fn grid_of(bytes: &[u8], dims: [usize; 3]) -> PyResult<Grid3> {
-    let values = f32s(bytes, "density")?;
+/// A dense grid from `bytes` of `dims` (x fastest); `what` names it in errors.
+fn grid_of(bytes: &[u8], dims: [usize; 3], what: &str) -> PyResult<Grid3> {
+    let values = f32s(bytes, what)?;
     let n = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d));
     if n != Some(values.len()) || values.is_empty() {
-        return Err(PyValueError::new_err(format!("density: shape {dims:?} does not match {} values", values.len())));
+        return Err(PyValueError::new_err(format!("{what}: shape {dims:?} does not match {} values", values.len())));
     }
     Ok(Grid3::from_vec(dims, values))
 }
@@ -81,7 +81,7 @@ fn stylize_volume<'py>(
     progress: Option<Py<PyAny>>,
     log: Option<Py<PyAny>>,
 ) -> PyResult<(Bound<'py, PyBytes>, Bound<'py, PyDict>)> {
-    let grid = grid_of(density, dims)?;
+    let grid = grid_of(density, dims, "density")?;
     let mut s = VolumeSettings::new("", style, "");
     apply_volume(&mut s, Options::new(options)?)?;
     let r = run_job(py, progress, log, move |rep| {
@@ -98,9 +98,12 @@ fn stylize_volume<'py>(
     Ok((f32_bytes(py, out.data.into_iter()), d))
 }
 
-/// Stylizes an OpenVDB file or sequence into files (`nst3d volume`).
+/// Stylizes an OpenVDB file or sequence into files (`nst3d volume`);
+/// `style_map_array` is a style map as float32 bytes and dims (x fastest)
+/// over the input grid's active bounding box.
 #[pyfunction]
-#[pyo3(signature = (input, out, styles, options, progress=None, log=None))]
+#[pyo3(signature = (input, out, styles, options, progress=None, log=None, style_map_array=None))]
+#[allow(clippy::too_many_arguments)]
 fn stylize_vdb<'py>(
     py: Python<'py>,
     input: PathBuf,
@@ -109,12 +112,17 @@ fn stylize_vdb<'py>(
     options: &Dict<'py>,
     progress: Option<Py<PyAny>>,
     log: Option<Py<PyAny>>,
+    style_map_array: Option<(Vec<u8>, [usize; 3])>,
 ) -> PyResult<Bound<'py, PyDict>> {
     // Several paintings go where a style map puts them, in its order.
     let mut styles = styles.into_iter();
     let mut s = VolumeSettings::new(input, styles.next().unwrap_or_default(), out);
     s.more_styles = styles.collect();
     apply_volume(&mut s, Options::new(options)?)?;
+    if let Some((bytes, dims)) = style_map_array {
+        let values = grid_of(&bytes, dims, "style_map")?;
+        s.style_map_array = Some(nst3d_volume::style_map::MapArray { values: std::sync::Arc::new(values) });
+    }
     let r = run_job(py, progress, log, move |rep| nst3d_volume::stylize(&s, rep))?;
     let d = PyDict::new(py);
     match r {
@@ -369,7 +377,7 @@ impl Model {
         progress: Option<Py<PyAny>>,
         log: Option<Py<PyAny>>,
     ) -> PyResult<Bound<'py, PyBytes>> {
-        let grid = grid_of(density, dims)?;
+        let grid = grid_of(density, dims, "density")?;
         let model = &self.inner;
         let out = run_job(py, progress, log, move |rep| model.stylize(&grid, origin, Some(rep)))?;
         Ok(f32_bytes(py, out.data.into_iter()))
