@@ -64,9 +64,8 @@ class SmokeTask:
         style = _painting(s, needed=model is None)
         second = bpy.path.abspath(s.style_b) if s.style_b else ""
         if second:
-            if model is not None or s.color:
-                raise RuntimeError("Two paintings need the optimisation without colour: clear Second painting, "
-                                   "or clear Model and turn Colour off")
+            if model is not None:
+                raise RuntimeError("Two paintings need the optimisation: clear Second painting, or clear Model")
             if not os.path.isfile(second):
                 raise RuntimeError(f"second painting not found: {second}")
             style = [style, second]

@@ -151,13 +151,17 @@ def model(addon, domain, out, model_path, frame):
 
 
 def two_paintings(addon, domain, out, style, style_b, model_path, frame):
-    """Two paintings on one frame, the second above mid-height (a style map);
-    a second painting with a model is one error line."""
+    """Two paintings on one frame, the second above mid-height (a style map),
+    with colour (each half coloured by its painting, the colour grid wired
+    into the material); a second painting with a model is one error line."""
     s = domain.nst3d
-    s.style, s.style_b, s.style_map, s.color, s.model = style, style_b, "@height-split", False, ""
+    s.style, s.style_b, s.style_map, s.color, s.model = style, style_b, "@height-split", True, ""
     s.iters, s.use_scene_camera, s.cameras = 2, False, "front"
     s.output_dir = os.path.join(out, "styled_map")
-    _stylize_and_load(domain, "two paintings by a style map")
+    _stylize_and_load(domain, "two paintings by a style map, in colour")
+    obj = next(o for o in bpy.data.objects if o.type == "VOLUME" and o.data.filepath.startswith(s.output_dir))
+    check(addon.volume_io.COLOR_GRID in [g.name for g in obj.data.grids] and len(obj.data.materials) == 1,
+          "the two paintings' colour grid is loaded and wired into a material")
     s.model = model_path
     with bpy.context.temp_override(object=domain, active_object=domain, selected_objects=[domain]):
         try:
