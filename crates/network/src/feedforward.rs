@@ -27,10 +27,11 @@ pub struct FeedForward {
 }
 
 /// What [`FeedForward::backward`] needs from the forward: each layer's input
-/// and each activated output.
+/// and each activated output (kept apart only where it is not the next
+/// layer's input: before an upsample).
 pub struct Tape {
     inputs: Vec<Volume>,
-    outputs: Vec<Volume>,
+    outputs: Vec<Option<Volume>>,
     /// The decoder's inputs before upsampling (for the upsample backward).
     before_up: [[usize; 3]; 2],
 }
@@ -144,7 +145,7 @@ impl FeedForward {
             }
             if let Some(t) = tape.as_deref_mut() {
                 t.inputs.push(h);
-                t.outputs.push(y.clone());
+                t.outputs.push((i == 5 || i == 6).then(|| y.clone()));
             }
             h = y;
         }
@@ -158,7 +159,8 @@ impl FeedForward {
         let mut g = grad_out.clone();
         for i in (0..LAYERS).rev() {
             if i + 1 < LAYERS {
-                leaky_relu_backward(&tape.outputs[i].data, &mut g.data);
+                let y = tape.outputs[i].as_ref().unwrap_or(&tape.inputs[i + 1]);
+                leaky_relu_backward(&y.data, &mut g.data);
             }
             let (dx, dw) = self.layers[i].backward(&tape.inputs[i], &g, i > 0);
             grads.push(dw);

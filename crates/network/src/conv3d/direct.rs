@@ -19,18 +19,12 @@ use super::kernels::{self, DwArgs, FwdArgs, VL};
 use super::Conv3d;
 use crate::volume::Volume;
 
-/// Output rows of one forward task.
-const ROWS_PER_TASK: usize = 8;
-/// Vector positions per weight-gradient chunk (its operands stay in L1/L2).
-const DW_CHUNK: usize = 48;
 /// The weight gradient's positions are split into this many fixed groups,
 /// so its summation order does not depend on threads.
 const DW_GROUPS: usize = 16;
-/// Fewest vector positions a weight-gradient group takes.
-const MIN_GROUP: usize = 64;
-/// Weight-gradient tile: output channels by `(channel, tap)` columns.
-const NCO: usize = 4;
-const NT: usize = 6;
+/// Fewest vector positions a weight-gradient group takes (a tile's fixed
+/// costs amortise over them).
+const DW_MIN_POS: usize = 256;
 
 /// The arithmetic of a direct convolution.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -42,8 +36,11 @@ pub enum Arith {
 }
 
 /// A layer applied to an input size, and the padded, phase-split layout of
-/// its input: element `(c, z, y, x)` (padded coordinates) at
-/// `c · cs + (z · py + y) · r + (x % s) · h + x / s`.
+/// its input, copied a few planes at a time (those one task reads, so the
+/// copy stays in cache and is never a whole volume): element `(c, z, y, x)`
+/// (padded coordinates, `z` counted from the copy's first plane) at
+/// `c · cs + (z · py + y) · r + (x % s) · h + x / s`, `cs` the copy's planes
+/// times `py · r`.
 struct Geom {
     s: usize,
     k: usize,
@@ -54,8 +51,6 @@ struct Geom {
     h: usize,
     r: usize,
     py: usize,
-    /// Channel stride.
-    cs: usize,
 }
 
 impl Geom {
@@ -64,8 +59,7 @@ impl Geom {
         let (s, k, p) = (l.stride, l.k, l.pad);
         let o = l.out_dims(n);
         let h = (n[0] + 2 * p).div_ceil(s).max(o[0].next_multiple_of(vl) + (k - 1) / s);
-        let (py, pz) = (n[1] + 2 * p, n[2] + 2 * p);
-        Self { s, k, p, n, o, h, r: s * h, py, cs: pz * py * s * h }
+        Self { s, k, p, n, o, h, r: s * h, py: n[1] + 2 * p }
     }
 
     /// One offset per tap, in the weight tensor's `(kz, ky, kx)` order.
@@ -79,28 +73,38 @@ impl Geom {
             .collect()
     }
 
-    /// Where output row `(z, y)` reads at tap 0.
+    /// Where output row `(z, y)` reads at tap 0, `z` counted from the
+    /// output plane whose first input plane starts the copy.
     fn base(&self, z: usize, y: usize) -> usize {
         (self.s * z * self.py + self.s * y) * self.r
     }
 
-    /// Fills a copy of `x` in the padded layout, `per` channels to an
-    /// element, in parallel over padded planes: `row(src rows, dst row)`
-    /// writes one row of the volume (`per` source rows, `None` past the
-    /// last channel) into the padded row.
-    fn pack<T: Copy + Default + Send>(
+    /// Copies padded planes `z0 .. z0 + n` of `x` into `buf`, `per`
+    /// channels to an element: `row(src rows, dst row)` writes one row of
+    /// the volume (`per` source rows, `None` past the last channel) into
+    /// its padded row. Returns the channel stride. `buf` is reused between
+    /// calls: padding is never written, so it stays zero; planes outside
+    /// the volume are cleared.
+    fn pack<T: Copy + Default>(
         &self,
         x: &Volume,
+        (z0, n): (usize, usize),
         per: usize,
-        row: impl Fn([Option<&[f32]>; 2], &mut [T]) + Sync,
-    ) -> Vec<T> {
+        buf: &mut Vec<T>,
+        row: impl Fn([Option<&[f32]>; 2], &mut [T]),
+    ) -> usize {
         let [nx, ny, nz] = self.n;
         let plane = self.py * self.r;
-        let mut d = vec![T::default(); x.channels.div_ceil(per) * self.cs];
-        d.par_chunks_mut(plane).enumerate().for_each(|(i, dst)| {
-            let (c, zz) = (i / (self.cs / plane) * per, i % (self.cs / plane));
+        let len = x.channels.div_ceil(per) * n * plane;
+        if buf.len() != len {
+            buf.clear();
+            buf.resize(len, T::default());
+        }
+        for (slot, dst) in buf.chunks_mut(plane).enumerate() {
+            let (c, zz) = (slot / n * per, z0 + slot % n);
             if zz < self.p || zz >= self.p + nz {
-                return;
+                dst.fill(T::default());
+                continue;
             }
             let z = zz - self.p;
             for y in 0..ny {
@@ -109,8 +113,8 @@ impl Geom {
                 });
                 row(src, &mut dst[(y + self.p) * self.r..][..self.r]);
             }
-        });
-        d
+        }
+        n * plane
     }
 
     /// Writes `f(i)` for every voxel `i` of a row of `n` at its place in
@@ -130,50 +134,65 @@ impl Geom {
         }
     }
 
-    /// fp32 copy of `x`.
-    fn pack_f32(&self, x: &Volume) -> Vec<f32> {
-        self.pack(x, 1, |src, dst: &mut [f32]| {
+    /// fp32 copy of planes `zs` of `x`.
+    fn pack_f32(&self, x: &Volume, zs: (usize, usize), buf: &mut Vec<f32>) -> usize {
+        self.pack(x, zs, 1, buf, |src, dst: &mut [f32]| {
             let src = src[0].expect("one channel per element");
-            wide(|| self.place(src.len(), dst, |i| src[i]))
+            match self.s {
+                1 => dst[self.p..][..src.len()].copy_from_slice(src),
+                _ => self.place(src.len(), dst, |i| src[i]),
+            }
         })
     }
 
-    /// bf16 copy of `x`, channels in pairs: lane `u32` = (channel `2c`, `2c + 1`).
-    fn pack_pairs(&self, x: &Volume) -> Vec<u32> {
-        self.pack(x, 2, |src, dst: &mut [u32]| {
-            let a = src[0].expect("a first channel");
-            wide(|| match src[1] {
-                Some(b) => self.place(a.len(), dst, |i| from_f32(a[i]) as u32 | (from_f32(b[i]) as u32) << 16),
-                None => self.place(a.len(), dst, |i| from_f32(a[i]) as u32),
-            })
+    /// bf16 copy of planes `zs` of `x`, channels in pairs: lane `u32` =
+    /// (channel `2c`, `2c + 1`).
+    fn pack_pairs(&self, x: &Volume, zs: (usize, usize), buf: &mut Vec<u32>) -> usize {
+        self.pack(x, zs, 2, buf, |src, dst: &mut [u32]| {
+            let (a, b) = (src[0].expect("a first channel"), src[1]);
+            let pair = |i: usize| from_f32(a[i]) as u32 | b.map_or(0, |b| (from_f32(b[i]) as u32) << 16);
+            match self.s {
+                1 => pairs_row(a, b, &mut dst[self.p..][..a.len()]),
+                _ => self.place(a.len(), dst, pair),
+            }
         })
     }
 
-    /// bf16 copy of `x`, one channel after another.
-    fn pack_bf16(&self, x: &Volume) -> Vec<u16> {
-        self.pack(x, 1, |src, dst: &mut [u16]| {
+    /// bf16 copy of planes `zs` of `x`, one channel after another.
+    fn pack_bf16(&self, x: &Volume, zs: (usize, usize), buf: &mut Vec<u16>) -> usize {
+        self.pack(x, zs, 1, buf, |src, dst: &mut [u16]| {
             let src = src[0].expect("one channel per element");
-            wide(|| self.place(src.len(), dst, |i| from_f32(src[i])))
+            match self.s {
+                1 => nst3d_core::bf16::convert(src, &mut dst[self.p..][..src.len()]),
+                _ => self.place(src.len(), dst, |i| from_f32(src[i])),
+            }
         })
     }
 }
 
-/// Runs `f` compiled for AVX-512 where the CPU has it, so the conversion
-/// loops inlined into it vectorise.
-#[inline(always)]
-fn wide<R>(f: impl FnOnce() -> R) -> R {
+/// `dst[i]` = the bf16 pair (`a[i]`, `b[i]`, 0 without `b`), vectorised
+/// where AVX-512 is available.
+fn pairs_row(a: &[f32], b: Option<&[f32]>, dst: &mut [u32]) {
+    #[inline(always)]
+    fn plain(a: &[f32], b: Option<&[f32]>, dst: &mut [u32]) {
+        match b {
+            Some(b) => dst.iter_mut().zip(a.iter().zip(b)).for_each(|(d, (x, y))| {
+                *d = from_f32(*x) as u32 | (from_f32(*y) as u32) << 16;
+            }),
+            None => dst.iter_mut().zip(a).for_each(|(d, x)| *d = from_f32(*x) as u32),
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512bw,avx2")]
+    unsafe fn wide(a: &[f32], b: Option<&[f32]>, dst: &mut [u32]) {
+        plain(a, b, dst)
+    }
     #[cfg(target_arch = "x86_64")]
     if kernels::unit().f32 {
         // SAFETY: the CPU has the enabled features (checked by `unit`).
-        return unsafe { with_avx512(f) };
+        return unsafe { wide(a, b, dst) };
     }
-    f()
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512bw,avx2,fma")]
-unsafe fn with_avx512<R>(f: impl FnOnce() -> R) -> R {
-    f()
+    plain(a, b, dst)
 }
 
 /// A raw pointer the forward's tasks write disjoint outputs through.
@@ -208,18 +227,18 @@ pub fn forward(l: &Conv3d, arith: Arith, x: &Volume) -> Volume {
 }
 
 /// An element type of the forward: its packing and its tile kernel.
-trait Lane: Copy + Send + Sync + Sized {
+trait Lane: Copy + Default + Send + Sync + Sized {
     /// Values packed together per lane (1 for fp32, 2 for bf16 pairs).
     const PER: usize;
-    fn pack_input(g: &Geom, x: &Volume) -> Vec<Self>;
+    fn pack_input(g: &Geom, x: &Volume, zs: (usize, usize), buf: &mut Vec<Self>) -> usize;
     fn pack_weight(a: f32, b: f32) -> Self;
     fn tile<const NV: usize, const NC: usize>(a: &FwdArgs<Self, NV>, out: &mut [f32]);
 }
 
 impl Lane for f32 {
     const PER: usize = 1;
-    fn pack_input(g: &Geom, x: &Volume) -> Vec<f32> {
-        g.pack_f32(x)
+    fn pack_input(g: &Geom, x: &Volume, zs: (usize, usize), buf: &mut Vec<f32>) -> usize {
+        g.pack_f32(x, zs, buf)
     }
     fn pack_weight(a: f32, _: f32) -> f32 {
         a
@@ -236,8 +255,8 @@ impl Lane for f32 {
 
 impl Lane for u32 {
     const PER: usize = 2;
-    fn pack_input(g: &Geom, x: &Volume) -> Vec<u32> {
-        g.pack_pairs(x)
+    fn pack_input(g: &Geom, x: &Volume, zs: (usize, usize), buf: &mut Vec<u32>) -> usize {
+        g.pack_pairs(x, zs, buf)
     }
     fn pack_weight(a: f32, b: f32) -> u32 {
         from_f32(a) as u32 | (from_f32(b) as u32) << 16
@@ -279,38 +298,37 @@ fn pack_weights<T: Lane, const NC: usize>(l: &Conv3d) -> Vec<T> {
     out
 }
 
-/// Every output vector of row `(z, y)`.
+/// Every output vector of row `(z, y)`, reading a copy that starts at
+/// plane `z`'s first input plane.
 fn row_vectors(g: &Geom, z: usize, y: usize) -> impl Iterator<Item = Vector> + '_ {
     let [ox, oy, _] = g.o;
     (0..ox.div_ceil(VL)).map(move |v| Vector {
-        base: g.base(z, y) + v * VL,
+        base: g.base(0, y) + v * VL,
         out: (z * oy + y) * ox + v * VL,
         len: VL.min(ox - v * VL),
     })
 }
 
+/// The forward, one output plane a task, each task copying the `k` input
+/// planes it reads.
 fn run_fwd<T: Lane, const NV: usize, const NC: usize>(l: &Conv3d, g: &Geom, x: &Volume, y: &mut Volume) {
-    let inp = T::pack_input(g, x);
     let w = pack_weights::<T, NC>(l);
     let offs = g.offs();
     let chans = l.cin.div_ceil(T::PER);
     let [_, oy, oz] = g.o;
     let n_out = y.voxels();
     let out = Out(y.data.as_mut_ptr());
-    let rows = oy * oz;
-    (0..rows.div_ceil(ROWS_PER_TASK)).into_par_iter().for_each(|task| {
-        let vecs: Vec<Vector> = (task * ROWS_PER_TASK..rows.min((task + 1) * ROWS_PER_TASK))
-            .flat_map(|r| row_vectors(g, r / oy, r % oy))
-            .collect();
-        let mut acc = vec![0.0f32; NV * NC * VL];
+    let init = || (Vec::new(), vec![0.0f32; NV * NC * VL]);
+    (0..oz).into_par_iter().for_each_init(init, |(inp, acc), z| {
+        let cs = T::pack_input(g, x, (g.s * z, g.k), inp);
+        let vecs: Vec<Vector> = (0..oy).flat_map(|y| row_vectors(g, z, y)).collect();
         for tile in vecs.chunks(NV) {
             // A short last tile repeats its last vector (written twice, the same values).
             let bases = std::array::from_fn(|v| tile[v.min(tile.len() - 1)].base);
             for b in 0..l.cout.div_ceil(NC) {
-                let a =
-                    FwdArgs { inp: &inp, cs: g.cs, chans, offs: &offs, bases, w: &w[b * chans * offs.len() * NC..] };
-                T::tile::<NV, NC>(&a, &mut acc);
-                store(l, out, n_out, tile, b * NC, NC, &acc);
+                let a = FwdArgs { inp, cs, chans, offs: &offs, bases, w: &w[b * chans * offs.len() * NC..] };
+                T::tile::<NV, NC>(&a, acc);
+                store(l, out, n_out, tile, b * NC, NC, acc);
             }
         }
     });
@@ -333,117 +351,152 @@ fn store(l: &Conv3d, out: Out, n_out: usize, tile: &[Vector], c0: usize, nc: usi
 /// The weight gradient `dW[co][ci][t] = Σ_v grad_out[co][v] · x[ci][v at tap t]`
 /// on the direct kernels.
 pub fn weight_grad(l: &Conv3d, arith: Arith, x: &Volume, grad_out: &Volume) -> Vec<f32> {
-    match arith {
-        Arith::F32 => {
-            let g = Geom::new(l, x.dims, VL);
-            let inp = g.pack_f32(x);
-            let (gp, gs, xs) = pad_rows(&g, grad_out, VL, |v| v);
-            run_dw(l, &g, &gp, gs, xs, &inp, VL, |a: &DwArgs<f32, NCO, NT>, acc, lda| dw_f32(a, acc, lda))
+    let ops = |g: Geom| DwOps { l, g, x, grad_out };
+    match (arith, l.cout >= 4) {
+        (Arith::F32, true) => run_dw::<f32, 4, 6>(&ops(Geom::new(l, x.dims, VL)), VL),
+        (Arith::F32, false) => run_dw::<f32, 1, 12>(&ops(Geom::new(l, x.dims, VL)), VL),
+        (Arith::Bf16, true) => run_dw::<u16, 4, 6>(&ops(Geom::new(l, x.dims, 2 * VL)), 2 * VL),
+        (Arith::Bf16, false) => run_dw::<u16, 1, 12>(&ops(Geom::new(l, x.dims, 2 * VL)), 2 * VL),
+    }
+}
+
+/// The operands of a weight gradient.
+struct DwOps<'a> {
+    l: &'a Conv3d,
+    g: Geom,
+    x: &'a Volume,
+    grad_out: &'a Volume,
+}
+
+/// An element type of the weight gradient and its tile kernel.
+trait DwLane: Copy + Default + Send + Sync {
+    /// Copies planes of the input ([`Geom::pack`]).
+    fn pack(g: &Geom, x: &Volume, zs: (usize, usize), buf: &mut Vec<Self>) -> usize;
+    /// Converts a row of the output gradient.
+    fn convert(src: &[f32], dst: &mut [Self]);
+    fn tile<const NCO: usize, const NT: usize>(a: &DwArgs<Self, NCO, NT>, acc: &mut [f32], lda: usize);
+}
+
+impl DwLane for f32 {
+    fn pack(g: &Geom, x: &Volume, zs: (usize, usize), buf: &mut Vec<f32>) -> usize {
+        g.pack_f32(x, zs, buf)
+    }
+    fn convert(src: &[f32], dst: &mut [f32]) {
+        dst.copy_from_slice(src)
+    }
+    fn tile<const NCO: usize, const NT: usize>(a: &DwArgs<f32, NCO, NT>, acc: &mut [f32], lda: usize) {
+        #[cfg(target_arch = "x86_64")]
+        if kernels::unit().f32 {
+            // SAFETY: the unit is present and checked; the driver keeps every read in bounds.
+            return unsafe { kernels::dw_f32_avx512(a, acc, lda) };
         }
-        Arith::Bf16 => {
-            let g = Geom::new(l, x.dims, 2 * VL);
-            let inp = g.pack_bf16(x);
-            let (gp, gs, xs) = pad_rows(&g, grad_out, 2 * VL, from_f32);
-            run_dw(l, &g, &gp, gs, xs, &inp, 2 * VL, |a: &DwArgs<u16, NCO, NT>, acc, lda| dw_bf16(a, acc, lda))
+        kernels::dw_f32_scalar(a, acc, lda)
+    }
+}
+
+impl DwLane for u16 {
+    fn pack(g: &Geom, x: &Volume, zs: (usize, usize), buf: &mut Vec<u16>) -> usize {
+        g.pack_bf16(x, zs, buf)
+    }
+    fn convert(src: &[f32], dst: &mut [u16]) {
+        nst3d_core::bf16::convert(src, dst)
+    }
+    fn tile<const NCO: usize, const NT: usize>(a: &DwArgs<u16, NCO, NT>, acc: &mut [f32], lda: usize) {
+        #[cfg(target_arch = "x86_64")]
+        if kernels::unit().bf16 {
+            // SAFETY: as for fp32.
+            return unsafe { kernels::dw_bf16_avx512(a, acc, lda) };
         }
+        kernels::dw_bf16_scalar(a, acc, lda)
     }
 }
 
-fn dw_f32(a: &DwArgs<f32, NCO, NT>, acc: &mut [f32], lda: usize) {
-    #[cfg(target_arch = "x86_64")]
-    if kernels::unit().f32 {
-        // SAFETY: the unit is present and checked; the driver keeps every read in bounds.
-        return unsafe { kernels::dw_f32_avx512(a, acc, lda) };
-    }
-    kernels::dw_f32_scalar(a, acc, lda)
-}
-
-fn dw_bf16(a: &DwArgs<u16, NCO, NT>, acc: &mut [f32], lda: usize) {
-    #[cfg(target_arch = "x86_64")]
-    if kernels::unit().bf16 {
-        // SAFETY: as for fp32.
-        return unsafe { kernels::dw_bf16_avx512(a, acc, lda) };
-    }
-    kernels::dw_bf16_scalar(a, acc, lda)
-}
-
-/// `grad_out` with rows padded with zeros to a multiple of `vl` and
-/// channels to a multiple of [`NCO`]: the data, its channel stride and its
-/// row length.
-fn pad_rows<T: Copy + Default>(
-    g: &Geom,
-    grad_out: &Volume,
-    vl: usize,
-    conv: impl Fn(f32) -> T,
-) -> (Vec<T>, usize, usize) {
-    let [ox, oy, oz] = g.o;
-    let xs = ox.next_multiple_of(vl);
-    let gs = xs * oy * oz;
-    let mut d = vec![T::default(); grad_out.channels.next_multiple_of(NCO) * gs];
+/// Output planes `z0..z1` of `grad_out` with rows padded with zeros to
+/// `xs` values and channels to `cop`: the data and its channel stride.
+fn pad_rows<T: DwLane>(grad_out: &Volume, (z0, z1): (usize, usize), xs: usize, cop: usize) -> (Vec<T>, usize) {
+    let [ox, oy, _] = grad_out.dims;
+    let gs = (z1 - z0) * oy * xs;
+    let mut d = vec![T::default(); cop * gs];
     for c in 0..grad_out.channels {
-        for (r, row) in grad_out.channel(c).chunks(ox).enumerate() {
-            wide(|| d[c * gs + r * xs..][..ox].iter_mut().zip(row).for_each(|(a, b)| *a = conv(*b)));
+        let planes = &grad_out.channel(c)[z0 * oy * ox..z1 * oy * ox];
+        for (r, row) in planes.chunks(ox).enumerate() {
+            T::convert(row, &mut d[c * gs + r * xs..][..ox]);
         }
     }
-    (d, gs, xs)
+    (d, gs)
 }
 
-/// Sums the weight gradient over fixed groups of vector positions (`vl`
-/// values each), in parallel, then the groups in order.
-#[allow(clippy::too_many_arguments)]
-fn run_dw<T: Sync>(
-    l: &Conv3d,
-    g: &Geom,
-    gp: &[T],
-    gs: usize,
-    xs: usize,
-    inp: &[T],
-    vl: usize,
-    tile: impl Fn(&DwArgs<T, NCO, NT>, &mut [f32], usize) + Sync,
-) -> Vec<f32> {
-    let [_, oy, oz] = g.o;
-    let offs = g.offs();
-    let k3 = offs.len();
-    let cols = l.cin * k3;
+/// Sums the weight gradient over fixed groups of output planes (each
+/// copying the input planes it reads), in parallel, then the groups in
+/// order; vectors hold `vl` positions.
+fn run_dw<T: DwLane, const NCO: usize, const NT: usize>(ops: &DwOps, vl: usize) -> Vec<f32> {
+    let (l, g) = (ops.l, &ops.g);
+    let [ox, _, oz] = g.o;
+    let cols = l.cin * g.k * g.k * g.k;
     let (jp, cop) = (cols.next_multiple_of(NT), l.cout.next_multiple_of(NCO));
-    // Column j = (ci, t); padding columns read offset 0 and are dropped.
-    let ioffs: Vec<usize> = (0..jp).map(|j| if j < cols { j / k3 * g.cs + offs[j % k3] } else { 0 }).collect();
-    let pos: Vec<(usize, usize)> = (0..oz * oy)
-        .flat_map(|r| (0..xs / vl).map(move |v| (r * xs + v * vl, g.base(r / oy, r % oy) + v * vl)))
-        .collect();
-    let groups = (pos.len() / MIN_GROUP).clamp(1, DW_GROUPS);
-    let per_group = pos.len().div_ceil(groups);
-    let lda = jp * VL;
-    let blocks = cop / NCO;
-    // Task (group, block of NCO output channels) -> its [NCO][cols] sums.
-    let partial: Vec<Vec<f32>> = (0..pos.len().div_ceil(per_group) * blocks)
+    let rows_per_plane = g.o[1] * ox.div_ceil(vl);
+    let per = oz.div_ceil((oz * rows_per_plane / DW_MIN_POS).clamp(1, oz.min(DW_GROUPS)));
+    let partial: Vec<Vec<f32>> = (0..oz.div_ceil(per))
         .into_par_iter()
-        .map(|task| {
-            let (group, cb) = (task / blocks, task % blocks);
-            let mine = &pos[group * per_group..pos.len().min((group + 1) * per_group)];
-            let mut acc = vec![0.0f32; NCO * lda];
-            for chunk in mine.chunks(DW_CHUNK) {
-                for jb in 0..jp / NT {
-                    let a = DwArgs {
-                        g: &gp[cb * NCO * gs..],
-                        gs,
-                        inp,
-                        ioffs: std::array::from_fn(|j| ioffs[jb * NT + j]),
-                        pos: chunk,
-                    };
-                    tile(&a, &mut acc[jb * NT * VL..], lda);
-                }
-            }
-            acc.chunks(VL).map(|v| v.iter().sum::<f32>()).collect()
+        .map(|grp| {
+            let zs = (grp * per, oz.min((grp + 1) * per));
+            dw_group::<T, NCO, NT>(ops, zs, ox.next_multiple_of(vl), vl, (jp, cop))
         })
         .collect();
     let mut dw = vec![0.0f32; l.cout * cols];
-    for (task, sums) in partial.iter().enumerate() {
-        let cb = task % blocks;
-        for c in 0..NCO.min(l.cout.saturating_sub(cb * NCO)) {
-            let row = &mut dw[(cb * NCO + c) * cols..][..cols];
-            row.iter_mut().zip(&sums[c * jp..]).for_each(|(d, s)| *d += s);
+    for sums in &partial {
+        for (co, row) in dw.chunks_mut(cols).enumerate() {
+            row.iter_mut().zip(&sums[co * jp..]).for_each(|(d, s)| *d += s);
         }
     }
     dw
+}
+
+/// One group's `[cop][jp]` sums over output planes `zs`: each tile's
+/// accumulators stay in registers over all the group's positions.
+fn dw_group<T: DwLane, const NCO: usize, const NT: usize>(
+    ops: &DwOps,
+    (z0, z1): (usize, usize),
+    xs: usize,
+    vl: usize,
+    (jp, cop): (usize, usize),
+) -> Vec<f32> {
+    let g = &ops.g;
+    let [_, oy, _] = g.o;
+    let mut inp = Vec::new();
+    let cs = T::pack(g, ops.x, (g.s * z0, g.s * (z1 - 1 - z0) + g.k), &mut inp);
+    let (gp, gs) = pad_rows::<T>(ops.grad_out, (z0, z1), xs, cop);
+    let offs = g.offs();
+    let k3 = offs.len();
+    let cols = ops.l.cin * k3;
+    // Column j = (ci, t); padding columns read offset 0 and are dropped.
+    let ioffs: Vec<usize> = (0..jp).map(|j| if j < cols { j / k3 * cs + offs[j % k3] } else { 0 }).collect();
+    let pos: Vec<(usize, usize)> = (0..(z1 - z0) * oy)
+        .flat_map(|r| (0..xs / vl).map(move |v| (r * xs + v * vl, g.base(r / oy, r % oy) + v * vl)))
+        .collect();
+    // Blocks of NCO output channels in parallel, each its [NCO][jp] sums.
+    let blocks: Vec<Vec<f32>> = (0..cop / NCO)
+        .into_par_iter()
+        .map(|cb| {
+            let mut sums = vec![0.0f32; NCO * jp];
+            let mut acc = vec![0.0f32; NCO * NT * VL];
+            for jb in 0..jp / NT {
+                let a = DwArgs {
+                    g: &gp[cb * NCO * gs..],
+                    gs,
+                    inp: &inp,
+                    ioffs: std::array::from_fn(|j| ioffs[jb * NT + j]),
+                    pos: &pos,
+                };
+                acc.fill(0.0);
+                T::tile::<NCO, NT>(&a, &mut acc, NT * VL);
+                for (i, v) in acc.chunks(VL).enumerate() {
+                    sums[i / NT * jp + jb * NT + i % NT] = v.iter().sum::<f32>();
+                }
+            }
+            sums
+        })
+        .collect();
+    let sums = blocks.concat();
+    sums
 }
