@@ -162,7 +162,7 @@ def two_paintings(addon, domain, out, style, style_b, model_path, frame):
     obj = next(o for o in bpy.data.objects if o.type == "VOLUME" and o.data.filepath.startswith(s.output_dir))
     check(addon.volume_io.COLOR_GRID in [g.name for g in obj.data.grids] and len(obj.data.materials) == 1,
           "the two paintings' colour grid is loaded and wired into a material")
-    s.model = model_path
+    s.color, s.model = False, model_path
     with bpy.context.temp_override(object=domain, active_object=domain, selected_objects=[domain]):
         try:
             result, message = bpy.ops.nst3d.stylize_smoke(), ""
