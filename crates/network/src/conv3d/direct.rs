@@ -299,18 +299,19 @@ fn pack_weights<T: Lane, const NC: usize>(l: &Conv3d) -> Vec<T> {
 }
 
 /// Every output vector of row `(z, y)`, reading a copy that starts at
-/// plane `z`'s first input plane.
-fn row_vectors(g: &Geom, z: usize, y: usize) -> impl Iterator<Item = Vector> + '_ {
+/// output plane `z0`'s first input plane.
+fn row_vectors(g: &Geom, z: usize, z0: usize, y: usize) -> impl Iterator<Item = Vector> + '_ {
     let [ox, oy, _] = g.o;
     (0..ox.div_ceil(VL)).map(move |v| Vector {
-        base: g.base(0, y) + v * VL,
+        base: g.base(z - z0, y) + v * VL,
         out: (z * oy + y) * ox + v * VL,
         len: VL.min(ox - v * VL),
     })
 }
 
-/// The forward, one output plane a task, each task copying the `k` input
-/// planes it reads.
+/// The forward, a few output planes a task (each task copying the input
+/// planes they read: up to four planes, fewer where that leaves the threads
+/// too few tasks; the result does not depend on the split).
 fn run_fwd<T: Lane, const NV: usize, const NC: usize>(l: &Conv3d, g: &Geom, x: &Volume, y: &mut Volume) {
     let w = pack_weights::<T, NC>(l);
     let offs = g.offs();
@@ -318,10 +319,12 @@ fn run_fwd<T: Lane, const NV: usize, const NC: usize>(l: &Conv3d, g: &Geom, x: &
     let [_, oy, oz] = g.o;
     let n_out = y.voxels();
     let out = Out(y.data.as_mut_ptr());
+    let per = (oz / (4 * rayon::current_num_threads())).clamp(1, 4);
     let init = || (Vec::new(), vec![0.0f32; NV * NC * VL]);
-    (0..oz).into_par_iter().for_each_init(init, |(inp, acc), z| {
-        let cs = T::pack_input(g, x, (g.s * z, g.k), inp);
-        let vecs: Vec<Vector> = (0..oy).flat_map(|y| row_vectors(g, z, y)).collect();
+    (0..oz.div_ceil(per)).into_par_iter().for_each_init(init, |(inp, acc), task| {
+        let (z0, z1) = (task * per, oz.min((task + 1) * per));
+        let cs = T::pack_input(g, x, (g.s * z0, g.s * (z1 - 1 - z0) + g.k), inp);
+        let vecs: Vec<Vector> = (z0..z1).flat_map(|z| (0..oy).flat_map(move |y| row_vectors(g, z, z0, y))).collect();
         for tile in vecs.chunks(NV) {
             // A short last tile repeats its last vector (written twice, the same values).
             let bases = std::array::from_fn(|v| tile[v.min(tile.len() - 1)].base);
