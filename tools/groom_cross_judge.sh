@@ -59,6 +59,8 @@ for ((i = 0; i < ${#ALL[@]}; i += 2)); do
   wait $a; [ -z "$b" ] || wait $b
 done
 args=()
+# The judge lays each style as the optimiser did: at the run's --style-scale.
+prev=""; for o in "$@"; do [ "$prev" = --style-scale ] && args+=(--style-scale "$o"); prev=$o; done
 for s in "${ALL[@]}"; do args+=(--result "$s=$OUT/$s.ply"); done
 for s in "${ALL[@]}"; do [ "$s" = ramp ] || args+=(--style "$s=$(style_of "$s")"); done
 # Three judges: the Gram loss (texture statistics), the distance of the

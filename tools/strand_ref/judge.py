@@ -81,24 +81,29 @@ def stroke_field(img, sigma=2.0, gate=None):
     return c * np.cos(t2), c * np.sin(t2), c
 
 
-def cover(img, h, w):
-    """The style laid over an h x w box as nst3d lays it: cover fit, centred."""
+def cover(img, h, w, style_scale=1.0):
+    """The style laid over an h x w box as nst3d lays it: cover fit, centred,
+    then enlarged by `style_scale`, centred, or shrunk and tiled (below 1)."""
     sh, sw = img.shape
-    k = max(h / sh, w / sw)
-    t = torch.nn.functional.interpolate(img[None, None], size=(max(h, round(sh * k)), max(w, round(sw * k))),
+    k = max(h / sh, w / sw) * style_scale
+    t = torch.nn.functional.interpolate(img[None, None], size=(max(2, round(sh * k)), max(2, round(sw * k))),
                                         mode='bilinear', align_corners=False)[0, 0]
+    th, tw = t.shape
+    if th < h or tw < w:  # tiled, a tile's centre at the box's centre
+        ry, rx = -(-h // th) + 2, -(-w // tw) + 2
+        t = t.repeat(ry | 1, rx | 1)
     y0, x0 = (t.shape[0] - h) // 2, (t.shape[1] - w) // 2
     return t[y0:y0 + h, x0:x0 + w]
 
 
-def layout_dist(render_field, style_img):
+def layout_dist(render_field, style_img, style_scale=1.0):
     """Mean misalignment, 1/2 (1 - cos 2(phi - theta)), of the render's strokes
     against the style's strokes laid over the same box, weighted by both
     fields' coherence: 0 = every visible stroke along the style's, 0.5 = at
     random, 1 = across."""
     rc, rs, rw = render_field
     h, w = rw.shape
-    sc, ss, sw = stroke_field(cover(style_img, h, w), gate=4.0)
+    sc, ss, sw = stroke_field(cover(style_img, h, w, style_scale), gate=4.0)
     num = (rw * sw - (rc * sc + rs * ss)).sum()
     return float(0.5 * num / max((rw * sw).sum(), 1e-12))
 
@@ -134,6 +139,8 @@ def main():
     ap.add_argument('--judge', default='gram', choices=['gram', 'orient', 'layout'],
                     help='gram: VGG-19 Gram loss; orient: distance of stroke-direction histograms; '
                          'layout: stroke misalignment against the style laid over the hair box')
+    ap.add_argument('--style-scale', type=float, default=1.0,
+                    help="the style's scale on the hair the results were made with (nst3d's --style-scale): the style is read at --style-px times it and laid over the hair at it")
     a = ap.parse_args()
     rest = load(a.rest)
     results = [('rest', rest)] + [(r.split('=', 1)[0], load(r.split('=', 1)[1])) for r in a.result]
@@ -146,7 +153,7 @@ def main():
     shist = {}
     for s in a.style:
         name, path = s.split('=', 1)
-        img = resize_grey(grey_of(Image.open(path)), a.style_px)
+        img = resize_grey(grey_of(Image.open(path)), round(a.style_px * a.style_scale))
         with torch.no_grad():
             styles.append((name, grams(img), img))
         shist[name] = orient_hist(img)
@@ -194,7 +201,7 @@ def main():
                     elif a.judge == 'orient':
                         per[s].append(orient_dist(oh, shist[s]))
                     else:
-                        per[s].append(layout_dist(rf, simg))
+                        per[s].append(layout_dist(rf, simg, a.style_scale))
             dist[name] = per
             edges[name] = float(np.median(ed))
     rel = {n: {s: float(np.median(np.array(dist[n][s]) / np.array(dist['rest'][s]))) for s, _, _ in styles}

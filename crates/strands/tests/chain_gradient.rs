@@ -88,7 +88,7 @@ fn check_chain_at(with_head: bool, at: At, orientation: bool) {
         colors: None,
         root_normals: None,
     };
-    let view = OrientationView::new(strokes.size(), &rest, &hair, &scene.style, &cam).unwrap();
+    let view = OrientationView::new(&strokes, &rest, &hair, &scene.style, &cam).unwrap();
     let term = orientation.then_some(OrientationTerm { field: &strokes, view: &view, weight: 1.0 });
 
     // Velocities of about 0.2% of the groom's radius: lengths are being

@@ -105,7 +105,7 @@ pub struct StrandsArgs {
     /// Multiplier on the preset's learning rates (scaled by the groom's radius).
     #[arg(long, default_value_t = 1.0)]
     lr_scale: f32,
-    /// The painting's scale on the hair: multiplies the preset's style sizes (2: strokes twice as large).
+    /// The painting's scale on the hair: multiplies the preset's style sizes and the size the orientation term lays the painting at (2: strokes twice as large).
     #[arg(long, default_value_t = 1.0)]
     style_scale: f32,
     /// Cameras per scale whose matches are cached (0: a new camera every iteration).

@@ -167,7 +167,7 @@ fn orientation_view(
     let img = scene.render(strands, cam)?;
     let hair = hair_pixels(&img, scene.style.background);
     let s = scene.strands(strands, None);
-    Ok(OrientationView::new(field.size(), &s, &hair, &scene.style, cam))
+    Ok(OrientationView::new(field, &s, &hair, &scene.style, cam))
 }
 
 /// The orientation term of a view (none without a stroke field or with no
@@ -307,6 +307,7 @@ pub fn stylize_with(
         let sstyle = style_target(vgg, style, params.style_height(l))?;
         let strokes = (params.orientation > 0.0).then(|| {
             StrokeField::from_grey(&nst3d_io::image::resize_to_height(&style.luminance3(), params.style_height(l)))
+                .laid_at(params.style_scale)
         });
         // Where this scale's targets are matched: the rest groom (eq. 2), or
         // with `rematch` the groom as the coarser scales left it.

@@ -17,7 +17,11 @@
 //!   averages headless directions correctly.
 //! - **Placement.** The painting is laid over the rest hair's box in each
 //!   view (cover fit, centred, aspect kept), so a spiral is drawn onto the
-//!   hair as a spiral.
+//!   hair as a spiral. The style's scale on the hair ([`StrokeField::laid_at`],
+//!   NNST's `style_scale`: 2 makes strokes twice as large) enlarges it by
+//!   that factor, centred, or shrinks it, tiled (below 1): a motif finer
+//!   than the groom's field can bend to (a triangle tessellation six across
+//!   a fur ball) is then laid at a size the strands can follow.
 //! - **Loss.** Over the segments of visible strands, with `d` a segment's
 //!   projected vector and `ℓ` the projected length its rest length would
 //!   have lying in the picture plane at its rest depth,
@@ -62,6 +66,8 @@ pub struct StrokeField {
     data: Vec<[f32; 3]>,
     /// See [`StrokeField::strength`].
     strength: f32,
+    /// See [`StrokeField::laid_at`].
+    motif_scale: f32,
 }
 
 impl StrokeField {
@@ -112,7 +118,15 @@ impl StrokeField {
             })
             .collect();
         let strength = if coherent > 0.0 { (gated / coherent) as f32 } else { 0.0 };
-        Self { width: w, height: h, data, strength }
+        Self { width: w, height: h, data, strength, motif_scale: 1.0 }
+    }
+
+    /// The field laid over the hair at `style_scale` times the cover-fit
+    /// size: 2 lays the painting at twice the hair's box, centred; 0.5 at
+    /// half it, tiled.
+    pub fn laid_at(mut self, style_scale: f32) -> Self {
+        self.motif_scale = style_scale;
+        self
     }
 
     /// How much of the painting's coherent structure is visible strokes
@@ -130,7 +144,10 @@ impl StrokeField {
     fn sample(&self, u: f32, v: f32) -> ([f32; 3], [f32; 3], [f32; 3]) {
         let (x0, y0) = (u.floor(), v.floor());
         let (fx, fy) = (u - x0, v - y0);
+        let tiled = self.motif_scale < 1.0;
         let at = |x: f32, y: f32| -> [f32; 3] {
+            let (x, y) =
+                if tiled { (x.rem_euclid(self.width as f32), y.rem_euclid(self.height as f32)) } else { (x, y) };
             if x < 0.0 || y < 0.0 || x >= self.width as f32 || y >= self.height as f32 {
                 [0.0; 3]
             } else {
@@ -198,12 +215,12 @@ pub struct OrientationView {
 }
 
 impl OrientationView {
-    /// The field of a painting `field_size` (width, height) laid over the
-    /// box of the `hair` pixels (row-major, `cam`'s picture) of the rest
-    /// groom, with the segment weights of `rest` seen through `cam`. `None`
-    /// when no hair is in sight.
+    /// `field` laid over the box of the `hair` pixels (row-major, `cam`'s
+    /// picture) of the rest groom (see [`StrokeField::laid_at`]), with the
+    /// segment weights of `rest` seen through `cam`. `None` when no hair is
+    /// in sight.
     pub fn new(
-        field_size: (usize, usize),
+        field: &StrokeField,
         rest: &Strands,
         hair: &[bool],
         style: &StrandStyle,
@@ -219,7 +236,9 @@ impl OrientationView {
             return None;
         }
         let (bw, bh) = ((x1 - x0) as f32, (y1 - y0) as f32);
-        let scale = (bw / field_size.0 as f32).max(bh / field_size.1 as f32);
+        let field_size = field.size();
+        let cover = (bw / field_size.0 as f32).max(bh / field_size.1 as f32);
+        let scale = cover * field.motif_scale;
         let centre = [(x0 + x1) as f32 / 2.0, (y0 + y1) as f32 / 2.0];
         let half = [field_size.0 as f32 / 2.0, field_size.1 as f32 / 2.0];
         let (weights, inv_full2) = segment_weights(rest, style, cam);
@@ -373,6 +392,34 @@ mod tests {
         assert!(StrokeField::from_grey(&stripes(48)).strength() > 0.9);
     }
 
+    /// The style's scale on the hair: at 1 the painting covers the hair's
+    /// box; at 2 the box's edge falls at the painting's quarter; at 0.5 the
+    /// painting is half the box, tiled, so the box's edge falls on the
+    /// painting's edge one tile out.
+    #[test]
+    fn the_style_scale_sets_the_painting_s_size_on_the_hair() {
+        let (w, h) = (64usize, 64usize);
+        let hair: Vec<bool> = (0..w * h).map(|i| (16..48).contains(&(i % w)) && (16..48).contains(&(i / w))).collect();
+        let g = groom();
+        let rest = Strands { points: &g.points, offsets: &g.offsets, colors: None, root_normals: None };
+        let (style, cam) = (StrandStyle::default(), camera());
+        let field = StrokeField::from_grey(&stripes(40));
+        let u_at_right_edge = |scale: f32| {
+            let laid = field.clone().laid_at(scale);
+            let view = OrientationView::new(&laid, &rest, &hair, &style, &cam).unwrap();
+            view.to_field([48.0, 32.0]).0[0] + 0.5
+        };
+        assert!((u_at_right_edge(1.0) - 40.0).abs() < 1e-4);
+        assert!((u_at_right_edge(2.0) - 30.0).abs() < 1e-4);
+        assert!((u_at_right_edge(0.5) - 60.0).abs() < 1e-4);
+        let tiled = field.clone().laid_at(0.5);
+        for (u, v) in [(45.3f32, 12.7f32), (-7.2, 30.1)] {
+            let (a, b) = (tiled.sample(u, v).0, tiled.sample(u.rem_euclid(40.0), v).0);
+            assert!((0..3).all(|k| (a[k] - b[k]).abs() < 1e-6), "{a:?} {b:?}");
+        }
+        assert_eq!(field.sample(45.3, 12.7).0, [0.0; 3], "untiled: nothing beyond the painting");
+    }
+
     fn camera() -> SplatCamera {
         SplatCamera::look_at([0.3, 0.2, 3.0], [0.0; 3], [0.0, 1.0, 0.0], 40.0, 64, 64).unwrap()
     }
@@ -403,7 +450,7 @@ mod tests {
         let rest = Strands { points: &g.points, offsets: &g.offsets, colors: None, root_normals: None };
         let style = StrandStyle::default();
         let hair: Vec<bool> = (0..64 * 64).map(|i| (10..50).contains(&(i / 64))).collect();
-        let view = OrientationView::new((field.width, field.height), &rest, &hair, &style, &cam).unwrap();
+        let view = OrientationView::new(&field, &rest, &hair, &style, &cam).unwrap();
         let x: Vec<f32> = g.points.iter().flatten().copied().collect();
         let loss = |x: &[f32]| {
             let s =

@@ -24,7 +24,9 @@ pub struct StylizeParams {
     /// Multiplier on the preset's learning rates.
     pub lr_scale: f32,
     /// The painting's scale on the hair: multiplies the preset's style
-    /// sizes, so 2 draws the painting's strokes twice as large on the groom.
+    /// sizes, so 2 draws the painting's strokes twice as large on the groom,
+    /// and the size the orientation term lays the painting at
+    /// ([`super::StrokeField::laid_at`]).
     pub style_scale: f32,
     /// AdamW decoupled weight decay (PyTorch's default 0.01): pulls unused
     /// velocities back towards the rest groom.
