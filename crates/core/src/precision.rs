@@ -33,7 +33,8 @@ use std::sync::OnceLock;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Precision {
     /// bf16 where the CPU has AMX-BF16 tiles, fp32 otherwise (AVX512-BF16
-    /// alone is slower than fp32 here).
+    /// alone is slower than fp32 here), except the 3D network's
+    /// convolutions, bf16 on any bf16 unit ([`path_for`]).
     #[default]
     Auto,
     /// bf16 operands, fp32 accumulation, on whatever path the CPU has
