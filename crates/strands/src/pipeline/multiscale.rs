@@ -305,10 +305,7 @@ pub fn stylize_with(
         // The shape follows the painting's luminance, with or without
         // colour (the colour has a stage of its own, after the shape).
         let sstyle = style_target(vgg, style, params.style_height(l))?;
-        let strokes = (params.orientation > 0.0).then(|| {
-            StrokeField::from_grey(&nst3d_io::image::resize_to_height(&style.luminance3(), params.style_height(l)))
-                .laid_at(params.style_scale)
-        });
+        let strokes = scale_strokes(style, params, l);
         // Where this scale's targets are matched: the rest groom (eq. 2), or
         // with `rematch` the groom as the coarser scales left it.
         let base = if params.rematch && l > 0 && iters > 0 { Some(scene.deform(&unflatten(&v))?.0) } else { None };
@@ -373,6 +370,16 @@ pub fn stylize_with(
         eval_angles: eval.angles,
         held_out,
     })
+}
+
+/// The orientation term's stroke field at scale `l`: the painting's
+/// luminance at that scale's height, laid on the hair at `--style-scale`.
+fn scale_strokes(style: &Image, params: &StylizeParams, l: usize) -> Option<StrokeField> {
+    if params.orientation <= 0.0 {
+        return None;
+    }
+    let grey = nst3d_io::image::resize_to_height(&style.luminance3(), params.style_height(l));
+    Some(StrokeField::from_grey(&grey).laid_at(params.style_scale))
 }
 
 /// The painting must be RGB and at least 16 pixels a side (VGG's taps).
