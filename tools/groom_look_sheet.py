@@ -4,11 +4,12 @@
 input | each style's result, and a row of the styles under their results.
 
     python3 tools/groom_look_sheet.py OUT.png GROOM [--mesh MESH] [--up y|z] [--height 512] \
-        NAME=RESULT.ply=STYLE.png [NAME=RESULT.ply=STYLE.png ...]
+        [--preset NAME] NAME=RESULT.ply=STYLE.png [NAME=RESULT.ply=STYLE.png ...]
 
 Every picture is `--height` pixels tall (512 by default); front is the
 preview's first turntable azimuth, side the second (90 degrees round the
-up axis). Needs the release binary (target/release/nst3d) and Pillow.
+up axis); `--preset` draws with that preset's look and culling (grass on
+its ground needs `--preset grass`). Needs the release binary (target/release/nst3d) and Pillow.
 """
 import argparse
 import os
@@ -21,7 +22,7 @@ from PIL import Image, ImageDraw
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def previews(groom, mesh, up, height, workdir, tag):
+def previews(groom, mesh, up, height, workdir, tag, preset=None):
     """Front and side pictures of `groom`."""
     out = os.path.join(workdir, tag + '_####.png')
     cmd = [os.path.join(ROOT, 'target/release/nst3d'), 'preview', '--input', groom, '--turntable', '4',
@@ -30,6 +31,8 @@ def previews(groom, mesh, up, height, workdir, tag):
         cmd += ['--mesh', mesh]
     if up:
         cmd += ['--up', up]
+    if preset:
+        cmd += ['--preset', preset]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         sys.exit(f'groom_look_sheet: nst3d preview failed on {groom}: {r.stderr.strip().splitlines()[-1:]}')
@@ -44,6 +47,7 @@ def main():
     ap.add_argument('--mesh')
     ap.add_argument('--up')
     ap.add_argument('--height', type=int, default=512)
+    ap.add_argument('--preset')
     a = ap.parse_args()
     items = []
     for it in a.items:
@@ -53,9 +57,9 @@ def main():
         items.append(parts)
     h = a.height
     with tempfile.TemporaryDirectory() as tmp:
-        cols = [('input', previews(a.groom, a.mesh, a.up, h, tmp, 'input'), None)]
+        cols = [('input', previews(a.groom, a.mesh, a.up, h, tmp, 'input', a.preset), None)]
         for name, result, style in items:
-            cols.append((name, previews(result, a.mesh, a.up, h, tmp, name), style))
+            cols.append((name, previews(result, a.mesh, a.up, h, tmp, name, a.preset), style))
     w = cols[0][1][0].width
     sheet = Image.new('RGB', (w * len(cols), 3 * h), 'black')
     draw = ImageDraw.Draw(sheet)

@@ -294,6 +294,33 @@ fn a_groom_is_drawn_alone_beside_another_and_around() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("apply to volumes"));
 }
 
+/// Grass on its ground seen from the side: a head's culling threshold
+/// hides every blade (their root normals face up, away from the camera),
+/// the grass preset's draws them, as the stylization does.
+#[test]
+fn a_groom_is_drawn_with_its_preset_s_culling() {
+    let dir = tempfile::tempdir().unwrap();
+    let (grass, ground) = (dir.path().join("grass.ply"), dir.path().join("ground.ply"));
+    let gen = Command::new(env!("CARGO_BIN_EXE_nst3d"))
+        .args(["strands", "generate", "grass", "--out", s(&grass), "--mesh-out", s(&ground)])
+        .output()
+        .unwrap();
+    ok(&gen);
+    let drawn = |preset: &[&str]| {
+        let out = dir.path().join("grass.png");
+        let mut args = vec!["--input", s(&grass), "--mesh", s(&ground), "--out", s(&out), "--height", "96"];
+        args.extend_from_slice(preset);
+        ok(&nst3d(&args));
+        grey(&out).0.iter().filter(|&&v| v > 0.05).count()
+    };
+    assert_eq!(drawn(&[]), 0, "a head's culling is expected to hide grass seen from the side");
+    assert!(drawn(&["--preset", "grass"]) > 500, "the grass preset draws the blades");
+
+    let o = nst3d(&["--input", s(&plume(1)), "--preset", "grass", "--out", s(&dir.path().join("v.png"))]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("apply to grooms"));
+}
+
 /// The preview's judge: with `--style`, every picture's Gram loss to the
 /// painting, and with `--compare` the ratio per picture. The same groom
 /// scores 1 everywhere; a z-up copy drawn with `--up z` is the same

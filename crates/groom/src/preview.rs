@@ -69,6 +69,8 @@ pub struct GroomPreviewSettings {
     /// none) and judge in colour; the grey judge then scores the pictures'
     /// luminance ([`GroomPreviewReport::input_grey_loss`]).
     pub color: bool,
+    /// The preset whose strand look and culling the pictures take.
+    pub preset: nst3d_strands::Preset,
 }
 
 /// What [`preview_groom`] drew, and with a painting its judgement.
@@ -164,10 +166,7 @@ pub fn preview_groom(s: &GroomPreviewSettings) -> Result<GroomPreviewReport> {
     };
     let head = s.mesh.as_deref().map(nst3d_io::mesh::read_mesh).transpose()?;
     let head = head.as_ref().map(|h| axis::mesh_to_y_up(h, up));
-    let params = nst3d_strands::pipeline::StylizeParams::from_preset(
-        nst3d_strands::Preset::ShortHair.params(),
-        groom.strand_count(),
-    );
+    let params = nst3d_strands::pipeline::StylizeParams::from_preset(s.preset.params(), groom.strand_count());
     let view = GroomView::new(&groom, head.as_deref(), &params)?;
     let judge = s.style.as_deref().map(|p| GramJudge::with_color(p, s.height, None, s.color)).transpose()?;
     let grey_judge = match &s.style {

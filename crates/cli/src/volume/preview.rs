@@ -8,6 +8,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 use nst3d_render::Projection;
+use nst3d_strands::Preset;
 use nst3d_volume::{PreviewSettings, UpAxis, PREVIEW_HEIGHT};
 
 use crate::console::plural;
@@ -69,6 +70,11 @@ pub struct PreviewArgs {
     /// judge of the pictures' luminance beside it.
     #[arg(long)]
     pub color: bool,
+    /// For a groom: draw it with this preset's strand look and culling, as
+    /// `nst3d strands --preset` renders it (grass on its ground is culled
+    /// away by a head's threshold).
+    #[arg(long, value_parser = crate::named::<Preset>(Preset::ALL.map(Preset::key)))]
+    pub preset: Option<Preset>,
 }
 
 /// Runs `nst3d preview`.
@@ -93,6 +99,7 @@ pub fn run(args: PreviewArgs) -> Result<()> {
             up: args.up,
             style: args.style,
             color: args.color,
+            preset: args.preset.unwrap_or(Preset::ShortHair),
         };
         let r = nst3d_groom::preview_groom(&settings)?;
         let n = r.pictures;
@@ -102,9 +109,9 @@ pub fn run(args: PreviewArgs) -> Result<()> {
         }
         return Ok(());
     }
-    if args.mesh.is_some() || args.style.is_some() {
+    if args.mesh.is_some() || args.style.is_some() || args.preset.is_some() {
         anyhow::bail!(
-            "--mesh and --style apply to grooms; {} is a volume (nst3d judge judges volumes)",
+            "--mesh, --style and --preset apply to grooms; {} is a volume (nst3d judge judges volumes)",
             args.input.display()
         );
     }
