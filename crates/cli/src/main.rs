@@ -36,8 +36,9 @@ struct Cli {
     #[arg(long, global = true)]
     threads: Option<usize>,
     /// Arithmetic of the heavy products: auto (bf16 where the CPU has AMX
-    /// tiles, fp32 otherwise), bf16 (on AMX, AVX512-BF16 or emulated) or
-    /// fp32 (the reference). Default: $NST3D_PRECISION, else auto.
+    /// tiles, fp32 otherwise; the 3D network's convolutions in bf16 on
+    /// AVX512-BF16 too), bf16 (on AMX, AVX512-BF16 or emulated) or fp32
+    /// (the reference). Default: $NST3D_PRECISION, else auto.
     #[arg(long, global = true, value_name = "auto|bf16|fp32", value_parser = parse_precision)]
     precision: Option<nst3d_core::precision::Precision>,
     #[command(subcommand)]

@@ -433,7 +433,8 @@ fn threads() -> usize {
 
 /// Arithmetic of the heavy products for every later job, as the command
 /// line's `--precision`: "auto" (bf16 where the CPU has AMX tiles, fp32
-/// otherwise), "bf16" or "fp32". Returns what it runs on this machine.
+/// otherwise; the 3D network's convolutions in bf16 on AVX512-BF16 too),
+/// "bf16" or "fp32". Returns what it runs on this machine.
 #[pyfunction]
 fn set_precision(name: &str) -> PyResult<String> {
     let p: nst3d_core::precision::Precision = name.parse().map_err(pyo3::exceptions::PyValueError::new_err)?;
