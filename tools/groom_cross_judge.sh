@@ -59,8 +59,11 @@ for ((i = 0; i < ${#ALL[@]}; i += 2)); do
   wait $a; [ -z "$b" ] || wait $b
 done
 args=()
-# The judge lays each style as the optimiser did: at the run's --style-scale.
-prev=""; for o in "$@"; do [ "$prev" = --style-scale ] && args+=(--style-scale "$o"); prev=$o; done
+# The judge lays each style as the optimiser did: at the style scale the
+# run printed (the preset's unless --style-scale was given).
+scale=$(sed -n 's/^the look: .*style scale \([0-9.]*\)$/\1/p' "$OUT/${ALL[0]}.log" | head -1)
+[ -n "$scale" ] || { echo "groom_cross_judge: $OUT/${ALL[0]}.log does not say its style scale" >&2; exit 1; }
+args+=(--style-scale "$scale")
 for s in "${ALL[@]}"; do args+=(--result "$s=$OUT/$s.ply"); done
 for s in "${ALL[@]}"; do [ "$s" = ramp ] || args+=(--style "$s=$(style_of "$s")"); done
 # Three judges: the Gram loss (texture statistics), the distance of the

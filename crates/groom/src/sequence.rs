@@ -62,6 +62,7 @@ fn sequence_params(
 ) -> Result<(SequenceParams, TemporalParams)> {
     let stylize = s.stylize_params(first.strand_count());
     StrandSettings::check_memory(&stylize, first.strand_count())?;
+    reporter.status(&stylize.look_line());
     let (temporal, borrowed) = s.temporal_params();
     if borrowed {
         reporter.note(&format!(

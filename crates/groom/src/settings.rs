@@ -86,8 +86,10 @@ pub struct StrandSettings {
     pub seed: u64,
     /// Multiplier on the preset's learning rates (scaled by the groom's radius).
     pub lr_scale: f32,
-    /// The painting's scale on the hair: multiplies the preset's style sizes.
-    pub style_scale: f32,
+    /// The painting's scale on the hair: multiplies the preset's style sizes
+    /// and the size the orientation term lays the painting at; `None`: the
+    /// preset's ([`PresetParams::style_scale`](nst3d_strands::PresetParams::style_scale)).
+    pub style_scale: Option<f32>,
     /// Cameras per scale whose matches are cached (0: a new camera every iteration).
     pub views_per_scale: usize,
     /// Evaluation views: the first this many of the finest scale's cameras
@@ -151,7 +153,7 @@ impl StrandSettings {
             up: None,
             seed: 0,
             lr_scale: 1.0,
-            style_scale: 1.0,
+            style_scale: None,
             views_per_scale: 8,
             eval_views: 4,
             scale_iters: None,
@@ -177,8 +179,8 @@ impl StrandSettings {
         if !(self.lr_scale.is_finite() && self.lr_scale > 0.0) {
             bail!("--lr-scale must be a positive number, got {}", self.lr_scale);
         }
-        if !(self.style_scale.is_finite() && self.style_scale > 0.0) {
-            bail!("--style-scale must be a positive number, got {}", self.style_scale);
+        if let Some(s) = self.style_scale.filter(|s| !(s.is_finite() && *s > 0.0)) {
+            bail!("--style-scale must be a positive number, got {s}");
         }
         if self.scale_iters.is_some_and(|n| n.iter().all(|&k| k == 0)) {
             bail!("--scale-iters must run at least one iteration");
@@ -264,7 +266,7 @@ impl StrandSettings {
         }
         params.seed = self.seed;
         params.lr_scale = self.lr_scale;
-        params.style_scale = self.style_scale;
+        params.style_scale = self.style_scale.unwrap_or(params.style_scale);
         params.views_per_scale = self.views_per_scale;
         params.eval_views = self.eval_views;
         if let Some(n) = self.scale_iters {
@@ -364,9 +366,11 @@ mod tests {
     fn orientation_is_the_presets_and_holds_the_ema_in_a_sequence() {
         let mut s = StrandSettings::new("g.ply", "m.obj", "s.png", "o.ply");
         s.preset = Preset::FurBall;
-        assert_eq!(s.stylize_params(10).orientation, 1.0);
+        let fur = Preset::FurBall.params().orientation;
+        assert!(fur > 0.0);
+        assert_eq!(s.stylize_params(10).orientation, fur);
         s.frames = Some("1-3".into());
-        assert_eq!(s.stylize_params(10).orientation, 1.0);
+        assert_eq!(s.stylize_params(10).orientation, fur);
         assert_eq!(s.temporal_params().0.ema_nu, ORIENTATION_EMA_NU);
         s.orientation = Some(0.0);
         assert_eq!(s.stylize_params(10).orientation, 0.0);
@@ -378,5 +382,19 @@ mod tests {
         s.frames = None;
         s.orientation = None;
         assert_eq!(s.stylize_params(10).orientation, 0.0);
+    }
+
+    /// The painting's scale on the hair is the preset's unless given.
+    #[test]
+    fn style_scale_is_the_presets_unless_given() {
+        let mut s = StrandSettings::new("g.ply", "m.obj", "s.png", "o.ply");
+        for preset in Preset::ALL {
+            s.preset = preset;
+            assert_eq!(s.stylize_params(10).style_scale, preset.params().style_scale);
+        }
+        s.style_scale = Some(0.75);
+        assert_eq!(s.stylize_params(10).style_scale, 0.75);
+        s.style_scale = Some(0.0);
+        assert!(s.check().is_err());
     }
 }

@@ -138,6 +138,7 @@ pub fn stylize_groom(
     let vgg = Vgg19::load(s.weights.as_deref())?;
     let params = s.stylize_params(groom.strand_count());
     StrandSettings::check_memory(&params, groom.strand_count())?;
+    reporter.status(&params.look_line());
 
     let scene =
         StrandScene::build(groom, head, &params, &mut |m| reporter.status(m)).with_context(|| match &s.mesh {

@@ -220,7 +220,7 @@ pub fn apply_strands(s: &mut StrandSettings, mut o: Options<'_>) -> PyResult<()>
     set!(o.parsed("up", |v| v.parse()) => Some s.up);
     set!(o.u64("seed") => s.seed);
     set!(o.f32("lr_scale") => s.lr_scale);
-    set!(o.f32("style_scale") => s.style_scale);
+    set!(o.f32("style_scale") => Some s.style_scale);
     set!(o.usize("views_per_scale") => s.views_per_scale);
     set!(o.usize("eval_views") => s.eval_views);
     if let Some(v) = o.typed("scale_iters", "three whole numbers", |v| v.extract::<[u32; 3]>())? {

@@ -105,9 +105,9 @@ pub struct StrandsArgs {
     /// Multiplier on the preset's learning rates (scaled by the groom's radius).
     #[arg(long, default_value_t = 1.0)]
     lr_scale: f32,
-    /// The painting's scale on the hair: multiplies the preset's style sizes and the size the orientation term lays the painting at (2: strokes twice as large).
-    #[arg(long, default_value_t = 1.0)]
-    style_scale: f32,
+    /// The painting's scale on the hair: multiplies the preset's style sizes and the size the orientation term lays the painting at (2: strokes twice as large; default: the preset's).
+    #[arg(long)]
+    style_scale: Option<f32>,
     /// Cameras per scale whose matches are cached (0: a new camera every iteration).
     #[arg(long, default_value_t = 8)]
     views_per_scale: usize,
@@ -131,8 +131,8 @@ pub struct StrandsArgs {
     field_neighbors: Option<usize>,
     /// Weight of the orientation term: the painting's stroke directions as targets for
     /// the strands' directions, relative to the NNST loss (0: the paper's NNST alone;
-    /// default: the preset's, 1 for fur-ball and long-hair, 0 for the others; with --frames
-    /// it makes the EMA hold on to the previous frame's field longer, see --ema-nu).
+    /// default: the preset's, 0 for the presets not yet cross-tested; with --frames it
+    /// makes the EMA hold on to the previous frame's field longer, see --ema-nu).
     #[arg(long)]
     orientation: Option<f32>,
     /// VGG-19 weights file (default: $NST3D_VGG19, else the user cache).

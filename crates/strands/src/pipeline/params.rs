@@ -72,7 +72,7 @@ impl StylizeParams {
             proxies: (ratio * guides as f64).round() as usize,
             seed: 0,
             lr_scale: 1.0,
-            style_scale: 1.0,
+            style_scale: preset.style_scale,
             weight_decay: 0.01,
             views_per_scale: 8,
             eval_views: 4,
@@ -97,6 +97,12 @@ impl StylizeParams {
     pub fn style_height(&self, l: usize) -> usize {
         let s = self.style_scale as f64 * self.render_size as f64 / self.preset.render_size.1.max(1) as f64;
         ((self.preset.style_sizes[l].1 as f64 * s).round() as usize).max(16)
+    }
+
+    /// The look's two settings in one line, printed before a job starts
+    /// (the cross test reads the style scale its results were made at).
+    pub fn look_line(&self) -> String {
+        format!("the look: orientation term {}, painting at style scale {}", self.orientation, self.style_scale)
     }
 
     pub(super) fn validate(&self) -> Result<(), PipelineError> {
