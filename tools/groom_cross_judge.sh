@@ -20,7 +20,9 @@
 #          ../shared/data/grooms/monkey_curly_mesh.obj z 10 --render-size 300 --iters 30
 #
 # ANGLE is the preset's camera half-range in degrees (10 for short hair and
-# grass, 15 for the fur ball). Needs the PyTorch environment of
+# grass, 15 for the fur ball); with AROUND=N (a 360-degree preset) the
+# judge looks from N azimuths all round and ANGLE is the polar half-range
+# (20 for short-hair-360). Needs the PyTorch environment of
 # tools/bench_common.sh (.venv-torch, made on first use). Runs two jobs at a
 # time on one thread each; finished pieces are kept, so a rerun with the
 # same OUTDIR resumes. Set STYLES to judge a subset. With a mesh the judge
@@ -71,7 +73,7 @@ for s in "${ALL[@]}"; do [ "$s" = ramp ] || args+=(--style "$s=$(style_of "$s")"
 # the strokes' misalignment in place (whether they run where the style's do).
 for judge in gram orient layout; do
   echo "== judge: $judge"
-  "$PY" tools/strand_ref/judge.py --judge "$judge" --rest "$GROOM" "${args[@]}" --up "$UP" --ang "$ANGLE" --crop "${cull_args[@]}" \
+  "$PY" tools/strand_ref/judge.py --judge "$judge" --rest "$GROOM" "${args[@]}" --up "$UP" --ang "$ANGLE" ${AROUND:+--around "$AROUND"} --crop "${cull_args[@]}" \
     --painting-margin 0.05 --paintings "$(IFS=,; echo "${PAINTINGS[*]}")" \
     --sheet "$OUT/sheet.png" --json "$OUT/judge_$judge.json" | tee "$OUT/judge_$judge.txt"
 done

@@ -125,6 +125,8 @@ def main():
     ap.add_argument('--style', action='append', default=[])
     ap.add_argument('--size', type=int, default=256)
     ap.add_argument('--ang', type=float, default=10.0)
+    ap.add_argument('--around', type=int, default=0,
+                    help='judge from this many azimuths all round (a 360-degree preset; --ang is then the polar range)')
     ap.add_argument('--style-px', type=int, default=96, help='style height at this render size')
     ap.add_argument('--margin', type=float, default=0.10, help='pair margin between two geometric styles')
     ap.add_argument('--painting-margin', type=float, default=0.05, help='pair margin where a painting is in the pair')
@@ -157,7 +159,13 @@ def main():
         with torch.no_grad():
             styles.append((name, grams(img), img))
         shist[name] = orient_hist(img)
-    cams = [Cam(center, R, az * a.ang, el * a.ang, a.size) for az, el in VIEWS]
+    if a.around:
+        # A 360-degree preset faces the groom from every side: a ring of
+        # azimuths, each at the horizon and 0.7 of the polar range up and down.
+        cams = [Cam(center, R, 360.0 * k / a.around, el * a.ang, a.size)
+                for k in range(a.around) for el in (0.0, -0.7, 0.7)]
+    else:
+        cams = [Cam(center, R, az * a.ang, el * a.ang, a.size) for az, el in VIEWS]
     # Root normals from the rest groom's first segments (strands grow along
     # their root normal), for --cull.
     P0 = results[0][1]
@@ -207,7 +215,7 @@ def main():
     rel = {n: {s: float(np.median(np.array(dist[n][s]) / np.array(dist['rest'][s]))) for s, _, _ in styles}
            for n, _ in results}
     snames = [s for s, _, _ in styles]
-    print('result / rest, %s, median of %d frontal views (lower = nearer the style)'
+    print('result / rest, %s, median of %d views (lower = nearer the style)'
           % ({'gram': 'Gram loss', 'orient': 'stroke-direction histogram distance',
               'layout': 'stroke misalignment against the style laid over the hair'}[a.judge], len(cams)))
     print('%-12s' % 'toward' + ''.join(' | %-10s' % s for s in snames) + ' | diag-edge')

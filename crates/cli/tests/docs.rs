@@ -380,3 +380,41 @@ fn link_extraction_skips_code_web_links_and_anchors() {
     let md = "See [a](guide/a.md#x) and ![p](../img/p.png), [w](https://e.org).\n```\n[c](not/me.md)\n```\n";
     assert_eq!(link_targets(md), ["guide/a.md", "../img/p.png"]);
 }
+
+/// The preset values the strand guide's settings table quotes for
+/// `--style-scale` and `--orientation` ("the preset's: 2 for `fur-ball`,
+/// 1.5 for `grass`, else 1") are each preset's.
+#[test]
+fn preset_values_quoted_in_the_strand_guide_are_the_presets() {
+    use nst3d_strands::Preset;
+    let text = std::fs::read_to_string(repo().join("docs/guide/strands.md")).unwrap();
+    let quoted = |flag: &str| -> Vec<(f32, Vec<String>)> {
+        let row = text.lines().find(|l| l.starts_with(&format!("| `--{flag}` |"))).expect("row in the table");
+        let cell = row.split('|').nth(2).unwrap().trim();
+        let list = cell.strip_prefix("the preset's: ").unwrap_or_else(|| panic!("--{flag}: {cell}"));
+        list.split(", ")
+            .map(|item| match item.strip_prefix("else ") {
+                Some(v) => (v.parse().unwrap(), vec![]),
+                None => {
+                    let (v, names) = item.split_once(" for ").unwrap_or_else(|| panic!("--{flag}: {item}"));
+                    (v.parse().unwrap(), names.split(" and ").map(|n| n.trim_matches('`').to_string()).collect())
+                }
+            })
+            .collect()
+    };
+    for (flag, value) in [
+        ("style-scale", (|p: Preset| p.params().style_scale) as fn(Preset) -> f32),
+        ("orientation", |p: Preset| p.params().orientation),
+    ] {
+        let items = quoted(flag);
+        let named: Vec<&String> = items.iter().flat_map(|(_, n)| n).collect();
+        for p in Preset::ALL {
+            let want = match items.iter().find(|(_, n)| n.iter().any(|k| k == p.key())) {
+                Some((v, _)) => *v,
+                None => items.iter().find(|(_, n)| n.is_empty()).expect("an else value").0,
+            };
+            assert_eq!(value(p), want, "--{flag} of preset {}: the guide says {want}", p.key());
+        }
+        assert!(named.iter().all(|n| n.parse::<Preset>().is_ok()), "--{flag}: {named:?}");
+    }
+}
