@@ -61,9 +61,10 @@ for ((i = 0; i < ${#ALL[@]}; i += 2)); do
   wait $a; [ -z "$b" ] || wait $b
 done
 args=()
-# The judge lays each style as the optimiser did: at the style scale the
-# run printed (the preset's unless --style-scale was given).
-scale=$(sed -n 's/^the look: .*style scale \([0-9.]*\)$/\1/p' "$OUT/${ALL[0]}.log" | head -1)
+# The judge lays each style as the optimiser did: at the run's
+# --style-scale, else the scale the run printed (the preset's).
+scale=""; prev=""; for o in "$@"; do [ "$prev" = --style-scale ] && scale=$o; prev=$o; done
+[ -n "$scale" ] || scale=$(sed -n 's/^the look: .*style scale \([0-9.]*\)$/\1/p' "$OUT/${ALL[0]}.log" | head -1)
 [ -n "$scale" ] || { echo "groom_cross_judge: $OUT/${ALL[0]}.log does not say its style scale" >&2; exit 1; }
 args+=(--style-scale "$scale")
 for s in "${ALL[@]}"; do args+=(--result "$s=$OUT/$s.ply"); done

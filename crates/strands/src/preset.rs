@@ -240,106 +240,124 @@ impl Preset {
     /// The preset's parameters.
     pub fn params(self) -> PresetParams {
         match self {
-            Preset::ShortHair => PresetParams {
-                name: "Short Hair",
-                guide_strands: 4_000,
-                densified_strands: 22_600,
-                control_points: 2_660_000,
-                velocity_samples: 266_000,
-                points_per_strand: 100,
-                style_sizes: [(160, 160), (240, 240), (300, 300)],
-                learning_rates: [0.0026, 0.0016, 0.0009],
-                camera_distance: 5.0,
-                visibility_threshold: 0.3,
-                sampling_density: 0.665,
-                runtime_s_per_frame: 138.0,
-                ..BASE
-            },
-            Preset::ShortHair360 => PresetParams {
-                name: "Short Hair 360",
-                iterations: [70, 100, 170],
-                polar_deg: (-20.0, 20.0),
-                azimuth_deg: (-180.0, 180.0),
-                runtime_s_per_frame: 512.0,
-                ..Preset::ShortHair.params()
-            },
-            Preset::LongHair => PresetParams {
-                name: "Long Hair",
-                guide_strands: 8_180,
-                densified_strands: 4_120,
-                control_points: 1_230_000,
-                velocity_samples: 409_000,
-                points_per_strand: 100,
-                style_sizes: [(200, 200), (240, 240), (320, 320)],
-                learning_rates: [0.0034, 0.0025, 0.0016],
-                polar_deg: (-20.0, 20.0),
-                camera_distance: 2.5,
-                visibility_threshold: 0.6,
-                sampling_density: 0.5,
-                temporal: temporal(0.7, 0.3, 0.25, 8.0),
-                runtime_s_per_frame: 149.0,
-                orientation: 1.0,
-                ..BASE
-            },
-            Preset::Cat => PresetParams {
-                name: "Cat",
-                guide_strands: 75_750,
-                densified_strands: 177_250,
-                control_points: 2_000_000,
-                velocity_samples: 202_000,
-                points_per_strand: 8,
-                render_size: (800, 800),
-                style_sizes: [(80, 80), (160, 160), (260, 260)],
-                learning_rates: [0.002, 0.0012, 0.0006],
-                camera_distance: 2.0,
-                visibility_threshold: 0.2,
-                sampling_density: 0.333,
-                runtime_s_per_frame: 179.0,
-                ..BASE
-            },
-            Preset::FurBall => PresetParams {
-                name: "Fur Ball",
-                guide_strands: 8_000,
-                densified_strands: 42_000,
-                control_points: 450_000,
-                velocity_samples: 72_000,
-                points_per_strand: 9,
-                render_size: (500, 500),
-                style_sizes: [(30, 30), (150, 150), (240, 240)],
-                learning_rates: [0.0025, 0.0018, 0.0009],
-                polar_deg: (-15.0, 15.0),
-                azimuth_deg: (-15.0, 15.0),
-                camera_distance: 3.0,
-                visibility_threshold: 0.5,
-                sampling_density: 1.0,
-                temporal: temporal(0.6, 0.34, 0.2, 9.0),
-                runtime_s_per_frame: 53.0,
-                orientation: 3.0,
-                style_scale: 2.0,
-                ..BASE
-            },
-            Preset::Grass => PresetParams {
-                name: "Grass Patch",
-                guide_strands: 3_000,
-                densified_strands: 9_000,
-                control_points: 108_000,
-                velocity_samples: 18_000,
-                points_per_strand: 9,
-                style_sizes: [(120, 120), (180, 180), (225, 225)],
-                learning_rates: [0.0028, 0.0032, 0.0012],
-                camera_distance: 2.0,
-                // Not Table 1's 0.5: see the module notes.
-                visibility_threshold: -1.0,
-                sampling_density: 0.666,
-                temporal: temporal(0.6, 0.34, 0.3, 9.0),
-                runtime_s_per_frame: 26.0,
-                orientation: 3.0,
-                style_scale: 1.5,
-                ..BASE
-            },
+            Preset::ShortHair => SHORT_HAIR,
+            Preset::ShortHair360 => SHORT_HAIR_360,
+            Preset::LongHair => LONG_HAIR,
+            Preset::Cat => CAT,
+            Preset::FurBall => FUR_BALL,
+            Preset::Grass => GRASS,
         }
     }
 }
+
+/// Table 1's Short Hair (Fig. 1).
+const SHORT_HAIR: PresetParams = PresetParams {
+    name: "Short Hair",
+    guide_strands: 4_000,
+    densified_strands: 22_600,
+    control_points: 2_660_000,
+    velocity_samples: 266_000,
+    points_per_strand: 100,
+    style_sizes: [(160, 160), (240, 240), (300, 300)],
+    learning_rates: [0.0026, 0.0016, 0.0009],
+    camera_distance: 5.0,
+    visibility_threshold: 0.3,
+    sampling_density: 0.665,
+    runtime_s_per_frame: 138.0,
+    ..BASE
+};
+
+/// Short Hair seen from all round (Table 1's 360° row).
+const SHORT_HAIR_360: PresetParams = PresetParams {
+    name: "Short Hair 360",
+    iterations: [70, 100, 170],
+    polar_deg: (-20.0, 20.0),
+    azimuth_deg: (-180.0, 180.0),
+    runtime_s_per_frame: 512.0,
+    ..SHORT_HAIR
+};
+
+/// Table 1's Long Hair, animated.
+const LONG_HAIR: PresetParams = PresetParams {
+    name: "Long Hair",
+    guide_strands: 8_180,
+    densified_strands: 4_120,
+    control_points: 1_230_000,
+    velocity_samples: 409_000,
+    points_per_strand: 100,
+    style_sizes: [(200, 200), (240, 240), (320, 320)],
+    learning_rates: [0.0034, 0.0025, 0.0016],
+    polar_deg: (-20.0, 20.0),
+    camera_distance: 2.5,
+    visibility_threshold: 0.6,
+    sampling_density: 0.5,
+    temporal: temporal(0.7, 0.3, 0.25, 8.0),
+    runtime_s_per_frame: 149.0,
+    orientation: 1.0,
+    ..BASE
+};
+
+/// Table 1's Cat.
+const CAT: PresetParams = PresetParams {
+    name: "Cat",
+    guide_strands: 75_750,
+    densified_strands: 177_250,
+    control_points: 2_000_000,
+    velocity_samples: 202_000,
+    points_per_strand: 8,
+    render_size: (800, 800),
+    style_sizes: [(80, 80), (160, 160), (260, 260)],
+    learning_rates: [0.002, 0.0012, 0.0006],
+    camera_distance: 2.0,
+    visibility_threshold: 0.2,
+    sampling_density: 0.333,
+    runtime_s_per_frame: 179.0,
+    ..BASE
+};
+
+/// Table 1's Fur Ball in the wind, with the look's settings (see the fields).
+const FUR_BALL: PresetParams = PresetParams {
+    name: "Fur Ball",
+    guide_strands: 8_000,
+    densified_strands: 42_000,
+    control_points: 450_000,
+    velocity_samples: 72_000,
+    points_per_strand: 9,
+    render_size: (500, 500),
+    style_sizes: [(30, 30), (150, 150), (240, 240)],
+    learning_rates: [0.0025, 0.0018, 0.0009],
+    polar_deg: (-15.0, 15.0),
+    azimuth_deg: (-15.0, 15.0),
+    camera_distance: 3.0,
+    visibility_threshold: 0.5,
+    sampling_density: 1.0,
+    temporal: temporal(0.6, 0.34, 0.2, 9.0),
+    runtime_s_per_frame: 53.0,
+    orientation: 3.0,
+    style_scale: 2.0,
+    ..BASE
+};
+
+/// Table 1's Grass Patch, with the look's settings (see the fields).
+const GRASS: PresetParams = PresetParams {
+    name: "Grass Patch",
+    guide_strands: 3_000,
+    densified_strands: 9_000,
+    control_points: 108_000,
+    velocity_samples: 18_000,
+    points_per_strand: 9,
+    style_sizes: [(120, 120), (180, 180), (225, 225)],
+    learning_rates: [0.0028, 0.0032, 0.0012],
+    camera_distance: 2.0,
+    // Not Table 1's 0.5: see the module notes.
+    visibility_threshold: -1.0,
+    sampling_density: 0.666,
+    temporal: temporal(0.6, 0.34, 0.3, 9.0),
+    runtime_s_per_frame: 26.0,
+    orientation: 3.0,
+    style_scale: 1.5,
+    ..BASE
+};
 
 #[cfg(test)]
 mod tests {
