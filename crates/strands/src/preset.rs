@@ -227,9 +227,11 @@ const BASE: PresetParams = PresetParams {
 /// the output rose from 1.52e1 to 1.74e1 over 12 frames, and the sequence
 /// flickered 1.24× as much as frames stylized alone). With `ν = 3` the blend
 /// never lets go (`f` falls from 1 to 2/3 over a scale) and the same
-/// sequence flickered 0.3× per-frame at the per-frame loss
-/// (docs/design/strands.md).
-pub const ORIENTATION_EMA_NU: f32 = 3.0;
+/// sequence flickered 0.31× per-frame at `W = 1`, 0.43× at the fur-ball
+/// preset's `W = 3` with the painting at 2, but 0.53× with it at 3, whose
+/// larger strokes comb further; `ν = 6` (1 to 5/6) brings that to 0.46×
+/// at about the same loss (docs/design/strands.md).
+pub const ORIENTATION_EMA_NU: f32 = 6.0;
 
 const fn temporal(ema_nu: f32, blend_alpha: f32, beta: f32, min_cutoff_hz: f32) -> Option<TemporalParams> {
     Some(TemporalParams { ema_sigma: 1.0, ema_nu, blend_alpha, beta, min_cutoff_hz, fps: 24.0 })
