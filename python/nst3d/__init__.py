@@ -308,8 +308,10 @@ def _style_map_array(
 def stylize_groom(
     points: "NDArray[Any]",
     counts: Union[Sequence[int], "NDArray[Any]"],
-    style: PathLike,
+    style: Union[PathLike, Sequence[PathLike]],
     *,
+    style_map: Union[str, "NDArray[Any]", None] = None,
+    style_map_labels: Optional[bool] = None,
     mesh: Union[PathLike, Tuple["NDArray[Any]", "NDArray[Any]"], None] = None,
     preset: Optional[Preset] = None,
     iters: Optional[int] = None,
@@ -348,13 +350,20 @@ def stylize_groom(
     cameras circle it and the result is in the same axes. With
     ``color=True`` the strands' colour is stylized too, starting from
     ``colors`` (an ``(N, 3)`` array in ``[0, 1]``; white without), and the
-    result is ``(points, colors)``. The other options are ``nst3d strands``'s.
+    result is ``(points, colors)``. Several paintings (``style=[a, b]``)
+    go where ``style_map`` puts them: one value per strand, as a numpy
+    array (floats blend two paintings, 0 the first and 1 the second;
+    integers are labels, 0 the first painting, 1 the second, ...) or as
+    ``nst3d strands --style-map`` takes it (``"@height"``, a ``.txt``
+    file). The other options are ``nst3d strands``'s.
     """
     p = np.ascontiguousarray(points, dtype="<f4")
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"points must be an (N, 3) array, got shape {p.shape}")
     c = [int(n) for n in np.asarray(counts).ravel()]
+    style_map, style_map_labels, map_values = _strand_map(style_map, style_map_labels)
     opts = _options(
+        style_map=style_map, style_map_labels=style_map_labels,
         preset=preset, iters=iters, scale_iters=scale_iters, render_size=render_size, proxies=proxies,
         up=up, seed=seed, lr_scale=lr_scale, style_scale=style_scale, views_per_scale=views_per_scale, eval_views=eval_views,
         strand_width=strand_width, rematch=rematch, field_neighbors=field_neighbors, orientation=orientation, weights=weights, preview=preview, color=color,
@@ -379,7 +388,7 @@ def stylize_groom(
             raise ValueError("mesh: a triangle index is outside the vertices")
         mesh_arrays = (v.tobytes(), [int(i) for i in t.ravel()])
     out, rep = _nst3d.stylize_groom(
-        p.tobytes(), c, os.fspath(style), opts, mesh_file, mesh_arrays, progress, _to_log, col
+        p.tobytes(), c, _paths(style), opts, mesh_file, mesh_arrays, progress, _to_log, col, map_values
     )
     stylized = rep.pop("colors", None)
     if report is not None:
@@ -393,8 +402,10 @@ def stylize_groom(
 def stylize_groom_file(
     groom: PathLike,
     out: PathLike,
-    style: PathLike,
+    style: Union[PathLike, Sequence[PathLike]],
     *,
+    style_map: Union[str, "NDArray[Any]", None] = None,
+    style_map_labels: Optional[bool] = None,
     mesh: Optional[PathLike] = None,
     preset: Optional[Preset] = None,
     frames: Optional[str] = None,
@@ -437,9 +448,13 @@ def stylize_groom_file(
     With ``frames`` (e.g. ``"1-24"``) ``groom``, ``out`` (and ``mesh``,
     ``preview``) are ``####`` patterns of an animated groom, stylized with
     the EMA and 1€ filter of Sec. 3.3 (``temporal``), resumable after a kill.
-    Returns the report as a dict.
+    Several paintings go where ``style_map`` puts them (as
+    :func:`stylize_groom`; a strand or vertex property's name of a ``.ply``
+    groom too). Returns the report as a dict.
     """
+    style_map, style_map_labels, map_values = _strand_map(style_map, style_map_labels)
     opts = _options(
+        style_map=style_map, style_map_labels=style_map_labels,
         preset=preset, frames=frames, force=force, work_dir=work_dir, temporal=temporal,
         ema_sigma=ema_sigma, ema_nu=ema_nu, ema_clock=ema_clock, one_euro_alpha=one_euro_alpha,
         one_euro_beta=one_euro_beta, one_euro_fmin=one_euro_fmin, fps=fps, style_flow=style_flow,
@@ -448,9 +463,35 @@ def stylize_groom_file(
         strand_width=strand_width, rematch=rematch, field_neighbors=field_neighbors, orientation=orientation, weights=weights, preview=preview, color=color,
     )
     return _nst3d.stylize_groom_file(
-        os.fspath(groom), os.fspath(out), os.fspath(style), opts,
-        os.fspath(mesh) if mesh is not None else None, progress, _to_log,
+        os.fspath(groom), os.fspath(out), _paths(style), opts,
+        os.fspath(mesh) if mesh is not None else None, progress, _to_log, map_values,
     )
+
+
+def _paths(style: Union[PathLike, Sequence[PathLike]]) -> List[str]:
+    """One painting or several, as a list of paths."""
+    if isinstance(style, (str, os.PathLike)):
+        return [os.fspath(style)]
+    return [os.fspath(s) for s in style]
+
+
+def _strand_map(
+    style_map: Any, labels: Optional[bool]
+) -> Tuple[Optional[str], Optional[bool], Optional[bytes]]:
+    """A groom's style map: a string passes through; an array of one value
+    per strand becomes float32 bytes (integers or booleans are labels)."""
+    if style_map is None or isinstance(style_map, str):
+        return style_map, labels, None
+    a = np.asarray(style_map)
+    if a.dtype.kind in "iub":
+        if labels is False:
+            raise ValueError("style_map: an integer array holds labels; pass floats to blend two paintings")
+        labels = True
+    elif a.dtype.kind != "f":
+        raise TypeError(f"style_map: an array must hold floats (a blend) or integers (labels), got {a.dtype}")
+    if a.ndim != 1:
+        raise ValueError(f"style_map: an array must hold one value per strand, got shape {a.shape}")
+    return None, labels, np.ascontiguousarray(a, dtype="<f4").tobytes()
 
 
 def train(

@@ -87,3 +87,24 @@ def test_color_returns_stylized_colours_from_the_given_ones(data, style):
     assert np.abs(colors - start).max() > 0.02, "the colours did not move"
     with pytest.raises(ValueError, match="colors"):
         nst3d.stylize_groom(points, counts, style, color=True, colors=start[:5], **FAST)
+
+
+def test_a_style_map_array_is_the_command_lines_map_file(tmp_path, data, style):
+    """Two paintings shared by an array of one value per strand (integers:
+    labels) give the groom the command line's `--style-map FILE.txt
+    --style-map-labels` gives; a wrong length or rank is one error."""
+    points, counts = nst3d.read_groom(data / "grooms" / "Bangs_100.hair")
+    mesh = data / "grooms" / "Bangs_head.ply"
+    ship = data / "styles" / "shipwreck.jpg"
+    side = (np.arange(len(counts)) >= 50).astype(np.int32)
+    arr = nst3d.stylize_groom(points, counts, [style, ship], style_map=side, mesh=mesh, **FAST)
+    (tmp_path / "side.txt").write_text("".join(f"{v}\n" for v in side))
+    txt = nst3d.stylize_groom(points, counts, [style, ship], style_map=str(tmp_path / "side.txt"),
+                              style_map_labels=True, mesh=mesh, **FAST)
+    np.testing.assert_array_equal(arr, txt)
+    single = nst3d.stylize_groom(points, counts, style, mesh=mesh, **FAST)
+    assert not np.array_equal(arr, single), "the map's second painting changed nothing"
+    with pytest.raises(nst3d.Nst3dError, match="99 values for 100 strands"):
+        nst3d.stylize_groom(points, counts, [style, ship], style_map=side[:99], mesh=mesh, **FAST)
+    with pytest.raises(ValueError, match="one value per strand"):
+        nst3d.stylize_groom(points, counts, [style, ship], style_map=side.reshape(10, 10), mesh=mesh, **FAST)

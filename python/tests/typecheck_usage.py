@@ -20,6 +20,8 @@ def right() -> None:
     points, counts = nst3d.read_groom("g.usda")
     nst3d.stylize_groom(points, counts, "p.jpg", preset="fur-ball", render_size=48, scale_iters=[0, 0, 3])
     nst3d.stylize_groom_file("g.usda", "o.usda", "p.jpg", temporal="ema", ema_clock="frame", style_flow=(0, 1, 0))
+    nst3d.stylize_groom(points, counts, ["a.jpg", "b.jpg"], style_map=np.zeros(len(counts)), preset="fur-ball")
+    nst3d.stylize_groom_file("g.ply", "o.usda", ["a.jpg", "b.jpg"], style_map="side", style_map_labels=True)
     nst3d.train("f_####.vdb", "p.jpg", "m.safetensors", frames="1-40", steps=4, mode="velocity")
     nst3d.Model.load("m.safetensors", tile=64, strength="strong").stylize(d, origin=(0, 0, 0))
 

@@ -141,6 +141,10 @@ def main():
     ap.add_argument('--judge', default='gram', choices=['gram', 'orient', 'layout'],
                     help='gram: VGG-19 Gram loss; orient: distance of stroke-direction histograms; '
                          'layout: stroke misalignment against the style laid over the hair box')
+    ap.add_argument('--region', default=None,
+                    help='FILE:LO:HI judges one region of a style map: FILE holds one value per strand, and only '
+                         'strands whose value lies in [LO, HI] are drawn, each style laid over the box of the '
+                         'region on the rest groom (as nst3d lays a style map\'s paintings)')
     ap.add_argument('--style-scale', type=float, default=1.0,
                     help="the style's scale on the hair the results were made with (nst3d's --style-scale): the style is read at --style-px times it and laid over the hair at it")
     a = ap.parse_args()
@@ -178,13 +182,20 @@ def main():
         v = cam.eye[None, :] - P0[:, 0]
         return ((normals * v).sum(1) / v.norm(dim=1).clamp(min=1e-12) >= a.cull).float()
     vis = [visible(cam) for cam in cams]
+    region = None
+    if a.region:
+        path, lo, hi = a.region.rsplit(':', 2)
+        values = torch.tensor(np.loadtxt(path), dtype=torch.float32).reshape(-1)
+        region = ((values >= float(lo)) & (values <= float(hi))).float()
+        assert len(region) == P0.shape[0], f'{path}: {len(region)} values for {P0.shape[0]} strands'
+    drawn = [(v if v is not None else torch.ones(P0.shape[0])) * region if region is not None else v for v in vis]
     dist = {}
     edges = {}
     renders = {}
     boxes = []
     with torch.no_grad():
         for cam in cams:
-            m = render(results[0][1], cam, vis=vis[cams.index(cam)]) > 0.02
+            m = render(results[0][1], cam, vis=drawn[cams.index(cam)]) > 0.02
             ys, xs = torch.nonzero(m, as_tuple=True)
             pad = 6
             boxes.append((max(0, ys.min().item() - pad), min(a.size, ys.max().item() + pad + 1),
@@ -193,7 +204,7 @@ def main():
             per = {s: [] for s, _, _ in styles}
             ed = []
             for ci, cam in enumerate(cams):
-                img = render(P, cam, vis=vis[ci])
+                img = render(P, cam, vis=drawn[ci])
                 if a.crop:
                     y0, y1, x0, x1 = boxes[ci]
                     img = img[y0:y1, x0:x1]

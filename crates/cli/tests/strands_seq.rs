@@ -251,3 +251,30 @@ fn grass_stylized_on_its_ground_moves() {
     let moved = a.strands.iter().zip(&b.strands).any(|(s, t)| s.points.last() != t.points.last());
     assert!(moved, "no blade moved: {out}");
 }
+
+/// A style map over an animation: the values of the first frame (each
+/// root's height) share two paintings in every frame; a map of one
+/// painting everywhere is that painting's sequence, byte for byte.
+#[test]
+fn a_style_map_carries_through_a_sequence() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b) = (shared("styles/starry_night.jpg"), shared("styles/shipwreck.jpg"));
+    let (a, b) = (a.to_str().unwrap(), b.to_str().unwrap());
+    ok(&generate(dir.path(), "30", "1-2"));
+    let out = ok(&nst3d(dir.path(), &stylize_args(a, &["--frames", "1-2", "--style", b, "--style-map", "@height"])));
+    assert!(out.contains("sequence: 2 frames"), "{out}");
+    let split: Vec<_> =
+        (1..=2).map(|f| std::fs::read(dir.path().join(format!("out/fur_{f:04}.ply"))).unwrap()).collect();
+
+    std::fs::write(dir.path().join("zero.txt"), "0\n".repeat(30)).unwrap();
+    let zero = ["--frames", "1-2", "--style", b, "--style-map", "zero.txt", "--style-map-labels", "--force"];
+    ok(&nst3d(dir.path(), &stylize_args(a, &zero)));
+    let first: Vec<_> =
+        (1..=2).map(|f| std::fs::read(dir.path().join(format!("out/fur_{f:04}.ply"))).unwrap()).collect();
+    ok(&nst3d(dir.path(), &stylize_args(a, &["--frames", "1-2", "--force"])));
+    for f in 1..=2 {
+        let single = std::fs::read(dir.path().join(format!("out/fur_{f:04}.ply"))).unwrap();
+        assert_eq!(first[f - 1], single, "frame {f}: a map of the first painting everywhere");
+        assert_ne!(split[f - 1], single, "frame {f}: a height map gave the first painting's groom");
+    }
+}

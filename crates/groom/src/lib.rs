@@ -25,6 +25,7 @@ pub mod preview;
 pub mod sequence;
 pub mod settings;
 pub mod single;
+pub mod style_map;
 pub mod summary;
 
 pub use checks::Checks;

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use nst3d_core::{Image, UpAxis};
 use nst3d_io::image::{luminance_rgb, resize_to_height, side_by_side, write_png};
-use nst3d_strands::pipeline::{GroomView, StrandScene};
+use nst3d_strands::pipeline::{GroomView, StrandScene, StrandShares};
 use nst3d_strands::FlatStrands;
 
 use crate::axis;
@@ -40,6 +40,56 @@ pub fn write_preview(
     let paint = resize_to_height(&if colors.is_some() { painting.clone() } else { luminance_rgb(painting) }, h);
     write_png(path, &side_by_side(&[&before, &after, &paint]))?;
     Ok(())
+}
+
+/// The tint each painting's strands take in a style map's preview: orange,
+/// blue, green, magenta, then round again.
+const MAP_TINTS: [[f32; 3]; 4] = [[1.0, 0.55, 0.15], [0.2, 0.55, 1.0], [0.3, 0.85, 0.3], [0.9, 0.3, 0.8]];
+
+/// A style map's preview from the front camera: the rest groom in each
+/// painting's tint by its strands' shares (the map) | the result | each
+/// painting, framed in its tint.
+pub fn write_map_preview(
+    path: &Path,
+    scene: &StrandScene,
+    after: &FlatStrands,
+    shares: &StrandShares,
+    paintings: &[&Image],
+) -> Result<()> {
+    let h = PREVIEW_HEIGHT;
+    let cam = scene.front_camera(h)?;
+    let mut tint = vec![[0.0f32; 3]; scene.undeformed.points.len()];
+    for k in 0..shares.paintings() {
+        let c = MAP_TINTS[k % MAP_TINTS.len()];
+        for (t, s) in tint.iter_mut().zip(shares.point_shares(k, &scene.undeformed)) {
+            (0..3).for_each(|j| t[j] += s * c[j]);
+        }
+    }
+    let map = scene.render_colored(&scene.undeformed, Some(&tint), &cam)?;
+    let after = scene.render(after, &cam)?;
+    let framed: Vec<Image> = paintings
+        .iter()
+        .enumerate()
+        .map(|(k, p)| framed(&resize_to_height(&luminance_rgb(p), h), MAP_TINTS[k % MAP_TINTS.len()]))
+        .collect();
+    let mut panels = vec![&map, &after];
+    panels.extend(framed.iter());
+    write_png(path, &side_by_side(&panels))?;
+    Ok(())
+}
+
+/// `img` (RGB) with a border of `color`, 4 pixels wide.
+fn framed(img: &Image, color: [f32; 3]) -> Image {
+    let mut out = img.clone();
+    let (h, w) = (img.height, img.width);
+    for y in 0..h {
+        for x in 0..w {
+            if x < 4 || y < 4 || x + 4 >= w || y + 4 >= h {
+                (0..3).for_each(|c| out.data[c * h * w + y * w + x] = color[c]);
+            }
+        }
+    }
+    out
 }
 
 /// What `nst3d preview` draws of a groom.

@@ -15,7 +15,9 @@ use nst3d_features::Vgg19;
 use nst3d_io::groom::{read_groom, read_groom_file};
 use nst3d_io::mesh::read_mesh;
 use nst3d_job::{default_work_dir, settings_key, FrameSpec, JobId, Resume, State, StateFiles};
-use nst3d_strands::{check_topology, FlatStrands, Flow, FrameResult, SequenceParams, SequenceStylizer, TemporalParams};
+use nst3d_strands::{
+    check_topology, FlatStrands, Flow, FrameResult, SequenceMap, SequenceParams, SequenceStylizer, TemporalParams,
+};
 
 use crate::axis;
 use crate::checks::Checks;
@@ -227,10 +229,10 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
     if mesh_varies {
         check_meshes(frames, &mesh_at)?;
     }
-    let painting = nst3d_io::image::load_style(&s.style, 1.0)?;
+    let paintings = s.paintings().iter().map(|p| nst3d_io::image::load_style(p, 1.0)).collect::<Result<Vec<_>, _>>()?;
+    let painting = &paintings[0];
     let vgg = Vgg19::load(s.weights.as_deref())?;
-    let (params, temporal) = sequence_params(s, &first, up, reporter)?;
-    let mut seq = SequenceStylizer::new(&vgg, &painting, params)?;
+    let (mut seq, temporal) = stylizer(s, &vgg, &paintings, (&first, &groom_at(frames[0])?, up), reporter)?;
 
     // Resume: the state saved after the last finished frame of this job.
     let id = job_id(s, frames, &groom_at, &mesh_at)?;
@@ -273,7 +275,7 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
         let written = axis::strands_from_y_up(written, up);
         write_groom(&out, format, &written, Some(&with_axis(input, up)), None)?;
         if let Some(p) = &s.preview {
-            write_preview(&frame_path(p, f, "--preview")?, &r.scene, &r.strands, None, &painting)?;
+            write_preview(&frame_path(p, f, "--preview")?, &r.scene, &r.strands, None, painting)?;
         }
         reporter.result(&frame_line(f, &r, &out));
         // Outputs first, then the state: a kill in between redoes this frame.
@@ -298,6 +300,26 @@ pub fn stylize_groom_sequence(s: &StrandSettings, reporter: &mut dyn Reporter) -
     })
 }
 
+/// The sequence's stylizer toward `paintings`, with the style map if the
+/// job has one: its values read from the first frame (`first`, read from
+/// its path, in the axes `up` names), since strands keep their identity.
+fn stylizer<'a>(
+    s: &StrandSettings,
+    vgg: &'a Vgg19,
+    paintings: &'a [nst3d_core::Image],
+    (first, path, up): (&Groom, &Path, UpAxis),
+    reporter: &mut dyn Reporter,
+) -> Result<(SequenceStylizer<'a>, TemporalParams)> {
+    let map = crate::style_map::map_values(s, path, &axis::groom_to_y_up(first, up))?;
+    let (params, temporal) = sequence_params(s, first, up, reporter)?;
+    let mut seq = SequenceStylizer::new(vgg, &paintings[0], params)?;
+    if let Some(values) = map {
+        let kind = crate::style_map::kind(s);
+        seq = seq.with_map(SequenceMap { paintings: paintings.iter().collect(), values, kind });
+    }
+    Ok((seq, temporal))
+}
+
 /// Everything a strand sequence's saved state depends on: the settings
 /// (not `force`, `work_dir`), the painting's contents, and every frame's
 /// groom and mesh by path, size and modification time. The thread count is
@@ -315,5 +337,7 @@ fn job_id(
         stamped.push(groom_at(f)?);
         stamped.extend(mesh_at(f)?);
     }
-    Ok(JobId::new(STATE_KIND, settings_key(&a, true), std::slice::from_ref(&s.style), &stamped)?)
+    let mut contents: Vec<PathBuf> = s.paintings().iter().map(|p| p.to_path_buf()).collect();
+    contents.extend(s.style_map.as_deref().filter(|m| m.ends_with(".txt")).map(PathBuf::from));
+    Ok(JobId::new(STATE_KIND, settings_key(&a, true), &contents, &stamped)?)
 }

@@ -40,6 +40,21 @@ pub struct StrandSettings {
     pub mesh: Option<PathBuf>,
     /// Style painting (PNG or JPEG); its luminance is matched.
     pub style: PathBuf,
+    /// Further paintings of a style map (`--style` given again): strands
+    /// take `style` and these by their `style_map` value.
+    pub more_styles: Vec<PathBuf>,
+    /// Where each strand's style-map value comes from
+    /// ([`crate::style_map`]): `@height` (the roots' height, 0 lowest to 1
+    /// highest), a `.txt` file (one number per strand, in file order), or
+    /// the name of a strand or vertex property of a `.ply` groom (a
+    /// vertex's at each strand's root).
+    pub style_map: Option<String>,
+    /// The map's values are labels (0 the first `--style`, 1 the second, …)
+    /// rather than a blend of two paintings (0 the first, 1 the second).
+    pub style_map_labels: bool,
+    /// The map's values in memory, one per strand (the Python package's
+    /// array); they take the place of `style_map`.
+    pub style_map_values: Option<Vec<f32>>,
     /// Output groom, .usda, .usdc (or .usd, binary), .usdz or .ply (written atomically); with `frames` a pattern.
     pub out: PathBuf,
     /// Before | after | painting preview PNG; with `frames` a pattern.
@@ -132,6 +147,10 @@ impl StrandSettings {
             groom: groom.into(),
             mesh: Some(mesh.into()),
             style: style.into(),
+            more_styles: Vec::new(),
+            style_map: None,
+            style_map_labels: false,
+            style_map_values: None,
             out: out.into(),
             preview: None,
             preset: Preset::ShortHair,
@@ -198,6 +217,7 @@ impl StrandSettings {
                 bail!("--field-neighbors must be 1 to 256, got {k}");
             }
         }
+        self.check_style_map()?;
         if self.color && self.frames.is_some() {
             bail!("--color stylizes one groom; it is not carried through --frames yet");
         }
@@ -207,6 +227,34 @@ impl StrandSettings {
             }
         }
         Ok(())
+    }
+
+    /// The paintings and the style map agree: several paintings need a
+    /// map and a map several paintings, a blend two.
+    fn check_style_map(&self) -> Result<()> {
+        let mapped = self.style_map.is_some() || self.style_map_values.is_some();
+        let paintings = 1 + self.more_styles.len();
+        match (mapped, paintings) {
+            (false, 1) => {}
+            (false, n) => bail!("{n} paintings (--style) need a --style-map saying which strands take which"),
+            (true, 1) => bail!("--style-map needs two or more paintings (--style given again), got one"),
+            (true, n) if !self.style_map_labels && n != 2 => {
+                bail!("a blending --style-map takes two paintings, got {n} (add --style-map-labels to pick one of {n})")
+            }
+            (true, _) => {}
+        }
+        if mapped && self.color {
+            bail!("--color with a --style-map is not supported yet: drop one of them");
+        }
+        if self.style_map_labels && !mapped {
+            bail!("--style-map-labels needs a --style-map");
+        }
+        Ok(())
+    }
+
+    /// The paintings in order: `style`, then `more_styles`.
+    pub fn paintings(&self) -> Vec<&Path> {
+        std::iter::once(self.style.as_path()).chain(self.more_styles.iter().map(PathBuf::as_path)).collect()
     }
 
     /// The outputs checked before any work (`io::atomic::check_output`): a

@@ -13,13 +13,15 @@ use nst3d_core::{Groom, Reporter, TriMesh, UpAxis};
 use nst3d_features::Vgg19;
 use nst3d_io::groom::{read_groom_file, GroomFile};
 use nst3d_io::mesh::read_mesh;
-use nst3d_strands::pipeline::{color_iterations, stylize, HeldOut, StrandScene};
+use nst3d_strands::pipeline::{
+    color_iterations, stylize_mapped, FrameHooks, HeldOut, IterationReport, StrandScene, StrandShares,
+};
 use nst3d_strands::FlatStrands;
 
 use crate::axis;
 use crate::checks::Checks;
 use crate::output::{attribute_notes, write_groom};
-use crate::preview::write_preview;
+use crate::preview::{write_map_preview, write_preview};
 use crate::settings::{OutFormat, StrandSettings, Temporal};
 use crate::NO_MESH;
 
@@ -74,6 +76,8 @@ pub fn stylize_groom_file(s: &StrandSettings, reporter: &mut dyn Reporter) -> Re
     }
     let input = read_groom_file(&s.groom)?;
     let groom = &input.groom;
+    // A bad style map is one line before anything else is said.
+    crate::style_map::map_values(s, &s.groom, groom)?;
     // After the read, not before it, so that a bad file is still one line on stderr.
     reporter.status(&format!(
         "read {}: {} strands, {} points",
@@ -134,7 +138,8 @@ pub fn stylize_groom(
     if head.is_none() {
         reporter.note(NO_MESH);
     }
-    let painting = nst3d_io::image::load_style(&s.style, 1.0)?;
+    let paintings = s.paintings().iter().map(|p| nst3d_io::image::load_style(p, 1.0)).collect::<Result<Vec<_>, _>>()?;
+    let map = crate::style_map::map_values(s, &s.groom, groom)?;
     let vgg = Vgg19::load(s.weights.as_deref())?;
     let params = s.stylize_params(groom.strand_count());
     StrandSettings::check_memory(&params, groom.strand_count())?;
@@ -145,23 +150,16 @@ pub fn stylize_groom(
             Some(m) => format!("{} on {}", s.groom.display(), m.display()),
             None => s.groom.display().to_string(),
         })?;
+    let shares = match &map {
+        Some(values) => crate::style_map::shares(s, &scene, values)?,
+        None => StrandShares::single(scene.rest.strand_count()),
+    };
     let total: u32 = params.iterations.iter().sum();
     let color_total = if params.color { color_iterations() } else { 0 };
     reporter.begin((total + color_total) as u64);
-    let result = stylize(&scene, &painting, &vgg, &params, &mut |r| {
-        reporter.step(&if r.color {
-            format!("colour iteration {}/{} loss {:.4e}", r.iteration, r.iterations, r.loss)
-        } else {
-            format!("scale {}/3 iteration {}/{} loss {:.4e}", r.scale + 1, r.iteration, r.iterations, r.loss)
-        });
-        if !r.color && r.scale == 2 && r.iteration == r.iterations {
-            // The report's losses come next: a minute at Short Hair size
-            // with nothing else on the bar.
-            reporter.status(&format!(
-                "measuring the result: NNST loss from the optimised views and {} held-out views",
-                params.held_out_views
-            ));
-        }
+    let refs: Vec<&nst3d_core::Image> = paintings.iter().collect();
+    let result = stylize_mapped(&scene, &refs, &shares, &vgg, &params, FrameHooks::default(), &mut |r| {
+        report_iteration(reporter, r, params.held_out_views)
     })?;
     reporter.end();
 
@@ -171,8 +169,10 @@ pub fn stylize_groom(
         Some(c) => Some(scene.colors_to_input_topology(&input, &c[..scene.raw_guides.points.len()])?),
         None => None,
     };
-    if let Some(preview) = &s.preview {
-        write_preview(preview, &scene, &result.strands, result.colors.as_deref(), &painting)?;
+    match &s.preview {
+        Some(preview) if map.is_some() => write_map_preview(preview, &scene, &result.strands, &shares, &refs)?,
+        Some(preview) => write_preview(preview, &scene, &result.strands, result.colors.as_deref(), &paintings[0])?,
+        None => {}
     }
     let checks = Checks::new(groom, &scene, &result.guides, &written, head)?;
     let written = axis::strands_from_y_up(written, up);
@@ -192,4 +192,20 @@ pub fn stylize_groom(
         out: s.out.clone(),
     };
     Ok(StylizedGroom { strands: written, colors, report })
+}
+
+/// One iteration on the progress bar; after the last of the shape, the
+/// measurement that follows (a minute at Short Hair size with nothing else
+/// on the bar).
+fn report_iteration(reporter: &mut dyn Reporter, r: &IterationReport, held_out_views: usize) {
+    reporter.step(&if r.color {
+        format!("colour iteration {}/{} loss {:.4e}", r.iteration, r.iterations, r.loss)
+    } else {
+        format!("scale {}/3 iteration {}/{} loss {:.4e}", r.scale + 1, r.iteration, r.iterations, r.loss)
+    });
+    if !r.color && r.scale == 2 && r.iteration == r.iterations {
+        reporter.status(&format!(
+            "measuring the result: NNST loss from the optimised views and {held_out_views} held-out views"
+        ));
+    }
 }

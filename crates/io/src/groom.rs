@@ -49,7 +49,7 @@ pub use alembic::{read_alembic_curves, read_alembic_curves_bytes};
 pub use cyhair::{read_cyhair, read_cyhair_bytes};
 pub use hairsalon::{read_hairsalon, read_hairsalon_bytes};
 pub use nst3d_core::groom::{Groom, GroomError, Strand, StrandSpline};
-pub use ply::{read_ply_strands, read_ply_strands_bytes, write_ply_strands};
+pub use ply::{read_ply_strand_attribute, read_ply_strands, read_ply_strands_bytes, write_ply_strands};
 pub use usd::{
     read_usd_curves_file, read_usd_curves_file_bytes, read_usda_curves, read_usda_curves_bytes, read_usda_curves_file,
     read_usda_curves_file_bytes, usdc_unwritable, write_usdc_curves_with, write_usdz_curves_with, UsdAssets,

@@ -549,6 +549,44 @@ impl NnstMatch {
     pub fn grid(&self) -> (usize, usize) {
         (self.targets.height, self.targets.width)
     }
+
+    /// Several paintings' matches of one render blended column by column:
+    /// `T_i = Σ_k w_k(i) T_k(i)` with `weights[k]` the share of match `k`
+    /// at each content column (row-major on the grid; the shares of a
+    /// column sum to 1). Since `Σ_k w_k ‖h − T_k‖² = ‖h − T‖² + const`, eq. 3
+    /// against the blend has exactly the gradient of the shares' mix of the
+    /// paintings' losses: a column inside one painting's region is matched
+    /// to that painting alone, a soft boundary pulls towards both. A column's
+    /// index is the one of its largest share.
+    pub fn blend(parts: &[&NnstMatch], weights: &[Vec<f32>]) -> Result<NnstMatch, NnstError> {
+        let first = parts.first().ok_or(NnstError::NoLayers)?;
+        let nc = first.targets.plane();
+        if weights.len() != parts.len() {
+            return Err(NnstError::LayerCount { got: weights.len(), expected: parts.len() });
+        }
+        for (p, w) in parts.iter().zip(weights) {
+            if p.grid() != first.grid() || p.channels != first.channels {
+                return Err(NnstError::GridMismatch { got: p.grid(), expected: first.grid() });
+            }
+            if w.len() != nc {
+                return Err(NnstError::GridMismatch { got: (w.len(), 1), expected: first.grid() });
+            }
+        }
+        let mut targets = Image::zeros(first.targets.channels, first.targets.height, first.targets.width);
+        targets.data.par_chunks_mut(nc).enumerate().for_each(|(k, t)| {
+            for (p, w) in parts.iter().zip(weights) {
+                let src = &p.targets.data[k * nc..(k + 1) * nc];
+                t.iter_mut().zip(src).zip(w).for_each(|((t, s), w)| *t += w * s);
+            }
+        });
+        let indices = (0..nc)
+            .map(|i| {
+                let best = (0..parts.len()).fold(0, |b, k| if weights[k][i] > weights[b][i] { k } else { b });
+                parts[best].indices[i]
+            })
+            .collect();
+        Ok(NnstMatch { channels: first.channels.clone(), params: first.params, targets, indices })
+    }
 }
 
 /// Eq. 3 against fixed targets: `L = 1/N_c · Σ_i ‖h_i − T_i‖²` with `h` the
@@ -718,6 +756,45 @@ mod tests {
             let r = check_gradient(&f.data, &grads[l].data, probe, 0.1, 150, 1e-4);
             assert!(r.max_rel_err < 2e-2, "{params:?} layer {l}: {r:?}");
         }
+    }
+
+    /// The blend's loss differs from the shares' mix of the paintings'
+    /// losses by a constant, so its gradient is the mix of theirs; a
+    /// one-hot share is the painting's own match.
+    #[test]
+    fn a_blend_of_matches_has_the_gradient_of_the_mixed_losses() {
+        let params = NnstParams { grid_divisor: 2, ..NnstParams::default() };
+        let style_a = vec![image(3, 10, 12, 10), image(5, 5, 6, 11), image(6, 3, 3, 12)];
+        let style_b = vec![image(3, 8, 8, 40), image(5, 4, 4, 41), image(6, 2, 2, 42)];
+        let content = vec![image(3, 12, 8, 20), image(5, 6, 4, 21), image(6, 3, 2, 22)];
+        let a = NnstTarget::from_style_features(&style_a, &params).unwrap().match_content(&content).unwrap();
+        let b = NnstTarget::from_style_features(&style_b, &params).unwrap().match_content(&content).unwrap();
+        let nc = a.targets().plane();
+        let wa: Vec<f32> = (0..nc).map(|i| i as f32 / (nc - 1) as f32).collect();
+        let wb: Vec<f32> = wa.iter().map(|w| 1.0 - w).collect();
+        let mixed = NnstMatch::blend(&[&a, &b], &[wa.clone(), wb.clone()]).unwrap();
+        let feats = vec![image(3, 12, 8, 30), image(5, 6, 4, 31), image(6, 3, 2, 32)];
+        let (_, g) = nnst_loss_matched(&feats, &mixed).unwrap();
+        // The mix of the two losses, column by column, by hand.
+        let h = hypercolumns(&feats, mixed.grid(), params.layer_weight);
+        let mut r = Image::zeros(h.channels, h.height, h.width);
+        for k in 0..h.channels {
+            for i in 0..nc {
+                let v = h.data[k * nc + i];
+                let (ta, tb) = (a.targets().data[k * nc + i], b.targets().data[k * nc + i]);
+                r.data[k * nc + i] = 2.0 / nc as f32 * (wa[i] * (v - ta) + wb[i] * (v - tb));
+            }
+        }
+        let want = hypercolumns_backward(&feats, &r, params.layer_weight);
+        for (l, (g, w)) in g.iter().zip(&want).enumerate() {
+            let err = g.data.iter().zip(&w.data).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+            assert!(err < 1e-5, "layer {l}: {err}");
+        }
+        let one_hot = NnstMatch::blend(&[&a, &b], &[vec![1.0; nc], vec![0.0; nc]]).unwrap();
+        assert_eq!(one_hot.targets().data, a.targets().data);
+        assert_eq!(one_hot.indices(), a.indices());
+        assert!(NnstMatch::blend(&[&a, &b], &[vec![1.0; nc]]).is_err());
+        assert!(NnstMatch::blend(&[&a, &b], &[vec![1.0; nc], vec![0.0; nc - 1]]).is_err());
     }
 
     #[test]

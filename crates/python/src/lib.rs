@@ -184,21 +184,24 @@ fn groom_of(points: &[u8], counts: Vec<usize>) -> PyResult<Groom> {
 
 /// Stylizes a groom in memory (`nst3d strands`, one groom): `points` and
 /// `counts` are the strands, `mesh` a head mesh file or `(vertices,
-/// triangles)` bytes and counts; returns the new points in the same order.
+/// triangles)` bytes and counts; `styles` one painting or several, shared
+/// by `style_map_values` (float32 bytes, one per strand) or the
+/// `style_map` option; returns the new points in the same order.
 #[pyfunction]
-#[pyo3(signature = (points, counts, style, options, mesh_file=None, mesh=None, progress=None, log=None, colors=None))]
+#[pyo3(signature = (points, counts, styles, options, mesh_file=None, mesh=None, progress=None, log=None, colors=None, style_map_values=None))]
 #[allow(clippy::too_many_arguments)]
 fn stylize_groom<'py>(
     py: Python<'py>,
     points: &[u8],
     counts: Vec<usize>,
-    style: PathBuf,
+    styles: Vec<PathBuf>,
     options: &Dict<'py>,
     mesh_file: Option<PathBuf>,
     mesh: Option<(Vec<u8>, Vec<u32>)>,
     progress: Option<Py<PyAny>>,
     log: Option<Py<PyAny>>,
     colors: Option<&[u8]>,
+    style_map_values: Option<&[u8]>,
 ) -> PyResult<(Bound<'py, PyBytes>, Bound<'py, PyDict>)> {
     let mut groom = groom_of(points, counts)?;
     if let Some(c) = colors {
@@ -217,7 +220,7 @@ fn stylize_groom<'py>(
             at += n;
         }
     }
-    let mut s = StrandSettings::new("", "", style, "");
+    let mut s = strand_settings("", styles, "", style_map_values)?;
     s.mesh = None;
     apply_strands(&mut s, Options::new(options)?)?;
     let head = match (mesh_file, mesh) {
@@ -264,21 +267,37 @@ fn groom_report<'py>(py: Python<'py>, r: &nst3d_groom::GroomReport) -> PyResult<
     Ok(d)
 }
 
+/// The settings of a groom job with `styles` (the first, then a style
+/// map's others) and the map's values as float32 bytes, if given.
+fn strand_settings(
+    groom: impl Into<PathBuf>,
+    styles: Vec<PathBuf>,
+    out: impl Into<PathBuf>,
+    map_values: Option<&[u8]>,
+) -> PyResult<StrandSettings> {
+    let mut styles = styles.into_iter();
+    let mut s = StrandSettings::new(groom, "", styles.next().unwrap_or_default(), out);
+    s.more_styles = styles.collect();
+    s.style_map_values = map_values.map(|b| f32s(b, "style_map")).transpose()?;
+    Ok(s)
+}
+
 /// Stylizes a groom file or an animated groom into files (`nst3d strands`).
 #[pyfunction]
-#[pyo3(signature = (groom, out, style, options, mesh=None, progress=None, log=None))]
+#[pyo3(signature = (groom, out, styles, options, mesh=None, progress=None, log=None, style_map_values=None))]
 #[allow(clippy::too_many_arguments)]
 fn stylize_groom_file<'py>(
     py: Python<'py>,
     groom: PathBuf,
     out: PathBuf,
-    style: PathBuf,
+    styles: Vec<PathBuf>,
     options: &Dict<'py>,
     mesh: Option<PathBuf>,
     progress: Option<Py<PyAny>>,
     log: Option<Py<PyAny>>,
+    style_map_values: Option<&[u8]>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let mut s = StrandSettings::new(groom, "", style, out.clone());
+    let mut s = strand_settings(groom, styles, out.clone(), style_map_values)?;
     s.mesh = mesh;
     apply_strands(&mut s, Options::new(options)?)?;
     if s.frames.is_none() {

@@ -199,6 +199,8 @@ pub fn apply_model(m: &mut ModelSettings, mut o: Options<'_>) -> PyResult<()> {
 /// `nst3d strands`'s flags onto [`StrandSettings`].
 pub fn apply_strands(s: &mut StrandSettings, mut o: Options<'_>) -> PyResult<()> {
     set!(o.path("preview") => Some s.preview);
+    set!(o.string("style_map") => Some s.style_map);
+    set!(o.bool("style_map_labels") => s.style_map_labels);
     set!(o.parsed("preset", |p| p.parse()) => s.preset);
     set!(o.string("frames") => Some s.frames);
     set!(o.bool("force") => s.force);

@@ -58,8 +58,8 @@ pub use generators::{fur_ball, grass_patch, uv_sphere, FurBallParams, GrassParam
 pub use kdtree::KdTree;
 pub use preset::{Preset, PresetParams, TemporalParams, ORIENTATION_EMA_NU};
 pub use sequence::{
-    check_topology, EmaClock, Flow, FrameFlicker, FrameResult, SequenceError, SequenceParams, SequenceReport,
-    SequenceStylizer,
+    check_topology, EmaClock, Flow, FrameFlicker, FrameResult, SequenceError, SequenceMap, SequenceParams,
+    SequenceReport, SequenceStylizer,
 };
 pub use strands::FlatStrands;
 pub use temporal::{

@@ -66,8 +66,8 @@ use nst3d_splat::{SplatCamera, StrandStyle};
 
 use crate::field::Kernel;
 use crate::pipeline::{
-    match_view, style_target, stylize_with, FrameHooks, IterationClock, IterationReport, NnstTarget, PipelineError,
-    StrandScene, StylizeParams, StylizeResult, ViewFrame, NNST_LAYERS,
+    match_view, style_target, stylize_mapped, stylize_with, FrameHooks, IterationClock, IterationReport, MapKind,
+    NnstTarget, PipelineError, StrandScene, StrandShares, StylizeParams, StylizeResult, ViewFrame, NNST_LAYERS,
 };
 use crate::preset::TemporalParams;
 use crate::strands::FlatStrands;
@@ -252,10 +252,23 @@ struct Previous {
     render_input: Image,
 }
 
+/// A style map over an animation: every frame's strands take the
+/// paintings by the same values (strands keep their identity from frame to
+/// frame), so the regions move with the hair.
+pub struct SequenceMap<'a> {
+    /// The paintings, in the map's order.
+    pub paintings: Vec<&'a Image>,
+    /// One value per guide strand.
+    pub values: Vec<f32>,
+    /// How the values pick the paintings.
+    pub kind: MapKind,
+}
+
 /// Stylizes an animated groom frame by frame (see the module notes).
 pub struct SequenceStylizer<'a> {
     vgg: &'a Vgg19,
     style: &'a Image,
+    map: Option<SequenceMap<'a>>,
     params: SequenceParams,
     eval_target: NnstTarget,
     topology: Option<Vec<usize>>,
@@ -318,6 +331,7 @@ impl<'a> SequenceStylizer<'a> {
         Ok(SequenceStylizer {
             vgg,
             style,
+            map: None,
             params,
             eval_target,
             topology: None,
@@ -329,6 +343,13 @@ impl<'a> SequenceStylizer<'a> {
             frames: 0,
             pairs: 0,
         })
+    }
+
+    /// The stylizer with a style map: every frame toward `map`'s
+    /// paintings; the evaluation and flicker renders stay as they are.
+    pub fn with_map(mut self, map: SequenceMap<'a>) -> Self {
+        self.map = Some(map);
+        self
     }
 
     /// The settings.
@@ -371,8 +392,14 @@ impl<'a> SequenceStylizer<'a> {
             Ok(())
         };
         let hooks = FrameHooks { initial: None, before_iteration: Some(&mut ema) };
-        let optimized =
-            stylize_with(&scene, self.style, self.vgg, &self.params.stylize, hooks, progress).map_err(wrap)?;
+        let optimized = match &self.map {
+            Some(m) => {
+                let shares = StrandShares::from_guides(&scene, &m.values, m.kind, m.paintings.len()).map_err(wrap)?;
+                stylize_mapped(&scene, &m.paintings, &shares, self.vgg, &self.params.stylize, hooks, progress)
+            }
+            None => stylize_with(&scene, self.style, self.vgg, &self.params.stylize, hooks, progress),
+        }
+        .map_err(wrap)?;
 
         let strands = if self.params.one_euro {
             self.one_euro(&scene, &optimized.strands).map_err(wrap)?

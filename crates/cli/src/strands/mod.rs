@@ -27,9 +27,20 @@ pub struct StrandsArgs {
     /// Without it strands are neither kept out of the head nor culled.
     #[arg(long)]
     mesh: Option<PathBuf>,
-    /// Style painting (PNG or JPEG); its luminance is matched.
+    /// Style painting (PNG or JPEG); its luminance is matched. Give it
+    /// several times with --style-map: each painting owns its strands.
     #[arg(long, required = true)]
-    style: Option<PathBuf>,
+    style: Vec<PathBuf>,
+    /// Which strands take which --style: `@height` (each root's height, 0
+    /// at the lowest root and 1 at the highest), a .txt file of one number
+    /// per strand, or the name of a strand (or root vertex) property of a
+    /// .ply groom; 0 the first painting, 1 the second, blended between.
+    #[arg(long)]
+    style_map: Option<String>,
+    /// The --style-map's values are labels: 0 the first --style, 1 the
+    /// second, and so on (one painting per strand, any number of them).
+    #[arg(long, requires = "style_map")]
+    style_map_labels: bool,
     /// Table 1 preset.
     #[arg(long, default_value = "short-hair", value_parser = crate::named::<Preset>(Preset::ALL.map(Preset::key)))]
     preset: Preset,
@@ -232,7 +243,11 @@ impl StrandsArgs {
         Ok(StrandSettings {
             groom: need(self.groom, "--groom")?,
             mesh: self.mesh,
-            style: need(self.style, "--style")?,
+            style: self.style.first().cloned().context("--style is required")?,
+            more_styles: self.style.iter().skip(1).cloned().collect(),
+            style_map: self.style_map,
+            style_map_labels: self.style_map_labels,
+            style_map_values: None,
             out: need(self.out, "--out")?,
             preview: self.preview,
             preset: self.preset,

@@ -480,6 +480,43 @@ fn parse_strands(bytes: &[u8]) -> Result<Groom, ErrorKind> {
     Ok(Groom { strands })
 }
 
+/// The scalar property `name` of a strand PLY, one value per strand: the
+/// strand element's own, or else the vertex element's at each strand's
+/// root (a style map painted on the strands or carried to their roots).
+pub fn read_ply_strand_attribute(path: &Path, name: &str) -> Result<Vec<f32>, Error> {
+    let bytes = read_file(path)?;
+    parse_strand_attribute(&bytes, name).map_err(Error::at(path))
+}
+
+fn parse_strand_attribute(bytes: &[u8], name: &str) -> Result<Vec<f32>, ErrorKind> {
+    let ply = parse_ply(bytes, &|el, prop| {
+        prop == name
+            || match el {
+                "vertex" => matches!(prop, "x") || STRAND_IDS.contains(&prop),
+                "edge" => matches!(prop, "vertex1" | "vertex2"),
+                e if STRAND_ELEMENTS.contains(&e) => SEGMENT_COUNTS.contains(&prop) || POINT_COUNTS.contains(&prop),
+                _ => false,
+            }
+    })?;
+    if let Some(v) = STRAND_ELEMENTS.iter().find_map(|e| ply.element(e)).and_then(|el| el.scalar(name)) {
+        return Ok(v.iter().map(|&x| x as f32).collect());
+    }
+    let vertex = ply.element("vertex").ok_or_else(|| corrupt("PLY has no 'vertex' element"))?;
+    let Some(values) = vertex.scalar(name) else {
+        return Err(corrupt(format!("PLY has no scalar strand or vertex property '{name}'")));
+    };
+    let lengths = strand_lengths(&ply, vertex, values.len())?;
+    let mut root = 0;
+    Ok(lengths
+        .iter()
+        .map(|&len| {
+            let v = values[root] as f32;
+            root += len;
+            v
+        })
+        .collect())
+}
+
 /// Points per strand, from whichever delimiter the file has (module notes).
 fn strand_lengths(ply: &PlyData, vertex: &Element, n: usize) -> Result<Vec<usize>, ErrorKind> {
     let strand_el = STRAND_ELEMENTS.iter().find_map(|name| ply.element(name));
@@ -619,6 +656,18 @@ pub(crate) fn byte_color(k: u8) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    const TWO_STRANDS: &str = "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\n\
+        property float z\nproperty float region\nelement strand 2\nproperty ushort nsegs\nproperty float side\n\
+        end_header\n0 0 0 0.25\n0 1 0 9\n1 0 0 0.75\n1 1 0 9\n1 2 0 9\n1 0.5\n2 1\n";
+
+    #[test]
+    fn a_strand_attribute_is_the_strands_own_or_the_roots() {
+        assert_eq!(parse_strand_attribute(TWO_STRANDS.as_bytes(), "side").unwrap(), vec![0.5, 1.0]);
+        assert_eq!(parse_strand_attribute(TWO_STRANDS.as_bytes(), "region").unwrap(), vec![0.25, 0.75]);
+        let e = parse_strand_attribute(TWO_STRANDS.as_bytes(), "age").unwrap_err().to_string();
+        assert!(e.contains("no scalar strand or vertex property 'age'"), "{e}");
+    }
 
     #[test]
     fn every_colour_byte_survives_read_then_write() {

@@ -95,6 +95,7 @@ mod orientation;
 mod params;
 mod scene;
 mod step;
+mod style_map;
 mod views;
 
 use nst3d_core::groom::GroomError;
@@ -113,8 +114,8 @@ pub use color_stage::{
     WrittenGroom, COLOR_ELEVATIONS, COLOR_LAYERS, COLOR_PASSES, COLOR_VIEWS, GREY_GUARD,
 };
 pub use multiscale::{
-    held_out_loss, scale_learning_rate, stylize, stylize_with, FrameHooks, HeldOut, IterationClock, IterationReport,
-    StylizeResult,
+    held_out_loss, scale_learning_rate, stylize, stylize_mapped, stylize_with, FrameHooks, HeldOut, IterationClock,
+    IterationReport, StylizeResult,
 };
 pub use orientation::{orientation_loss, OrientationView, StrokeField, STRUCTURE_SIGMA};
 pub use params::StylizeParams;
@@ -125,6 +126,7 @@ pub use scene::{
 pub use step::{
     iteration, iteration_with, loss_and_gradient, loss_and_gradient_with, OrientationTerm, StageTimes, StepReport,
 };
+pub use style_map::{MapKind, PaintingTargets, StrandShares};
 pub use views::{hair_columns, hair_pixels};
 pub use views::{match_view, match_view_on, poisson_view_angles, style_target, ViewFrame};
 

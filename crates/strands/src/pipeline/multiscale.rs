@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use nst3d_core::Image;
 use nst3d_features::{Vgg19, VggLayer};
-use nst3d_loss::nnst::{nnst_loss_matched, nnst_loss_over, NnstMatch, NnstTarget};
+use nst3d_loss::nnst::{nnst_loss_matched, nnst_loss_over, NnstMatch};
 use nst3d_optim::Adam;
 use nst3d_splat::SplatCamera;
 
@@ -14,9 +14,10 @@ use crate::strands::FlatStrands;
 use crate::StrandError;
 
 use super::color_stage::{color_iterations, stylize_color};
-use super::orientation::{OrientationView, StrokeField};
+use super::orientation::OrientationView;
 use super::step::{flatten, iteration_with, loss_and_gradient_with, unflatten, OrientationTerm};
-use super::views::{hair_columns, hair_pixels, match_view_on, poisson_view_angles, style_target};
+use super::style_map::{PaintingTargets, StrandShares};
+use super::views::{hair_columns, hair_pixels, poisson_view_angles};
 use super::{PipelineError, StrandScene, StylizeParams, NNST_LAYERS};
 
 /// What one optimization iteration reports.
@@ -94,11 +95,11 @@ impl HeldOut {
 const HELD_OUT_SEED: u64 = 0x4E1D_0075;
 
 /// [`HeldOut`] of `strands` (layout of [`StrandScene::rest`]) from
-/// `params.held_out_views` views against the style `finest`.
+/// `params.held_out_views` views against the paintings `finest`.
 pub fn held_out_loss(
     scene: &StrandScene,
     vgg: &Vgg19,
-    finest: &NnstTarget,
+    finest: &PaintingTargets<'_>,
     strands: &FlatStrands,
     params: &StylizeParams,
 ) -> Result<HeldOut, PipelineError> {
@@ -115,11 +116,12 @@ pub fn held_out_loss(
         let cam = scene.camera(psi, delta)?;
         let (img0, img1) = (scene.render(&scene.undeformed, &cam)?, scene.render(strands, &cam)?);
         let (f0, f1) = (vgg.forward(&img0, &NNST_LAYERS, false), vgg.forward(&img1, &NNST_LAYERS, false));
-        let matched = finest.match_content(f0.taps())?;
+        let matched = finest.match_on(scene, &scene.undeformed, f0.taps(), &cam)?;
         let mask = hair_columns(&[&img0, &img1], scene.style.background, matched.grid());
         before += nnst_loss_over(f0.taps(), &matched, &mask)? as f64;
         after += nnst_loss_over(f1.taps(), &matched, &mask)? as f64;
-        rematched += nnst_loss_over(f1.taps(), &finest.match_content(f1.taps())?, &mask)? as f64;
+        let again = finest.match_on(scene, strands, f1.taps(), &cam)?;
+        rematched += nnst_loss_over(f1.taps(), &again, &mask)? as f64;
     }
     let k = angles.len().max(1) as f64;
     Ok(HeldOut {
@@ -155,62 +157,32 @@ pub fn stylize(
     stylize_with(scene, style, vgg, params, FrameHooks::default(), progress)
 }
 
-/// The orientation term of `strands` (layout of [`StrandScene::rest`])
-/// seen through `cam`: `field` laid over the hair's box; `None` with no hair
-/// in sight.
-fn orientation_view(
-    scene: &StrandScene,
-    strands: &FlatStrands,
-    field: &StrokeField,
-    cam: &SplatCamera,
-) -> Result<Option<OrientationView>, PipelineError> {
-    let img = scene.render(strands, cam)?;
-    let hair = hair_pixels(&img, scene.style.background);
-    let s = scene.strands(strands, None);
-    Ok(OrientationView::new(field, &s, &hair, &scene.style, cam))
-}
-
-/// The orientation term of a view (none without a stroke field or with no
-/// hair in sight), its `λ` from [`orientation_weight`].
+/// The orientation terms of a view, one per painting (none without a
+/// stroke field or with no hair in sight), each weighed `λ · strength`:
+/// `λ` is `params.orientation` times [`orientation_scale`] measured at the
+/// first iteration (kept in `lambda`), and a field's
+/// [`StrokeField::strength`](super::StrokeField::strength) scales its own
+/// term, so a field with few strokes pulls little however its gradient
+/// compares.
 #[allow(clippy::too_many_arguments)]
-fn orientation_term<'a>(
+fn orientation_terms<'a>(
     lambda: &mut Option<f32>,
     scene: &StrandScene,
     vgg: &Vgg19,
     cam: &SplatCamera,
     matched: &NnstMatch,
-    field_and_view: Option<(&'a StrokeField, &'a OrientationView)>,
+    units: Vec<OrientationTerm<'a>>,
     params: &StylizeParams,
     v: &[f32],
-) -> Result<Option<OrientationTerm<'a>>, PipelineError> {
-    let Some((field, view)) = field_and_view else {
-        return Ok(None);
-    };
-    let unit = OrientationTerm { field, view, weight: 1.0 };
-    let weight = orientation_weight(lambda, scene, vgg, cam, matched, unit, params, v)?;
-    Ok(Some(OrientationTerm { weight, ..unit }))
-}
-
-/// The orientation term's `λ` for this scale's field: `params.orientation`
-/// times [`orientation_scale`] measured at the first iteration (kept in
-/// `lambda`), times the field's [`StrokeField::strength`], so a field with
-/// few strokes pulls little however its gradient compares.
-#[allow(clippy::too_many_arguments)]
-fn orientation_weight(
-    lambda: &mut Option<f32>,
-    scene: &StrandScene,
-    vgg: &Vgg19,
-    cam: &SplatCamera,
-    matched: &NnstMatch,
-    unit: OrientationTerm<'_>,
-    params: &StylizeParams,
-    v: &[f32],
-) -> Result<f32, PipelineError> {
+) -> Result<Vec<OrientationTerm<'a>>, PipelineError> {
+    if units.is_empty() {
+        return Ok(units);
+    }
     let ratio = match *lambda {
         Some(r) => r,
-        None => *lambda.insert(params.orientation * orientation_scale(scene, vgg, cam, matched, unit, v)?),
+        None => *lambda.insert(params.orientation * orientation_scale(scene, vgg, cam, matched, &units, v)?),
     };
-    Ok(ratio * unit.field.strength())
+    Ok(units.into_iter().map(|u| OrientationTerm { weight: ratio * u.field.strength(), ..u }).collect())
 }
 
 /// `|∇ NNST| / |∇ orientation|` at `v` (both through the whole chain to
@@ -221,11 +193,11 @@ fn orientation_scale(
     vgg: &Vgg19,
     cam: &SplatCamera,
     matched: &NnstMatch,
-    unit: OrientationTerm<'_>,
+    units: &[OrientationTerm<'_>],
     v: &[f32],
 ) -> Result<f32, PipelineError> {
-    let (_, g_nnst) = loss_and_gradient_with(scene, vgg, cam, matched, None, v)?;
-    let (_, g_both) = loss_and_gradient_with(scene, vgg, cam, matched, Some(unit), v)?;
+    let (_, g_nnst) = loss_and_gradient_with(scene, vgg, cam, matched, &[], v)?;
+    let (_, g_both) = loss_and_gradient_with(scene, vgg, cam, matched, units, v)?;
     let norm = |it: &mut dyn Iterator<Item = f64>| it.map(|x| x * x).sum::<f64>().sqrt();
     let n = norm(&mut g_nnst.iter().map(|&x| x as f64));
     let o = norm(&mut g_both.iter().zip(&g_nnst).map(|(&b, &a)| (b - a) as f64));
@@ -278,11 +250,25 @@ pub fn stylize_with(
     style: &Image,
     vgg: &Vgg19,
     params: &StylizeParams,
+    hooks: FrameHooks<'_>,
+    progress: &mut dyn FnMut(&IterationReport),
+) -> Result<StylizeResult, PipelineError> {
+    let one = StrandShares::single(scene.rest.strand_count());
+    stylize_mapped(scene, &[style], &one, vgg, params, hooks, progress)
+}
+
+/// [`stylize_with`] toward several `paintings` at once, each strand toward
+/// its `shares` of them (a style map, [`super::style_map`]).
+pub fn stylize_mapped(
+    scene: &StrandScene,
+    paintings: &[&Image],
+    shares: &StrandShares,
+    vgg: &Vgg19,
+    params: &StylizeParams,
     mut hooks: FrameHooks<'_>,
     progress: &mut dyn FnMut(&IterationReport),
 ) -> Result<StylizeResult, PipelineError> {
-    params.validate()?;
-    check_style(style)?;
+    check_inputs(params, paintings)?;
     let p = params.preset;
     vgg.prepare(VggLayer::Relu4_1);
 
@@ -302,10 +288,9 @@ pub fn stylize_with(
     for (l, &iters) in params.iterations.iter().enumerate() {
         let views = &angles[first..first + per_scale[l]];
         first += per_scale[l];
-        // The shape follows the painting's luminance, with or without
+        // The shape follows the paintings' luminance, with or without
         // colour (the colour has a stage of its own, after the shape).
-        let sstyle = style_target(vgg, style, params.style_height(l))?;
-        let strokes = scale_strokes(style, params, l);
+        let looks = PaintingTargets::new(vgg, paintings, shares, params, l)?;
         // Where this scale's targets are matched: the rest groom (eq. 2), or
         // with `rematch` the groom as the coarser scales left it.
         let base = if params.rematch && l > 0 && iters > 0 { Some(scene.deform(&unflatten(&v))?.0) } else { None };
@@ -316,14 +301,14 @@ pub fn stylize_with(
                 let k = m as usize % views.len();
                 if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(k) {
                     let strands = base.as_ref().unwrap_or(&scene.undeformed);
-                    e.insert(scale_view(scene, vgg, &sstyle, strokes.as_ref(), strands, views[k])?);
+                    e.insert(scale_view(scene, vgg, &looks, strands, views[k])?);
                 }
-                let (cam, matched, view) = &cache[&k];
-                let unit = strokes.as_ref().zip(view.as_ref());
-                let term = orientation_term(&mut lambda, scene, vgg, cam, matched, unit, params, &v)?;
+                let (cam, matched, oriented) = &cache[&k];
+                let units = orientation_units(&looks, oriented);
+                let terms = orientation_terms(&mut lambda, scene, vgg, cam, matched, units, params, &v)?;
                 hooks.before(IterationClock { scale: l, iteration: m, iterations: iters, done, total }, &mut v)?;
                 done += 1;
-                let step = iteration_with(scene, vgg, cam, matched, term, &mut v, &mut adam)
+                let step = iteration_with(scene, vgg, cam, matched, &terms, &mut v, &mut adam)
                     .map_err(|e| at_iteration(e, l, m))?;
                 history.push(step.loss);
                 progress(&IterationReport {
@@ -337,7 +322,7 @@ pub fn stylize_with(
                 nst3d_core::stop::check()?;
             }
         }
-        finest = Some(sstyle);
+        finest = Some(looks);
     }
     let finest = finest.expect("three scales");
 
@@ -353,7 +338,7 @@ pub fn stylize_with(
     };
     // Colour: a stage of its own on the finished strands.
     let colors = match params.color {
-        true => Some(color_stage(scene, style, vgg, &strands, params, progress)?),
+        true => Some(color_stage(scene, paintings[0], vgg, &strands, params, progress)?),
         false => None,
     };
     let (guides, proxies) = split_guides(scene, &strands);
@@ -372,14 +357,29 @@ pub fn stylize_with(
     })
 }
 
-/// The orientation term's stroke field at scale `l`: the painting's
-/// luminance at that scale's height, laid on the hair at `--style-scale`.
-fn scale_strokes(style: &Image, params: &StylizeParams, l: usize) -> Option<StrokeField> {
-    if params.orientation <= 0.0 {
-        return None;
+/// The settings are sound, every painting usable, and a map is not asked
+/// for colour (not carried through the colour stage yet).
+fn check_inputs(params: &StylizeParams, paintings: &[&Image]) -> Result<(), PipelineError> {
+    params.validate()?;
+    paintings.iter().try_for_each(|p| check_style(p))?;
+    if params.color && paintings.len() > 1 {
+        return Err(PipelineError::Parameter("colour with a style map is not supported yet: drop --color".into()));
     }
-    let grey = nst3d_io::image::resize_to_height(&style.luminance3(), params.style_height(l));
-    Some(StrokeField::from_grey(&grey).laid_at(params.style_scale))
+    Ok(())
+}
+
+/// The orientation terms of a cached view at unit weight: each painting's
+/// stroke field with its view, where its region is in sight.
+fn orientation_units<'a>(
+    looks: &'a PaintingTargets<'_>,
+    oriented: &'a [Option<OrientationView>],
+) -> Vec<OrientationTerm<'a>> {
+    looks
+        .strokes
+        .iter()
+        .zip(oriented)
+        .filter_map(|(field, view)| view.as_ref().map(|view| OrientationTerm { field, view, weight: 1.0 }))
+        .collect()
 }
 
 /// The painting must be RGB and at least 16 pixels a side (VGG's taps).
@@ -416,26 +416,42 @@ fn views_per_scale(params: &StylizeParams) -> Vec<usize> {
 }
 
 /// A cached view of a scale: its camera, the NNST targets matched there
-/// and the orientation term's view.
-type ScaleView = (SplatCamera, NnstMatch, Option<OrientationView>);
+/// and the orientation term's view of each painting (none without the
+/// term or with no hair in sight).
+type ScaleView = (SplatCamera, NnstMatch, Vec<Option<OrientationView>>);
 
 /// The view at `angle` of `strands` (where the scale's targets are
-/// matched) with the scale's targets and orientation view.
+/// matched) with the scale's targets and orientation views.
 fn scale_view(
     scene: &StrandScene,
     vgg: &Vgg19,
-    sstyle: &NnstTarget,
-    strokes: Option<&StrokeField>,
+    looks: &PaintingTargets<'_>,
     strands: &FlatStrands,
     angle: (f32, f32),
 ) -> Result<ScaleView, PipelineError> {
     let cam = scene.camera(angle.0, angle.1)?;
-    let (matched, _) = match_view_on(scene, strands, vgg, sstyle, &cam)?;
-    let view = match strokes {
-        Some(f) => orientation_view(scene, strands, f, &cam)?,
-        None => None,
+    let img = scene.render(strands, &cam)?;
+    let feats = vgg.forward(&img, &NNST_LAYERS, false);
+    let matched = looks.match_on(scene, strands, feats.taps(), &cam)?;
+    let hair = hair_pixels(&img, scene.style.background);
+    let s = scene.strands(strands, None);
+    // With a map each painting is laid over its own region's box, so a
+    // region takes its painting's whole motif at the style scale.
+    let map = match looks.shares.paintings() > 1 && !looks.strokes.is_empty() {
+        true => Some(looks.shares.view_map(scene, strands, &cam)?),
+        false => None,
     };
-    Ok((cam, matched, view))
+    let mut views = Vec::with_capacity(looks.strokes.len());
+    for (k, field) in looks.strokes.iter().enumerate() {
+        let view = match &map {
+            Some(map) => OrientationView::new(field, &s, &map.region(k, &hair), &scene.style, &cam)
+                .map(|v| v.shared(&looks.shares.point_shares(k, strands))),
+            None => OrientationView::new(field, &s, &hair, &scene.style, &cam),
+        };
+        // A painting whose region is out of sight has no term in this view.
+        views.push(view);
+    }
+    Ok((cam, matched, views))
 }
 
 /// A diverged iteration says where it diverged.
@@ -466,7 +482,7 @@ fn evaluate(
     vgg: &Vgg19,
     params: &StylizeParams,
     (angles, per_scale): (&[(f32, f32)], &[usize]),
-    finest: &NnstTarget,
+    finest: &PaintingTargets<'_>,
     strands: &FlatStrands,
 ) -> Result<Evaluation, PipelineError> {
     let p = params.preset;
@@ -479,12 +495,15 @@ fn evaluate(
     let (mut before, mut after, mut rematched) = (0.0f64, 0.0f64, 0.0f64);
     for &(psi, delta) in &eval_angles {
         let cam = scene.camera(psi, delta)?;
-        let (matched, l0) = match_view_on(scene, &scene.undeformed, vgg, finest, &cam)?;
+        let img0 = scene.render(&scene.undeformed, &cam)?;
+        let f0 = vgg.forward(&img0, &NNST_LAYERS, false);
+        let matched = finest.match_on(scene, &scene.undeformed, f0.taps(), &cam)?;
         let img = scene.render(strands, &cam)?;
         let feats = vgg.forward(&img, &NNST_LAYERS, false);
-        before += l0 as f64;
+        before += nnst_loss_matched(f0.taps(), &matched)?.0 as f64;
         after += nnst_loss_matched(feats.taps(), &matched)?.0 as f64;
-        rematched += nnst_loss_matched(feats.taps(), &finest.match_content(feats.taps())?)?.0 as f64;
+        let again = finest.match_on(scene, strands, feats.taps(), &cam)?;
+        rematched += nnst_loss_matched(feats.taps(), &again)?.0 as f64;
     }
     let k = eval_angles.len() as f64;
     Ok(Evaluation {

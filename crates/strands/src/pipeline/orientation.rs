@@ -212,6 +212,9 @@ pub struct OrientationView {
     /// `1/ℓ²` of each segment: its rest length laid in the picture plane at
     /// its rest depth, in pixels (indexed by its first point).
     inv_full2: Vec<f32>,
+    /// `Σ w_s` of the whole view, the loss's normaliser (kept when
+    /// [`OrientationView::shared`] splits the weights among paintings).
+    total: f64,
 }
 
 impl OrientationView {
@@ -242,7 +245,17 @@ impl OrientationView {
         let centre = [(x0 + x1) as f32 / 2.0, (y0 + y1) as f32 / 2.0];
         let half = [field_size.0 as f32 / 2.0, field_size.1 as f32 / 2.0];
         let (weights, inv_full2) = segment_weights(rest, style, cam);
-        Some(Self { centre, scale, half, weights, inv_full2 })
+        let total = weights.iter().map(|&w| w as f64).sum();
+        Some(Self { centre, scale, half, weights, inv_full2, total })
+    }
+
+    /// The view with each segment's weight times its strand's share of
+    /// this view's painting (`shares` per point, a style map's), normalised
+    /// by the whole view's weight: the views of all the paintings sum to
+    /// the term of one field blended strand by strand.
+    pub fn shared(mut self, shares: &[f32]) -> Self {
+        self.weights.iter_mut().zip(shares).for_each(|(w, s)| *w *= s);
+        self
     }
 
     /// Painting pixel coordinates of picture pixel `p` (pixel centres of
@@ -304,7 +317,7 @@ pub fn orientation_loss(
 ) -> (f32, Vec<[f32; 3]>) {
     let pts = &strands.points;
     let mut grad = vec![[0.0f32; 3]; pts.len()];
-    let total: f64 = view.weights.iter().map(|&w| w as f64).sum();
+    let total = view.total;
     if total <= 0.0 {
         return (0.0, grad);
     }

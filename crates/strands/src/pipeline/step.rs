@@ -102,16 +102,17 @@ pub fn iteration(
     v: &mut [f32],
     adam: &mut Adam,
 ) -> Result<StepReport, PipelineError> {
-    iteration_with(scene, vgg, cam, matched, None, v, adam)
+    iteration_with(scene, vgg, cam, matched, &[], v, adam)
 }
 
-/// [`iteration`] with the orientation term added to the loss.
+/// [`iteration`] with the orientation terms (one per painting) added to
+/// the loss.
 pub fn iteration_with(
     scene: &StrandScene,
     vgg: &Vgg19,
     cam: &SplatCamera,
     matched: &NnstMatch,
-    orientation: Option<OrientationTerm<'_>>,
+    orientation: &[OrientationTerm<'_>],
     v: &mut [f32],
     adam: &mut Adam,
 ) -> Result<StepReport, PipelineError> {
@@ -134,17 +135,17 @@ pub fn loss_and_gradient(
     matched: &NnstMatch,
     v: &[f32],
 ) -> Result<(StepReport, Vec<f32>), PipelineError> {
-    loss_and_gradient_with(scene, vgg, cam, matched, None, v)
+    loss_and_gradient_with(scene, vgg, cam, matched, &[], v)
 }
 
-/// [`loss_and_gradient`] of `NNST + λ · orientation` when `orientation` is
-/// given (the report keeps the two losses apart).
+/// [`loss_and_gradient`] of `NNST + Σ λ · orientation` over the
+/// `orientation` terms (the report keeps the two losses apart).
 pub fn loss_and_gradient_with(
     scene: &StrandScene,
     vgg: &Vgg19,
     cam: &SplatCamera,
     matched: &NnstMatch,
-    orientation: Option<OrientationTerm<'_>>,
+    orientation: &[OrientationTerm<'_>],
     v: &[f32],
 ) -> Result<(StepReport, Vec<f32>), PipelineError> {
     let mut times = StageTimes::default();
@@ -169,9 +170,9 @@ pub fn loss_and_gradient_with(
     lap(&mut timed_by_view_loss);
     let mut grad_points = render_backward(&s, cam, &scene.style, &cache, &grad_img)?;
     let mut orientation_value = 0.0;
-    if let Some(term) = orientation {
+    for term in orientation {
         let (value, g) = orientation_loss(term.field, term.view, &strands, cam);
-        orientation_value = value;
+        orientation_value += value;
         grad_points.iter_mut().zip(&g).for_each(|(a, b)| (0..3).for_each(|k| a[k] += term.weight * b[k]));
     }
     lap(&mut times.splat_backward);

@@ -246,6 +246,12 @@ impl StrandScene {
         Ok(self.color_layer.get_or_init(|| layer))
     }
 
+    /// Which guides each proxy was blended from, and with what weights
+    /// (empty without proxies).
+    pub fn proxy_blends(&self) -> &[ProxyBlend] {
+        &self.color_inputs.0
+    }
+
     /// `s` for the renderer, in `colors` (one per point; white without).
     pub(super) fn strands<'a>(&'a self, s: &'a FlatStrands, colors: Option<&'a [[f32; 3]]>) -> Strands<'a> {
         Strands { points: &s.points, offsets: &s.offsets, colors, root_normals: self.root_normals.as_deref() }
