@@ -139,6 +139,7 @@ def main():
     scalp = hair.particle_hair()
     hair.particles(mod, scalp, STYLE, OUT)
     hair.cancel(mod, scalp, OUT)
+    hair.two_paintings(mod, scalp, STYLE, STYLE_B)
     hair.curves(mod, scene, scalp, STYLE, cam, bg, OUT, (320, 320) if PICTURES else (160, 160))
     print(f"ALL OK ({time.time() - T0:.0f} s)", flush=True)
 

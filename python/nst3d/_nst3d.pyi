@@ -75,6 +75,8 @@ class GroomOptions(TypedDict, total=False):
     """``nst3d strands``'s flags."""
 
     preview: str
+    style_map: str
+    style_map_labels: bool
     preset: Literal["short-hair", "short-hair-360", "long-hair", "cat", "fur-ball", "grass"]
     frames: str
     force: bool
@@ -133,13 +135,14 @@ def stylize_vdb(
     style_map_array: Optional[Tuple[bytes, Tuple[int, int, int]]] = None,
 ) -> Dict[str, Any]: ...
 def stylize_groom(
-    points: bytes, counts: Sequence[int], style: str, options: GroomOptions,
+    points: bytes, counts: Sequence[int], styles: List[str], options: GroomOptions,
     mesh_file: Optional[str] = None, mesh: Optional[Tuple[bytes, Sequence[int]]] = None,
     progress: _Progress = None, log: _Log = None, colors: Optional[bytes] = None,
+    style_map_values: Optional[bytes] = None,
 ) -> Tuple[bytes, Dict[str, Any]]: ...
 def stylize_groom_file(
-    groom: str, out: str, style: str, options: GroomOptions, mesh: Optional[str] = None,
-    progress: _Progress = None, log: _Log = None,
+    groom: str, out: str, styles: List[str], options: GroomOptions, mesh: Optional[str] = None,
+    progress: _Progress = None, log: _Log = None, style_map_values: Optional[bytes] = None,
 ) -> Dict[str, Any]: ...
 def train(
     inputs: List[str],

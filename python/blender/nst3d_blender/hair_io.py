@@ -90,6 +90,20 @@ def read_surface(obj):
     return v.astype(np.float32), tris.reshape(-1, 3)
 
 
+def read_map(curves, name):
+    """One value per strand from the float attribute `name` of Curves data:
+    a curve attribute's own, a point attribute's at each strand's root."""
+    attr = curves.attributes.get(name)
+    if attr is None or attr.data_type != "FLOAT" or attr.domain not in ("CURVE", "POINT"):
+        raise RuntimeError(f"the hair has no float curve or point attribute '{name}' for Hair map")
+    values = np.empty(len(attr.data), dtype=np.float32)
+    attr.data.foreach_get("value", values)
+    if attr.domain == "CURVE":
+        return values
+    counts = np.array([c.points_length for c in curves.curves], dtype=np.int64)
+    return values[np.concatenate([[0], np.cumsum(counts)[:-1]])]
+
+
 def read_colors(curves):
     """The strands' colours (n, 3) from the `HAIR_COLOR` attribute, or None."""
     attr = curves.attributes.get(HAIR_COLOR)

@@ -148,6 +148,15 @@ class HairTask:
             # the object's axes.
             opts = dict(preset=s.preset, iters=s.hair_iters or None, render_size=s.render_size or None, up="z",
                         mesh=hair_io.read_surface(obj))
+            second = bpy.path.abspath(s.style_b) if s.style_b else ""
+            if second:
+                if not os.path.isfile(second):
+                    raise RuntimeError(f"second painting not found: {second}")
+                if s.color:
+                    raise RuntimeError("Colour with two paintings is not supported yet: clear Colour or Second painting")
+                style = [style, second]
+                name = s.hair_map or "@height"
+                opts["style_map"] = name if name.startswith("@") else hair_io.read_map(obj.data, name)
             # Particle hair has nowhere to keep a colour.
             self.color = bool(s.color) and not self.particles
             if self.color:

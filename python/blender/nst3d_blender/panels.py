@@ -67,6 +67,10 @@ class NST3D_PT_hair(bpy.types.Panel):
     def draw(self, context):
         layout, s = self.layout, context.object.nst3d
         layout.prop(s, "style")
+        layout.prop(s, "style_b")
+        sub = layout.row()
+        sub.active = bool(s.style_b)
+        sub.prop(s, "hair_map")
         layout.prop(s, "preset")
         layout.prop(s, "hair_iters")
         layout.prop(s, "render_size")

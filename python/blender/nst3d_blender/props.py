@@ -58,12 +58,16 @@ _PRESETS = [("short-hair", "Short hair", ""), ("short-hair-360", "Short hair 360
 class Nst3dSettings(bpy.types.PropertyGroup):
     style: StringProperty(name="Painting", subtype="FILE_PATH", description="The style painting (PNG or JPEG)")
     style_b: StringProperty(name="Second painting", subtype="FILE_PATH", default="",
-                            description="Smoke: a second painting, placed by Style map (empty: one painting "
-                                        "everywhere)")
+                            description="A second painting, placed by Style map (smoke) or Hair map (hair); "
+                                        "empty: one painting everywhere")
     style_map: StringProperty(name="Style map", default="@height",
                               description="Where the second painting goes: a grid of the domain's cache such as "
                                           "temperature (0: the first painting, 1: the second), @height (bottom to top) or "
                                           "@height-split (a cut at mid-height)")
+    hair_map: StringProperty(name="Hair map", default="@height",
+                             description="Where the second painting goes on the hair: a float attribute of the "
+                                         "curves (per curve, or per point read at each root; 0: the first painting, "
+                                         "1: the second) or @height (the roots' height, bottom to top)")
     mode: EnumProperty(name="Mode", items=_MODES, default="velocity")
     strength: EnumProperty(name="Strength", items=_STRENGTHS, default="default")
     frame_start: IntProperty(name="Start", default=1, min=0)

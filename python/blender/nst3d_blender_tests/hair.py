@@ -141,3 +141,33 @@ def curves(addon, scene, scalp, style, cam, bg, out, size):
     h0, h1 = variety(shots[0]), variety(shots[1])
     check(h1 > 1.3 * h0, f"Cycles shows the stylized hair in varied colour (chromaticity spread {h1:.4f}, the tan original's {h0:.4f})")
     save_sheet(shots, os.path.join(out, "blender_hair_before_after.png"))
+
+
+def two_paintings(addon, scalp, style, style_b):
+    """Two paintings on a hair Curves object, placed by a float curve
+    attribute (the left strands the first, the right the second); a map
+    named after no attribute is refused and leaves the hair untouched."""
+    obj = addon.hair_io.curves_from_particles(bpy.context, scalp)
+    d = obj.data
+    before, counts = addon.hair_io.read_strands(d)
+    roots = before[np.concatenate([[0], np.cumsum(counts)[:-1]])]
+    side = d.attributes.new("side", "FLOAT", "CURVE")
+    side.data.foreach_set("value", (roots[:, 0] > np.median(roots[:, 0])).astype(np.float32))
+    check(np.array_equal(addon.hair_io.read_map(d, "side"), (roots[:, 0] > np.median(roots[:, 0])).astype(np.float32)),
+          "Hair map reads a curve attribute, one value per strand")
+    s = obj.nst3d
+    s.style, s.style_b, s.hair_map, s.hair_iters, s.render_size, s.color = style, style_b, "nope", 9, 96, False
+    with bpy.context.temp_override(object=obj, active_object=obj, selected_objects=[obj]):
+        try:
+            refused = bpy.ops.nst3d.stylize_hair()
+        except RuntimeError as e:  # an operator's error report raises in background mode
+            refused = {"CANCELLED"}
+            print(f"(expected) {str(e).strip().splitlines()[-1]}")
+        check(refused == {"CANCELLED"}, f"a Hair map naming no attribute is refused ({refused})")
+        check(np.array_equal(addon.hair_io.read_strands(d)[0], before), "and the hair is untouched")
+        s.hair_map = "side"
+        result = bpy.ops.nst3d.stylize_hair()
+    check(result == {"FINISHED"}, f"Stylize hair with two paintings finished ({result})")
+    after, _ = addon.hair_io.read_strands(d)
+    check(np.abs(after - before).max() > 1e-4, "the strands are stylized")
+    addon.hair_io.remove_curves(obj)
