@@ -47,12 +47,13 @@ pub fn write_preview(
 const MAP_TINTS: [[f32; 3]; 4] = [[1.0, 0.55, 0.15], [0.2, 0.55, 1.0], [0.3, 0.85, 0.3], [0.9, 0.3, 0.8]];
 
 /// A style map's preview from the front camera: the rest groom in each
-/// painting's tint by its strands' shares (the map) | the result | each
+/// painting's tint by its strands' shares (the map) | the result (in
+/// `colors` when the colour was stylized, as [`write_preview`]) | each
 /// painting, framed in its tint.
 pub fn write_map_preview(
     path: &Path,
     scene: &StrandScene,
-    after: &FlatStrands,
+    (after, colors): (&FlatStrands, Option<&[[f32; 3]]>),
     shares: &StrandShares,
     paintings: &[&Image],
 ) -> Result<()> {
@@ -66,11 +67,12 @@ pub fn write_map_preview(
         }
     }
     let map = scene.render_colored(&scene.undeformed, Some(&tint), &cam)?;
-    let after = scene.render(after, &cam)?;
+    let after = scene.render_colored(after, colors, &cam)?;
+    let shown = |p: &Image| if colors.is_some() { p.clone() } else { luminance_rgb(p) };
     let framed: Vec<Image> = paintings
         .iter()
         .enumerate()
-        .map(|(k, p)| framed(&resize_to_height(&luminance_rgb(p), h), MAP_TINTS[k % MAP_TINTS.len()]))
+        .map(|(k, p)| framed(&resize_to_height(&shown(p), h), MAP_TINTS[k % MAP_TINTS.len()]))
         .collect();
     let mut panels = vec![&map, &after];
     panels.extend(framed.iter());

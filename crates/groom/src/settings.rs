@@ -243,9 +243,6 @@ impl StrandSettings {
             }
             (true, _) => {}
         }
-        if mapped && self.color {
-            bail!("--color with a --style-map is not supported yet: drop one of them");
-        }
         if self.style_map_labels && !mapped {
             bail!("--style-map-labels needs a --style-map");
         }

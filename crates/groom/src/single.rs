@@ -170,7 +170,9 @@ pub fn stylize_groom(
         None => None,
     };
     match &s.preview {
-        Some(preview) if map.is_some() => write_map_preview(preview, &scene, &result.strands, &shares, &refs)?,
+        Some(preview) if map.is_some() => {
+            write_map_preview(preview, &scene, (&result.strands, result.colors.as_deref()), &shares, &refs)?
+        }
         Some(preview) => write_preview(preview, &scene, &result.strands, result.colors.as_deref(), &paintings[0])?,
         None => {}
     }

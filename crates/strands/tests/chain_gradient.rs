@@ -309,6 +309,20 @@ fn loss_and_gradient_matches_finite_differences_through_the_collision_projection
 /// the stage's own cameras.
 #[test]
 fn colour_stage_gradient_matches_finite_differences() {
+    check_colour_stage(false)
+}
+
+/// The colour stage with two paintings shared by a style map (the guides
+/// blended across the groom): each painting's guided Gram loss over its
+/// region and its share of the grey guard.
+#[test]
+fn colour_stage_with_a_style_map_matches_finite_differences() {
+    check_colour_stage(true)
+}
+
+/// [`color_view_loss`] against central differences, with one painting or
+/// two shared by a style map.
+fn check_colour_stage(mapped: bool) {
     nst3d_core::precision::fp32(|| {
         let groom = nst3d_io::groom::read_groom(&data("Bangs_100.hair")).expect("read Bangs_100.hair");
         let mut params = StylizeParams::from_preset(Preset::ShortHair.params(), groom.strand_count());
@@ -317,12 +331,24 @@ fn colour_stage_gradient_matches_finite_differences() {
         let scene = StrandScene::new(&groom, None, &params).unwrap();
         let vgg = Vgg19::random(VggFlavor::Torchvision, 7);
         vgg.prepare(VggLayer::Relu4_1);
-        let target = ColorTargets::new(&vgg, &painting(64), 64).unwrap();
+        let mut target = vec![ColorTargets::new(&vgg, &painting(64), 64).unwrap()];
+        let shares = if mapped {
+            target.push(ColorTargets::new(&vgg, &transposed(&painting(64)), 64).unwrap());
+            let g = scene.guide_count;
+            let x: Vec<f32> = scene.rest.offsets[..g].iter().map(|&o| scene.rest.points[o][0]).collect();
+            let (lo, hi) = x.iter().fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+            let values: Vec<f32> = x.iter().map(|v| (v - lo) / (hi - lo)).collect();
+            StrandShares::from_guides(&scene, &values, MapKind::Blend, 2).unwrap()
+        } else {
+            StrandShares::single(scene.rest.strand_count())
+        };
         let (elevation, azimuth) = color_view_angles()[1];
         let written = WrittenGroom::new(&scene, &scene.undeformed).unwrap();
-        let view = ColorView::new(&scene, &vgg, &written, scene.camera(elevation, azimuth).unwrap())
+        let view = ColorView::new(&scene, &vgg, &written, scene.camera(elevation, azimuth).unwrap(), &shares)
             .unwrap()
             .expect("hair in sight");
+        assert_eq!(view.guides.len(), target.len());
+        assert!(!mapped || view.shares.iter().all(|&s| s > 0.1), "both paintings in sight: {:?}", view.shares);
         // Bangs is white, where a positive offset only leaves [0, 1]; offsets
         // of -0.5 ± 0.3 keep the channels inside, and a clamped channel's
         // zero gradient is what the loss does too.

@@ -152,8 +152,6 @@ class HairTask:
             if second:
                 if not os.path.isfile(second):
                     raise RuntimeError(f"second painting not found: {second}")
-                if s.color:
-                    raise RuntimeError("Colour with two paintings is not supported yet: clear Colour or Second painting")
                 style = [style, second]
                 name = s.hair_map or "@height"
                 opts["style_map"] = name if name.startswith("@") else hair_io.read_map(obj.data, name)

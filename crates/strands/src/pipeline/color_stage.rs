@@ -41,11 +41,12 @@
 use nst3d_core::{FeatureView, Image};
 use nst3d_features::{Vgg19, VggLayer};
 use nst3d_io::image::resize_to_height;
-use nst3d_loss::{cell_mask, style_loss, style_loss_masked, StyleTarget};
+use nst3d_loss::{cell_mask, cell_weights, style_loss, style_loss_guided, StyleTarget};
 use nst3d_optim::{optimise_in_turn, Adam};
 use nst3d_splat::{render, render_backward_all, SplatCamera, Strands};
 
 use super::step::{flatten, unflatten};
+use super::style_map::StrandShares;
 use super::views::hair_pixels;
 use super::{ColorCarry, PipelineError, StrandScene, StylizeParams};
 use crate::color::COLOR_LEARNING_RATE;
@@ -100,12 +101,19 @@ impl ColorTargets {
 }
 
 /// One colour camera and which cells of each tap hold hair (the strands
-/// are fixed, so the mask is too).
+/// are fixed, so the mask is too), per painting.
 pub struct ColorView {
     /// The camera.
     pub camera: SplatCamera,
-    /// Per [`COLOR_LAYERS`] tap, row-major over its map: cells with hair.
-    pub masks: Vec<Vec<bool>>,
+    /// Per painting, per [`COLOR_LAYERS`] tap, row-major over its map: each
+    /// cell's weight in the painting's Gram matrix. One painting: 1 on the
+    /// cells with hair, 0 elsewhere; a style map: the mean over the cell's
+    /// pixels of the painting's share of the hair there (Gatys et al.'s
+    /// guide).
+    pub guides: Vec<Vec<Vec<f32>>>,
+    /// Each painting's share of the hair in the picture, the weight of its
+    /// grey guard.
+    pub shares: Vec<f32>,
 }
 
 impl ColorView {
@@ -116,6 +124,7 @@ impl ColorView {
         vgg: &Vgg19,
         groom: &WrittenGroom,
         camera: SplatCamera,
+        shares: &StrandShares,
     ) -> Result<Option<Self>, PipelineError> {
         let white = render(&groom.drawn(scene, None), &camera, &scene.style)?.0;
         let pixels = hair_pixels(&white, scene.style.background);
@@ -124,29 +133,86 @@ impl ColorView {
         }
         // The taps' map sizes, from a forward of the render itself.
         let fwd = vgg.forward(&white, &COLOR_LAYERS, false);
+        let sizes: Vec<(usize, usize)> = fwd.taps().iter().map(|t| (t.height, t.width)).collect();
         let masks: Vec<Vec<bool>> =
-            fwd.taps().iter().map(|t| cell_mask(&pixels, white.height, white.width, t.height, t.width)).collect();
+            sizes.iter().map(|&(h, w)| cell_mask(&pixels, white.height, white.width, h, w)).collect();
         if masks.iter().any(|m| !m.iter().any(|&v| v)) {
             return Ok(None);
         }
-        Ok(Some(Self { camera, masks }))
+        if shares.paintings() == 1 {
+            let guides = vec![masks.iter().map(|m| m.iter().map(|&v| if v { 1.0 } else { 0.0 }).collect()).collect()];
+            return Ok(Some(Self { camera, guides, shares: vec![1.0] }));
+        }
+        let (guides, shares) = map_guides(scene, groom, &camera, shares, &pixels, &sizes)?;
+        Ok(Some(Self { camera, guides, shares }))
     }
 }
 
-/// The Gram loss of `img` to `target` at [`COLOR_LAYERS`] (over the cells
-/// `masks` marks, or the whole picture), and its gradient w.r.t. `img`.
+/// Each painting's guide per tap (cell means of its share of the hair at
+/// each pixel) and its share of the hair in the picture: the map drawn on
+/// the written strands from `camera`, on black.
+fn map_guides(
+    scene: &StrandScene,
+    groom: &WrittenGroom,
+    camera: &SplatCamera,
+    shares: &StrandShares,
+    hair: &[bool],
+    sizes: &[(usize, usize)],
+) -> Result<(Vec<Vec<Vec<f32>>>, Vec<f32>), PipelineError> {
+    let style = nst3d_splat::StrandStyle { background: [0.0; 3], ..scene.style };
+    let drawn = |k: Option<usize>| -> Result<Image, PipelineError> {
+        let colors: Vec<[f32; 3]> = (0..groom.strands.strand_count())
+            .flat_map(|s| {
+                let v = k.map_or(1.0, |k| shares.strand_share(k, s));
+                std::iter::repeat_n([v; 3], groom.strands.offsets[s + 1] - groom.strands.offsets[s])
+            })
+            .collect();
+        Ok(render(&groom.drawn(scene, Some(&colors)), camera, &style)?.0)
+    };
+    let coverage = drawn(None)?;
+    let plane = coverage.plane();
+    let total: f64 = (0..plane).filter(|&i| hair[i]).map(|i| coverage.data[i] as f64).sum();
+    let (mut guides, mut parts) = (Vec::new(), Vec::new());
+    for k in 0..shares.paintings() {
+        let share = drawn(Some(k))?;
+        let px: Vec<f32> = (0..plane)
+            .map(|i| {
+                if hair[i] && coverage.data[i] > 1e-6 {
+                    (share.data[i] / coverage.data[i]).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let part: f64 = (0..plane).filter(|&i| hair[i]).map(|i| share.data[i] as f64).sum();
+        parts.push(if total > 0.0 { (part / total) as f32 } else { 0.0 });
+        guides.push(sizes.iter().map(|&(h, w)| cell_weights(&px, coverage.height, coverage.width, h, w)).collect());
+    }
+    Ok((guides, parts))
+}
+
+/// The sum over `parts` of each target's Gram loss of `img` at
+/// [`COLOR_LAYERS`] (guided by its cell weights, or over the whole
+/// picture), and its gradient w.r.t. `img`: one VGG-19 pass for all.
 fn gram_loss(
     vgg: &Vgg19,
     img: &Image,
-    target: &StyleTarget,
-    masks: Option<&[Vec<bool>]>,
+    parts: &[(&StyleTarget, Option<&[Vec<f32>]>)],
 ) -> Result<(f32, Image), PipelineError> {
     let fwd = vgg.forward(img, &COLOR_LAYERS, true);
     let taps: Vec<FeatureView<'_>> = fwd.taps().iter().map(FeatureView::from).collect();
-    let (loss, grads) = match masks {
-        Some(m) => style_loss_masked(&taps, m, target)?,
-        None => style_loss(&taps, target)?,
-    };
+    let (mut loss, mut grads) = (0.0f32, Vec::<Vec<f32>>::new());
+    for (target, guides) in parts {
+        let (l, g) = match guides {
+            Some(guides) => style_loss_guided(&taps, guides, target)?,
+            None => style_loss(&taps, target)?,
+        };
+        loss += l;
+        match grads.is_empty() {
+            true => grads = g,
+            false => grads.iter_mut().zip(&g).for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(a, b)| *a += b)),
+        }
+    }
     let grads: Vec<FeatureView<'_>> = taps.iter().zip(&grads).map(|(f, g)| FeatureView { data: g, ..*f }).collect();
     Ok((loss, vgg.backward(&fwd, &grads)))
 }
@@ -197,11 +263,13 @@ impl WrittenGroom {
 /// The colour stage's loss of `strands` drawn in the colours offsets
 /// `delta` make, seen from `view`, and its gradient w.r.t. `delta`: the RGB
 /// Gram loss over the hair plus [`GREY_GUARD`] times the luminance Gram loss
-/// of the whole picture.
+/// of the whole picture; with a style map, each painting's (`targets`, in
+/// the map's order) over its region, and its grey guard weighed by its
+/// share of the hair in sight.
 pub fn color_view_loss(
     scene: &StrandScene,
     vgg: &Vgg19,
-    targets: &ColorTargets,
+    targets: &[ColorTargets],
     groom: &WrittenGroom,
     view: &ColorView,
     delta: &[[f32; 3]],
@@ -212,13 +280,17 @@ pub fn color_view_loss(
     let s = groom.drawn(scene, Some(&carried));
     let (img, cache) = render(&s, &view.camera, &scene.style)?;
     // The hair's colour, and the grey guard over the whole picture.
-    let (color_loss, mut grad_img) = gram_loss(vgg, &img, &targets.color, Some(&view.masks))?;
-    let (grey, grad_grey) = gram_loss(vgg, &img.luminance3(), &targets.grey, None)?;
-    let grad_grey = Image::luminance3_backward(&grad_grey);
-    for (a, b) in grad_img.data.iter_mut().zip(&grad_grey.data) {
-        *a += GREY_GUARD * b;
+    let colour: Vec<_> = targets.iter().zip(&view.guides).map(|(t, g)| (&t.color, Some(&g[..]))).collect();
+    let (color_loss, mut grad_img) = gram_loss(vgg, &img, &colour)?;
+    let mut loss = color_loss;
+    for (t, &share) in targets.iter().zip(&view.shares).filter(|(_, &s)| s > 0.0) {
+        let (grey, grad_grey) = gram_loss(vgg, &img.luminance3(), &[(&t.grey, None)])?;
+        let grad_grey = Image::luminance3_backward(&grad_grey);
+        for (a, b) in grad_img.data.iter_mut().zip(&grad_grey.data) {
+            *a += GREY_GUARD * share * b;
+        }
+        loss += GREY_GUARD * share * grey;
     }
-    let loss = color_loss + GREY_GUARD * grey;
     if !loss.is_finite() {
         return Err(PipelineError::Diverged(format!("colour loss is {loss}")));
     }
@@ -260,12 +332,27 @@ pub fn stylize_color(
     params: &StylizeParams,
     progress: &mut dyn FnMut(u32, f32) -> Result<(), PipelineError>,
 ) -> Result<ColorStageResult, PipelineError> {
+    let one = StrandShares::single(scene.rest.strand_count());
+    stylize_color_mapped(scene, &[style], &one, vgg, strands, params, progress)
+}
+
+/// [`stylize_color`] toward several `paintings` shared by a style map:
+/// each painting's colour Gram matrices over its region of each picture.
+pub fn stylize_color_mapped(
+    scene: &StrandScene,
+    paintings: &[&Image],
+    shares: &StrandShares,
+    vgg: &Vgg19,
+    strands: &FlatStrands,
+    params: &StylizeParams,
+    progress: &mut dyn FnMut(u32, f32) -> Result<(), PipelineError>,
+) -> Result<ColorStageResult, PipelineError> {
     let height = (params.style_scale * params.render_size as f32).round() as usize;
-    let targets = ColorTargets::new(vgg, style, height)?;
+    let targets = paintings.iter().map(|p| ColorTargets::new(vgg, p, height)).collect::<Result<Vec<_>, _>>()?;
     let groom = WrittenGroom::new(scene, strands)?;
     let mut views = Vec::with_capacity(COLOR_VIEWS);
     for (elevation, azimuth) in color_view_angles() {
-        if let Some(v) = ColorView::new(scene, vgg, &groom, scene.camera(elevation, azimuth)?)? {
+        if let Some(v) = ColorView::new(scene, vgg, &groom, scene.camera(elevation, azimuth)?, shares)? {
             views.push(v);
         }
     }

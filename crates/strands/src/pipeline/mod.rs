@@ -110,8 +110,8 @@ pub use nst3d_optim::Adam;
 pub use nst3d_splat::SplatCamera;
 
 pub use color_stage::{
-    color_iterations, color_view_angles, color_view_loss, stylize_color, ColorStageResult, ColorTargets, ColorView,
-    WrittenGroom, COLOR_ELEVATIONS, COLOR_LAYERS, COLOR_PASSES, COLOR_VIEWS, GREY_GUARD,
+    color_iterations, color_view_angles, color_view_loss, stylize_color, stylize_color_mapped, ColorStageResult,
+    ColorTargets, ColorView, WrittenGroom, COLOR_ELEVATIONS, COLOR_LAYERS, COLOR_PASSES, COLOR_VIEWS, GREY_GUARD,
 };
 pub use multiscale::{
     held_out_loss, scale_learning_rate, stylize, stylize_mapped, stylize_with, FrameHooks, HeldOut, IterationClock,

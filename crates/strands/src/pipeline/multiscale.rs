@@ -13,7 +13,7 @@ use nst3d_splat::SplatCamera;
 use crate::strands::FlatStrands;
 use crate::StrandError;
 
-use super::color_stage::{color_iterations, stylize_color};
+use super::color_stage::{color_iterations, stylize_color_mapped};
 use super::orientation::OrientationView;
 use super::step::{flatten, iteration_with, loss_and_gradient_with, unflatten, OrientationTerm};
 use super::style_map::{PaintingTargets, StrandShares};
@@ -338,7 +338,7 @@ pub fn stylize_mapped(
     };
     // Colour: a stage of its own on the finished strands.
     let colors = match params.color {
-        true => Some(color_stage(scene, paintings[0], vgg, &strands, params, progress)?),
+        true => Some(color_stage(scene, (paintings, shares), vgg, &strands, params, progress)?),
         false => None,
     };
     let (guides, proxies) = split_guides(scene, &strands);
@@ -357,14 +357,10 @@ pub fn stylize_mapped(
     })
 }
 
-/// The settings are sound, every painting usable, and a map is not asked
-/// for colour (not carried through the colour stage yet).
+/// The settings are sound and every painting usable.
 fn check_inputs(params: &StylizeParams, paintings: &[&Image]) -> Result<(), PipelineError> {
     params.validate()?;
     paintings.iter().try_for_each(|p| check_style(p))?;
-    if params.color && paintings.len() > 1 {
-        return Err(PipelineError::Parameter("colour with a style map is not supported yet: drop --color".into()));
-    }
     Ok(())
 }
 
@@ -518,14 +514,14 @@ fn evaluate(
 /// the finest scale's with `color` set.
 fn color_stage(
     scene: &StrandScene,
-    style: &Image,
+    (paintings, shares): (&[&Image], &StrandShares),
     vgg: &Vgg19,
     strands: &FlatStrands,
     params: &StylizeParams,
     progress: &mut dyn FnMut(&IterationReport),
 ) -> Result<Vec<[f32; 3]>, PipelineError> {
     let iterations = color_iterations();
-    let stage = stylize_color(scene, style, vgg, strands, params, &mut |i, loss| {
+    let stage = stylize_color_mapped(scene, paintings, shares, vgg, strands, params, &mut |i, loss| {
         progress(&IterationReport { scale: 2, iteration: i, iterations, loss, inside: 0, color: true });
         Ok(nst3d_core::stop::check()?)
     })?;

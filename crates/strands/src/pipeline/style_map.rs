@@ -164,6 +164,11 @@ impl StrandShares {
         guide_shares(values, kind, paintings, values.len()).map(|_| ())
     }
 
+    /// Painting `k`'s share of strand `s` (the layout of [`StrandScene::rest`]).
+    pub fn strand_share(&self, k: usize, s: usize) -> f32 {
+        self.shares[k][s]
+    }
+
     /// Number of paintings.
     pub fn paintings(&self) -> usize {
         self.shares.len()
