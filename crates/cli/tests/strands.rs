@@ -5,7 +5,7 @@
 //! line.
 
 mod common;
-use common::{s, shared, small_strands};
+use common::{assert_fails, s, shared, small_strands};
 
 use std::path::Path;
 use std::process::Output;
@@ -65,16 +65,6 @@ fn stylizes_bangs_and_keeps_constraints() {
     let png = image::open(&preview).unwrap();
     assert_eq!(png.height(), 384, "preview height");
     assert!(png.width() > 3 * 384 - 10, "preview holds before | after | painting");
-}
-
-/// Asserts exit 1 with one error line containing `needle` and no output.
-fn assert_fails(o: &Output, out: &Path, needle: &str) {
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "expected exit 1, stderr: {err}");
-    let lines: Vec<&str> = err.lines().collect();
-    assert_eq!(lines.len(), 1, "expected one line, got: {err}");
-    assert!(lines[0].starts_with("nst3d: error") && lines[0].contains(needle), "want '{needle}': {err}");
-    assert!(!out.exists(), "a failed run left {}", out.display());
 }
 
 #[test]

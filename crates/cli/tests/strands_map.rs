@@ -4,7 +4,7 @@
 //! line.
 
 mod common;
-use common::{s, shared, small_strands};
+use common::{assert_fails, s, shared, small_strands};
 
 use std::path::Path;
 use std::process::Output;
@@ -20,15 +20,6 @@ fn mapped(dir: &Path, map: &str, out: &Path, extra: &[&str]) -> Output {
     let mut args = vec!["--style", s(&ship), "--style-map", s(&path)];
     args.extend_from_slice(extra);
     small_strands(&shared("grooms/Bangs_100.hair"), Some(&shared("grooms/Bangs_head.ply")), out, &args)
-}
-
-fn assert_fails(o: &Output, out: &Path, needle: &str) {
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "expected exit 1, stderr: {err}");
-    let lines: Vec<&str> = err.lines().collect();
-    assert_eq!(lines.len(), 1, "expected one line, got: {err}");
-    assert!(lines[0].starts_with("nst3d: error") && lines[0].contains(needle), "want '{needle}': {err}");
-    assert!(!out.exists(), "a failed run left {}", out.display());
 }
 
 /// One value per Bangs strand: `f(i)` for strand `i` of 100.

@@ -34,6 +34,16 @@ def hair_points(addon, obj):
     return pts.reshape(n, -1, 3)
 
 
+def stylize_hair_expecting_failure():
+    """Runs Stylize hair where it must fail: its result, {"CANCELLED"} when
+    the error report raised (as it does in background mode)."""
+    try:
+        return bpy.ops.nst3d.stylize_hair()
+    except RuntimeError as e:
+        print(f"(expected) {str(e).strip().splitlines()[-1]}")
+        return {"CANCELLED"}
+
+
 def particles(addon, scalp, style, out):
     """A failed run leaves nothing behind; a real one stylizes the
     particle system in place, keeping every strand's length."""
@@ -41,11 +51,7 @@ def particles(addon, scalp, style, out):
     h = scalp.nst3d
     h.style = os.path.join(out, "no_such_painting.jpg")
     with bpy.context.temp_override(object=scalp, active_object=scalp, selected_objects=[scalp]):
-        try:
-            failed = bpy.ops.nst3d.stylize_hair()
-        except RuntimeError as e:  # an operator's error report raises in background mode
-            failed = {"CANCELLED"}
-            print(f"(expected) {str(e).strip().splitlines()[-1]}")
+        failed = stylize_hair_expecting_failure()
     check(failed == {"CANCELLED"}, f"Stylize hair without a painting is cancelled ({failed})")
     check(not any(o.type == "CURVES" for o in bpy.data.objects), "a failed Stylize hair leaves no Curves object")
     check(len(bpy.data.hair_curves) == 0, "nor its curves data")
@@ -158,11 +164,7 @@ def two_paintings(addon, scalp, style, style_b):
     s = obj.nst3d
     s.style, s.style_b, s.hair_map, s.hair_iters, s.render_size, s.color = style, style_b, "nope", 9, 96, False
     with bpy.context.temp_override(object=obj, active_object=obj, selected_objects=[obj]):
-        try:
-            refused = bpy.ops.nst3d.stylize_hair()
-        except RuntimeError as e:  # an operator's error report raises in background mode
-            refused = {"CANCELLED"}
-            print(f"(expected) {str(e).strip().splitlines()[-1]}")
+        refused = stylize_hair_expecting_failure()
         check(refused == {"CANCELLED"}, f"a Hair map naming no attribute is refused ({refused})")
         check(np.array_equal(addon.hair_io.read_strands(d)[0], before), "and the hair is untouched")
         s.hair_map = "side"

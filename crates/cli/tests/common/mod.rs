@@ -48,3 +48,14 @@ pub fn small_strands(groom: &Path, mesh: Option<&Path>, out: &Path, extra: &[&st
     args.extend_from_slice(extra);
     nst3d(&args)
 }
+
+/// A strands job that failed cleanly: exit 1, stderr one `nst3d: error`
+/// line naming `needle`, and no `out` written.
+pub fn assert_fails(o: &Output, out: &Path, needle: &str) {
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "expected exit 1, stderr: {err}");
+    let lines: Vec<&str> = err.lines().collect();
+    assert_eq!(lines.len(), 1, "expected one line, got: {err}");
+    assert!(lines[0].starts_with("nst3d: error") && lines[0].contains(needle), "want '{needle}': {err}");
+    assert!(!out.exists(), "a failed run left {}", out.display());
+}
