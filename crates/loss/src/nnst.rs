@@ -382,12 +382,47 @@ impl NnstTarget {
         let mean = channel_means(&h);
         let mut centred = h;
         centred.data.par_chunks_mut(nc).zip(&mean).for_each(|(p, m)| p.iter_mut().for_each(|v| *v -= m));
-        let indices = match precision::path().kernel() {
-            Some(kernel) => self.argmax_bf16(kernel, &centred),
-            None => self.argmax_fp32(&centred),
-        };
+        let indices = self.argmax(&centred);
 
         Ok(self.gather(grid, indices))
+    }
+
+    /// [`Self::match_content`] for the content columns `wanted` marks only
+    /// (row-major on the content grid), each matched exactly as the whole
+    /// match matches it (centred by the means over every column); the
+    /// others take style column 0. A style map's painting needs no target
+    /// where it has no share, and matching is most of a map's cost.
+    pub fn match_content_where(&self, content: &[Image], wanted: &[bool]) -> Result<NnstMatch, NnstError> {
+        self.check(content)?;
+        let grid = common_grid(content, &self.params)?;
+        if wanted.len() != grid.0 * grid.1 {
+            return Err(NnstError::GridMismatch { got: (wanted.len(), 1), expected: grid });
+        }
+        let h = hypercolumns(content, grid, self.params.layer_weight);
+        let nc = h.plane();
+        let mean = channel_means(&h);
+        let picked: Vec<usize> = (0..nc).filter(|&i| wanted[i]).collect();
+        let mut indices = vec![0u32; nc];
+        if !picked.is_empty() {
+            let n = picked.len();
+            let mut centred = Image::zeros(h.channels, 1, n);
+            centred.data.par_chunks_mut(n).zip(h.data.par_chunks(nc)).zip(&mean).for_each(|((c, src), m)| {
+                c.iter_mut().zip(&picked).for_each(|(c, &i)| *c = src[i] - m);
+            });
+            for (&i, j) in picked.iter().zip(self.argmax(&centred)) {
+                indices[i] = j;
+            }
+        }
+        Ok(self.gather(grid, indices))
+    }
+
+    /// Arg-max of every centred content column over the style columns, on
+    /// the dispatched precision's kernel.
+    fn argmax(&self, centred: &Image) -> Vec<u32> {
+        match precision::path().kernel() {
+            Some(kernel) => self.argmax_bf16(kernel, centred),
+            None => self.argmax_fp32(centred),
+        }
     }
 
     /// The match whose content column `i` takes style column `indices[i]`.
@@ -795,6 +830,29 @@ mod tests {
         assert_eq!(one_hot.indices(), a.indices());
         assert!(NnstMatch::blend(&[&a, &b], &[vec![1.0; nc]]).is_err());
         assert!(NnstMatch::blend(&[&a, &b], &[vec![1.0; nc], vec![0.0; nc - 1]]).is_err());
+    }
+
+    /// A match of some columns is the whole match on those columns.
+    #[test]
+    fn a_match_of_some_columns_is_the_whole_match_there() {
+        let params = NnstParams { grid_divisor: 2, ..NnstParams::default() };
+        let style = vec![image(8, 40, 36, 1), image(16, 20, 18, 2), image(8, 10, 9, 3)];
+        let content = vec![image(8, 48, 40, 4), image(16, 24, 20, 5), image(8, 12, 10, 6)];
+        let target = NnstTarget::from_style_features(&style, &params).unwrap();
+        let whole = target.match_content(&content).unwrap();
+        let nc = whole.indices().len();
+        let wanted: Vec<bool> = (0..nc).map(|i| (i * 7) % 3 == 0).collect();
+        let some = target.match_content_where(&content, &wanted).unwrap();
+        let d = whole.targets().channels;
+        for i in (0..nc).filter(|&i| wanted[i]) {
+            assert_eq!(some.indices()[i], whole.indices()[i], "column {i}");
+            for k in 0..d {
+                assert_eq!(some.targets().data[k * nc + i], whole.targets().data[k * nc + i]);
+            }
+        }
+        let none = target.match_content_where(&content, &vec![false; nc]).unwrap();
+        assert!(none.indices().iter().all(|&j| j == 0));
+        assert!(target.match_content_where(&content, &wanted[1..]).is_err());
     }
 
     #[test]

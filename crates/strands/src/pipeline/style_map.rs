@@ -25,7 +25,7 @@
 
 use nst3d_core::Image;
 use nst3d_features::Vgg19;
-use nst3d_loss::nnst::{NnstMatch, NnstTarget};
+use nst3d_loss::nnst::{NnstMatch, NnstParams, NnstTarget};
 use nst3d_splat::{render, SplatCamera, StrandStyle};
 
 use crate::strands::FlatStrands;
@@ -84,11 +84,19 @@ impl<'a> PaintingTargets<'a> {
         taps: &[Image],
         cam: &SplatCamera,
     ) -> Result<NnstMatch, PipelineError> {
-        let mut parts = self.targets.iter().map(|t| t.match_content(taps)).collect::<Result<Vec<_>, _>>()?;
-        if parts.len() == 1 {
-            return Ok(parts.pop().expect("one part"));
+        if self.targets.len() == 1 {
+            return Ok(self.targets[0].match_content(taps)?);
         }
-        let shares = self.shares.column_shares(scene, strands, cam, parts[0].grid())?;
+        // Each painting is matched where it has a share: with labels, each
+        // column once in all, as with one painting.
+        let grid = nst3d_loss::nnst::common_grid(taps, &NnstParams::default())?;
+        let shares = self.shares.column_shares(scene, strands, cam, grid)?;
+        let parts = self
+            .targets
+            .iter()
+            .zip(&shares)
+            .map(|(t, w)| t.match_content_where(taps, &w.iter().map(|&w| w > 0.0).collect::<Vec<_>>()))
+            .collect::<Result<Vec<_>, _>>()?;
         Ok(NnstMatch::blend(&parts.iter().collect::<Vec<_>>(), &shares)?)
     }
 }
@@ -236,20 +244,24 @@ pub struct ViewMap {
 impl ViewMap {
     /// Each painting's share of every cell of `grid` (rows, columns over
     /// the picture, row-major): the hair's shares averaged by how much each
-    /// strand shows. A cell with no hair takes the view's mean share.
+    /// strand shows. A cell with no hair belongs wholly to the painting
+    /// with the largest share of the hair in view (the empty background
+    /// looks alike to every painting, and a column with one painting is
+    /// matched once, not once per painting).
     pub fn columns(&self, grid: (usize, usize)) -> Vec<Vec<f32>> {
         let coverage = cell_sums(&self.coverage, 0, grid);
         let total: f64 = coverage.iter().sum();
-        self.shares
-            .iter()
-            .zip(&self.means)
-            .map(|(img, &fallback)| {
-                let share = cell_sums(img, 0, grid);
-                let mean = if total > 0.0 { (share.iter().sum::<f64>() / total) as f32 } else { fallback };
+        let sums: Vec<Vec<f64>> = self.shares.iter().map(|img| cell_sums(img, 0, grid)).collect();
+        let mean = |k: usize| if total > 0.0 { sums[k].iter().sum::<f64>() / total } else { self.means[k] as f64 };
+        let main = (0..sums.len()).fold(0, |b, k| if mean(k) > mean(b) { k } else { b });
+        sums.iter()
+            .enumerate()
+            .map(|(k, share)| {
+                let empty = if k == main { 1.0 } else { 0.0 };
                 share
                     .iter()
                     .zip(&coverage)
-                    .map(|(&s, &c)| if c > 1e-6 { (s / c).clamp(0.0, 1.0) as f32 } else { mean })
+                    .map(|(&s, &c)| if c > 1e-6 { (s / c).clamp(0.0, 1.0) as f32 } else { empty })
                     .collect()
             })
             .collect()
