@@ -450,7 +450,7 @@ def stylize_groom_file(
     the EMA and 1€ filter of Sec. 3.3 (``temporal``), resumable after a kill.
     Several paintings go where ``style_map`` puts them (as
     :func:`stylize_groom`; a strand or vertex property's name of a ``.ply``
-    groom too). Returns the report as a dict.
+    groom, or a primvar's of a USD groom, too). Returns the report as a dict.
     """
     style_map, style_map_labels, map_values = _strand_map(style_map, style_map_labels)
     opts = _options(

@@ -64,7 +64,7 @@ fn bad_style_maps_give_one_line_errors() {
     assert_fails(&mapped(dir.path(), "0 1 0", &out, &[]), &out, "3 values for 100 strands");
     assert_fails(&mapped(dir.path(), "0 x", &out, &[]), &out, "is not a number: x");
     let prop = small_strands(&bangs.0, Some(&bangs.1), &out, &["--style", s(&ship), "--style-map", "side"]);
-    assert_fails(&prop, &out, "is read from a .ply groom");
+    assert_fails(&prop, &out, "is read from a .ply or USD groom");
     let ply = small_strands(
         &shared("grooms/Bangs_100_binary.ply"),
         Some(&bangs.1),

@@ -46,8 +46,8 @@ pub struct StrandSettings {
     /// Where each strand's style-map value comes from
     /// ([`crate::style_map`]): `@height` (the roots' height, 0 lowest to 1
     /// highest), a `.txt` file (one number per strand, in file order), or
-    /// the name of a strand or vertex property of a `.ply` groom (a
-    /// vertex's at each strand's root).
+    /// the name of a strand or vertex property of a `.ply` groom or of a
+    /// primvar of a USD groom (a vertex's at each strand's root).
     pub style_map: Option<String>,
     /// The map's values are labels (0 the first `--style`, 1 the second, …)
     /// rather than a blend of two paintings (0 the first, 1 the second).

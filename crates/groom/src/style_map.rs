@@ -1,5 +1,5 @@
 //! Where a groom's style map comes from: one value per strand, read from
-//! the groom file, a companion text file or the roots' height, and turned
+//! the groom file (a `.ply` property, a USD primvar), a companion text file or the roots' height, and turned
 //! into each strand's share of the paintings
 //! ([`nst3d_strands::pipeline::StrandShares`]).
 
@@ -25,7 +25,7 @@ pub fn map_values(s: &StrandSettings, path: &Path, groom: &Groom) -> Result<Opti
         (None, None) => return Ok(None),
         (None, Some(HEIGHT_MAP)) => (root_heights(groom), HEIGHT_MAP.to_string()),
         (None, Some(spec)) if spec.ends_with(".txt") => (read_text_map(Path::new(spec))?, spec.to_string()),
-        (None, Some(name)) => (ply_property(path, name)?, format!("--style-map {name}")),
+        (None, Some(name)) => (file_property(path, name)?, format!("--style-map {name}")),
     };
     if values.len() != n {
         bail!("{spec}: {} values for {n} strands", values.len());
@@ -72,16 +72,23 @@ fn read_text_map(path: &Path) -> Result<Vec<f32>> {
         .collect()
 }
 
-/// The strand or root-vertex property `name` of the `.ply` groom `groom`.
-fn ply_property(groom: &Path, name: &str) -> Result<Vec<f32>> {
-    if groom.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() != Some("ply") {
-        bail!(
-            "--style-map {name}: a property is read from a .ply groom, and {} is not one \
+/// The property `name` of the groom file `groom`: a strand or root-vertex
+/// property of a `.ply`, a primvar of a USD groom (each curve's value, or
+/// its root point's).
+fn file_property(groom: &Path, name: &str) -> Result<Vec<f32>> {
+    let ext = groom.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("ply") => Ok(nst3d_io::groom::read_ply_strand_attribute(groom, name)?),
+        Some("usd" | "usda" | "usdc" | "usdz") => {
+            let file = nst3d_io::groom::read_usd_curves_file(groom)?;
+            file.usd_primvars.strand_values(name).map_err(|e| anyhow::anyhow!("--style-map {name}: {e}"))
+        }
+        _ => bail!(
+            "--style-map {name}: a property is read from a .ply or USD groom, and {} is neither \
              (give {HEIGHT_MAP} or a .txt file with one value per strand)",
             groom.display()
-        );
+        ),
     }
-    Ok(nst3d_io::groom::read_ply_strand_attribute(groom, name)?)
 }
 
 #[cfg(test)]
@@ -95,5 +102,25 @@ mod tests {
             strands: [0.0f32, 2.0, 1.0].iter().map(|&y| Strand::new(vec![[0.0, y, 0.0], [1.0, y, 0.0]])).collect(),
         };
         assert_eq!(root_heights(&groom), vec![0.0, 1.0, 0.5]);
+    }
+
+    #[test]
+    fn a_usd_grooms_primvar_is_its_map() {
+        let path = std::env::temp_dir().join(format!("nst3d_style_map_{}.usda", std::process::id()));
+        let text = "#usda 1.0\ndef BasisCurves \"hair\"\n{\n    uniform token type = \"linear\"\n    \
+                    int[] curveVertexCounts = [2, 2, 2]\n    \
+                    point3f[] points = [(0,0,0), (0,1,0), (1,0,0), (1,1,0), (2,0,0), (2,1,0)]\n    \
+                    float[] primvars:side = [0, 1, 1] (interpolation = \"uniform\")\n}\n";
+        std::fs::write(&path, text).unwrap();
+        let groom = nst3d_io::groom::read_groom(&path).unwrap();
+        let mut s = StrandSettings::new(&path, "head.ply", "a.png", "out.usda");
+        s.more_styles = vec!["b.png".into()];
+        s.style_map = Some("side".into());
+        let values = map_values(&s, &path, &groom);
+        s.style_map = Some("front".into());
+        let missing = map_values(&s, &path, &groom).unwrap_err().to_string();
+        std::fs::remove_file(&path).unwrap();
+        assert_eq!(values.unwrap(), Some(vec![0.0, 1.0, 1.0]));
+        assert!(missing.contains("no primvars:front (number primvars: primvars:side)"), "{missing}");
     }
 }

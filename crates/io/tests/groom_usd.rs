@@ -149,6 +149,53 @@ fn check_file(name: &str, f: &Value, ours: &GroomFile) {
     }
 }
 
+/// A style map read from a primvar (`UsdPrimvars::strand_values`) is, for
+/// every number primvar usd-core wrote, the value usd-core reads for each
+/// curve: its own where `uniform`, its root point's where `vertex`, the
+/// one value (or the earliest sample) where `constant`, indices followed;
+/// every other primvar is refused.
+#[test]
+fn map_primvars_are_what_usd_core_reads_per_curve() {
+    let all = facts();
+    for (name, f) in all.as_object().unwrap() {
+        let ours = read_groom_file(&reference().join(name)).unwrap_or_else(|e| panic!("{e}"));
+        let counts: Vec<usize> = ours.groom.strands.iter().map(|s| s.points.len()).collect();
+        for (pv, t) in f["curves"][0]["primvars"].as_object().unwrap() {
+            let got = ours.usd_primvars.strand_values(pv);
+            let scalar = ["float", "double", "half", "int", "uint", "int64", "uint64", "uchar", "bool"]
+                .contains(&t["type"].as_str().unwrap().trim_end_matches("[]"));
+            if !scalar || t["elementSize"].as_u64() != Some(1) || pv == "primvars:displayColor" {
+                assert!(got.is_err(), "{name}: {pv} ({}) read as a map", t["type"]);
+                continue;
+            }
+            if t.get("value").is_none() {
+                // usd-core's facts hold the values once, in groom.usdc.
+                assert!(got.is_ok(), "{name}: {pv}: {got:?}");
+                continue;
+            }
+            let number = |v: &Value| v.as_f64().or_else(|| v.as_bool().map(f64::from)).unwrap() as f32;
+            let value = match &t["value"] {
+                Value::Null => t["samples"][0][1].clone(),
+                v => v.clone(),
+            };
+            let mut all: Vec<f32> = match &value {
+                Value::Array(a) => a.iter().map(number).collect(),
+                v => vec![number(v)],
+            };
+            if let Some(ix) = t["indices"].as_array() {
+                all = ix.iter().map(|i| all[i.as_u64().unwrap() as usize]).collect();
+            }
+            let starts = counts.iter().scan(0, |at, n| Some(std::mem::replace(at, *at + n)));
+            let want: Vec<f32> = match t["interpolation"].as_str().unwrap() {
+                "constant" => vec![all[0]; counts.len()],
+                "uniform" => all,
+                _ => starts.map(|s| all[s]).collect(),
+            };
+            assert_eq!(got.unwrap_or_else(|e| panic!("{name}: {e}")), want, "{name}: {pv}");
+        }
+    }
+}
+
 /// Every file usd-core wrote reads as usd-core reads it: crate file,
 /// package, a sublayer with an over adding a primvar, a reference with a
 /// stronger translate, and a package holding a layer and the layer it

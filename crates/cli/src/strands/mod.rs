@@ -33,8 +33,9 @@ pub struct StrandsArgs {
     style: Vec<PathBuf>,
     /// Which strands take which --style: `@height` (each root's height, 0
     /// at the lowest root and 1 at the highest), a .txt file of one number
-    /// per strand, or the name of a strand (or root vertex) property of a
-    /// .ply groom; 0 the first painting, 1 the second, blended between.
+    /// per strand, the name of a strand (or root vertex) property of a
+    /// .ply groom, or of a primvar of a USD groom (per curve, or its root
+    /// point's); 0 the first painting, 1 the second, blended between.
     #[arg(long)]
     style_map: Option<String>,
     /// The --style-map's values are labels: 0 the first --style, 1 the

@@ -25,7 +25,7 @@ fn varying_count(n: usize, cubic: bool, basis: &str, periodic: bool) -> usize {
 
 /// Expands a primvar to one value per point, or `None` if its length fits
 /// no interpolation. `varying` values are spread linearly along the curve.
-fn expand<T: Copy + Lerp>(
+pub(super) fn expand<T: Copy + Lerp>(
     values: &[T],
     interpolation: Option<&str>,
     counts: &[usize],
@@ -83,7 +83,7 @@ fn expand<T: Copy + Lerp>(
 }
 
 /// Linear interpolation, for spreading `varying` primvars.
-trait Lerp {
+pub(super) trait Lerp {
     fn lerp(a: Self, b: Self, t: f32) -> Self;
 }
 

@@ -28,7 +28,8 @@
 //!
 //! One file per job: [`lexer`] splits the text into tokens, [`parse`] builds
 //! the prim tree, [`xform`] turns `xformOp`s into matrices, [`curves`] walks
-//! the tree into strands, [`mod@primvars`] gathers the other primvars, and
+//! the tree into strands, [`mod@primvars`] gathers the other primvars
+//! ([`strand_values`] reads one of them as a number per strand), and
 //! [`mod@write`] writes a layer. Reading a whole stage (one layer in any of
 //! USD's forms and the layers it points to) is `super::usd`'s job.
 
@@ -36,6 +37,7 @@ pub(crate) mod curves;
 mod lexer;
 pub(crate) mod parse;
 pub(crate) mod primvars;
+mod strand_values;
 pub(crate) mod write;
 pub(crate) mod xform;
 

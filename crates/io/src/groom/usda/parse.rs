@@ -485,6 +485,12 @@ pub(crate) fn layer(text: &str, layer: usize) -> Result<(Prim, Vec<(String, Val)
 /// The attribute statements of a prim body (`text` as it would stand
 /// between a prim's braces), each with its qualifiers, value and metadata.
 pub(crate) fn statements(text: &str) -> Result<Vec<Attr>, ErrorKind> {
+    Ok(body_prim(text)?.map(|p| p.attrs).unwrap_or_default())
+}
+
+/// A prim whose body is `text` (as [`statements`] reads it), for
+/// [`Prim::value`]'s default-else-earliest-sample rule.
+pub(crate) fn body_prim(text: &str) -> Result<Option<Prim>, ErrorKind> {
     let (mut root, _) = layer(&format!("def \"P\"\n{{\n{text}\n}}\n"), 0)?;
-    Ok(root.children.pop().map(|p| p.attrs).unwrap_or_default())
+    Ok(root.children.pop())
 }
