@@ -5,7 +5,8 @@
 # 2 threads each; prints every run, the medians and nst3d / best peer.
 #
 #   bash tools/bench_precision.sh [ROUNDS] [WHICH...]
-#   WHICH: volume-velocity volume-density train-density train-velocity infer (default: all)
+#   WHICH: volume-velocity volume-density train-density train-velocity infer (default: all),
+#          train-density-128 (a 128^3 patch; not in the default set, about 6 minutes)
 #
 # The run's lscpu flags say which bf16 unit the CPU has; without one the
 # nst3d bf16 runs are the emulated path (and the peer's bf16 is oneDNN's).
@@ -26,6 +27,7 @@ for w in "${WHICH[@]}"; do
     volume-velocity) nargs=(volume-iter --n 128 --mode velocity); targs=(../shared/bench/torch_ref.py --n 128 --mode velocity) ;;
     volume-density) nargs=(volume-iter --n 128 --mode density); targs=(../shared/bench/torch_ref.py --n 128 --mode density) ;;
     train-density) nargs=(train-step --patch 64 --mode density); targs=(../shared/bench/torch_ff_ref.py --patch 64 --mode density) ;;
+    train-density-128) nargs=(train-step --patch 128 --mode density); targs=(../shared/bench/torch_ff_ref.py --patch 128 --mode density) ;;
     train-velocity) nargs=(train-step --patch 64 --mode velocity); targs=(../shared/bench/torch_ff_ref.py --patch 64 --mode velocity) ;;
     infer) nargs=(infer --n 128); targs=(../shared/bench/torch_ff_ref.py --infer 128) ;;
     *) echo "unknown benchmark $w" >&2; exit 2 ;;
