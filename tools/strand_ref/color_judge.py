@@ -10,8 +10,9 @@ round, the colour stage's (azimuths half a step off the front, elevations
 0 and 30 degrees), with a root facing the camera. The VGG-19 Gram loss over
 the hair's pixels (relu1_1 ... relu4_1) against each painting in colour, at
 the render's height times the style scale as the colour stage takes it, is
-divided by the loss of the same strands drawn in flat grey: the colour's
-part alone, lower = nearer. Median over the views that see the region.
+divided by the loss of the same strands drawn in their own colours'
+luminance: the hue's part alone (brightness cancels), lower = nearer.
+Median over the views that see the region.
 """
 import argparse
 import math
@@ -117,7 +118,7 @@ def main():
     labels = torch.tensor(np.loadtxt(a.map)).round().long()
     assert len(labels) == len(rest), f'{a.map}: {len(labels)} labels for {len(rest)} strands'
     styles = [(s.split('=', 1)[0], painting_grams(s.split('=', 1)[1], round(a.size * a.style_scale))) for s in a.style]
-    print('colour Gram loss over each region\'s hair / the same strands in grey, median of the views that see it')
+    print('colour Gram loss over each region\'s hair / the same strands in their luminance, median of the views that see it')
     print(f'{"result":14} {"region":14}' + ''.join(f' {s:>14}' for s, _ in styles))
     for region, (region_name, _) in enumerate(styles):
         ratios = {n: {s: [] for s, _ in styles} for n, _, _ in results}
@@ -127,7 +128,8 @@ def main():
             if vis.sum() < 50:
                 continue
             for name, P, C in results:
-                grey = render_rgb(P, torch.full_like(C, 0.5), cam, vis)
+                luma = (C * torch.tensor([0.299, 0.587, 0.114])).sum(-1, keepdim=True).expand_as(C)
+                grey = render_rgb(P, luma, cam, vis)
                 mask = (grey.sum(0) > 0.02).float()
                 g, g0 = masked_grams(render_rgb(P, C, cam, vis), mask), masked_grams(grey, mask)
                 for s, gs in styles:
