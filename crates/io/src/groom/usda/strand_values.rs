@@ -6,8 +6,7 @@ use super::parse::{body_prim, Val};
 use super::primvars::{UsdPrimvar, UsdPrimvars};
 
 /// Scalar types a map may be (`[]` arrays of them too).
-const SCALARS: [&str; 11] =
-    ["float", "double", "half", "int", "uint", "int64", "uint64", "uchar", "bool", "float1", "double1"];
+const SCALARS: [&str; 9] = ["float", "double", "half", "int", "uint", "int64", "uint64", "uchar", "bool"];
 
 impl UsdPrimvars {
     /// One number per strand, in the groom's strand order, from the
