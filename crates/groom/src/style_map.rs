@@ -1,7 +1,7 @@
 //! Where a groom's style map comes from: one value per strand, read from
-//! the groom file (a `.ply` property, a USD primvar), a companion text file or the roots' height, and turned
-//! into each strand's share of the paintings
-//! ([`nst3d_strands::pipeline::StrandShares`]).
+//! the groom file (a `.ply` property, a USD primvar), a companion text
+//! file or the roots' height, and turned into each strand's share of the
+//! paintings ([`nst3d_strands::pipeline::StrandShares`]).
 
 use std::path::Path;
 
