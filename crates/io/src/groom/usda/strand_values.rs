@@ -25,12 +25,13 @@ impl UsdPrimvars {
         if !SCALARS.contains(&primvar.type_name.trim_end_matches("[]")) {
             return Err(format!("{full} is a {}: a map is one number per curve or point", primvar.type_name));
         }
-        if element_size(primvar) > 1 {
+        let (mut values, element_size) = numbers(primvar)?;
+        if element_size > 1 {
             return Err(format!("{full} has several numbers per element: a map is one per curve or point"));
         }
-        let mut values = numbers(primvar)?;
         if let Some(indices) = self.primvars.iter().find(|p| p.name == format!("{full}:indices")) {
             values = numbers(indices)?
+                .0
                 .iter()
                 .map(|&i| values.get(i as usize).copied())
                 .collect::<Option<_>>()
@@ -63,26 +64,25 @@ impl UsdPrimvars {
     }
 }
 
-/// A primvar's `elementSize` metadata (1 where not authored).
-fn element_size(p: &UsdPrimvar) -> usize {
-    let prim = body_prim(&p.declaration).ok().flatten();
-    let meta = prim.iter().flat_map(|prim| prim.attrs.iter()).flat_map(|a| a.meta.iter());
-    meta.filter(|(key, _)| key == "elementSize").find_map(|(_, v)| v.as_f64()).map_or(1, |n| n as usize)
-}
-
-/// The numbers of a primvar's value (a default, else its earliest sample).
-fn numbers(p: &UsdPrimvar) -> Result<Vec<f32>, String> {
+/// The numbers of a primvar's value (a default, else its earliest sample)
+/// and its `elementSize` metadata (1 where not authored), from one parse
+/// of its declaration (a vertex primvar holds a number per point).
+fn numbers(p: &UsdPrimvar) -> Result<(Vec<f32>, usize), String> {
     let prim = body_prim(&p.declaration).map_err(|e| format!("{}: {e}", p.name))?;
-    let value = prim.as_ref().and_then(|prim| prim.value(&p.name)).ok_or_else(|| format!("{} has no value", p.name))?;
+    let Some(prim) = prim else { return Err(format!("{} has no value", p.name)) };
+    let meta = prim.attrs.iter().flat_map(|a| a.meta.iter());
+    let element_size =
+        meta.filter(|(key, _)| key == "elementSize").find_map(|(_, v)| v.as_f64()).map_or(1, |n| n as usize);
+    let value = prim.value(&p.name).ok_or_else(|| format!("{} has no value", p.name))?;
     let number = |v: &Val| match v {
         Val::Ident(b) if b == "true" || b == "false" => Some(f32::from(b == "true")),
         v => v.as_f64().map(|x| x as f32),
     };
-    match value {
+    let values = match value {
         Val::List(items) => items.iter().map(number).collect::<Option<_>>(),
         v => number(v).map(|x| vec![x]),
-    }
-    .ok_or_else(|| format!("{} holds something other than numbers", p.name))
+    };
+    Ok((values.ok_or_else(|| format!("{} holds something other than numbers", p.name))?, element_size))
 }
 
 #[cfg(test)]
