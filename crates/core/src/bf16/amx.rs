@@ -156,3 +156,61 @@ pub(crate) unsafe fn block(
         options(nostack),
     );
 }
+
+/// The 64 × 16 block of [`super::Ready::block_tall`] on tiles: one B tile
+/// a step against four A tiles (`tmm4`, `tmm5`, `tmm7` in turn, so a load
+/// need not wait for the product that read the tile before).
+///
+/// # Safety
+/// Inside [`with_tiles`] on this thread; operands as
+/// [`super::Ready::block_tall`].
+#[cfg(target_arch = "x86_64")]
+#[inline]
+pub(crate) unsafe fn block_tall(
+    a: [*const u16; 4],
+    lda: usize,
+    offs: &[usize],
+    b: *const u16,
+    c: *mut f32,
+    ldc: usize,
+) {
+    use std::arch::asm;
+    asm!("tilezero tmm0", "tilezero tmm1", "tilezero tmm2", "tilezero tmm3", options(nostack, nomem));
+    let lda_bytes = lda * 2;
+    let mut bp = b;
+    for &o in offs {
+        asm!(
+            "tileloadd tmm6, [{b} + {ldb}*1]",
+            "tileloadd tmm4, [{a0} + {lda}*1]",
+            "tdpbf16ps tmm0, tmm4, tmm6",
+            "tileloadd tmm5, [{a1} + {lda}*1]",
+            "tdpbf16ps tmm1, tmm5, tmm6",
+            "tileloadd tmm7, [{a2} + {lda}*1]",
+            "tdpbf16ps tmm2, tmm7, tmm6",
+            "tileloadd tmm4, [{a3} + {lda}*1]",
+            "tdpbf16ps tmm3, tmm4, tmm6",
+            a0 = in(reg) a[0].add(o),
+            a1 = in(reg) a[1].add(o),
+            a2 = in(reg) a[2].add(o),
+            a3 = in(reg) a[3].add(o),
+            lda = in(reg) lda_bytes,
+            b = in(reg) bp,
+            ldb = in(reg) 2 * super::KS,
+            options(nostack, readonly),
+        );
+        bp = bp.add(super::TALL_STEP);
+    }
+    let ldc_bytes = ldc * 4;
+    asm!(
+        "tilestored [{c0} + {ldc}*1], tmm0",
+        "tilestored [{c1} + {ldc}*1], tmm1",
+        "tilestored [{c2} + {ldc}*1], tmm2",
+        "tilestored [{c3} + {ldc}*1], tmm3",
+        c0 = in(reg) c,
+        c1 = in(reg) c.add(16 * ldc),
+        c2 = in(reg) c.add(32 * ldc),
+        c3 = in(reg) c.add(48 * ldc),
+        ldc = in(reg) ldc_bytes,
+        options(nostack),
+    );
+}

@@ -35,6 +35,10 @@ pub const MB: usize = 32;
 pub const NB: usize = 32;
 /// bf16 values in one packed B step (two 16 × 32 tiles).
 pub const B_STEP: usize = 2 * 16 * KS;
+/// Rows of `C` per tall block ([`Ready::block_tall`]: four A tiles).
+pub const TALL_MB: usize = 64;
+/// bf16 values in one B step of a tall block (one 16 × 32 tile).
+pub const TALL_STEP: usize = 16 * KS;
 
 /// Rounds to the nearest bf16, ties to even (NaN stays NaN).
 #[inline(always)]
@@ -306,6 +310,53 @@ impl Ready {
             _ => block_portable(a0, a1, lda, offs, b, c, ldc),
         }
     }
+
+    /// The tall block, for products with at most 16 columns (a 32 × 32
+    /// block would leave half its tiles zero):
+    /// `c[r * ldc + j] = Σ_s Σ_k A_s[r][k] · B_s[k][j]` for `r < 64`,
+    /// `j < 16`, row `r` of `A_s` at `a[r / 16] + offs[s] + (r % 16) * lda`,
+    /// `B_s` one VNNI tile of [`TALL_STEP`] values per step (element
+    /// `(k, n)` at `(k / 2) * 32 + 2 n + k % 2`). On AMX tiles; every other
+    /// kernel runs the scalar reference (the convolutions that use it take
+    /// it only where AMX is).
+    ///
+    /// # Safety
+    /// As [`Ready::block`], for four A pointers, `offs.len() * TALL_STEP`
+    /// values of `b` and 64 rows of 16 floats of `c`.
+    #[inline]
+    pub unsafe fn block_tall(
+        self,
+        a: [*const u16; 4],
+        lda: usize,
+        offs: &[usize],
+        b: *const u16,
+        c: *mut f32,
+        ldc: usize,
+    ) {
+        match self.kernel {
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Amx => amx::block_tall(a, lda, offs, b, c, ldc),
+            _ => block_tall_portable(a, lda, offs, b, c, ldc),
+        }
+    }
+}
+
+/// Scalar [`Ready::block_tall`].
+unsafe fn block_tall_portable(a: [*const u16; 4], lda: usize, offs: &[usize], b: *const u16, c: *mut f32, ldc: usize) {
+    for r in 0..TALL_MB {
+        let mut acc = [0f32; 16];
+        for (s, &o) in offs.iter().enumerate() {
+            let arow = a[r / 16].add(o + (r % 16) * lda);
+            let bs = b.add(s * TALL_STEP);
+            for k in 0..KS {
+                let av = to_f32(*arow.add(k));
+                for (j, x) in acc.iter_mut().enumerate() {
+                    *x += av * to_f32(*bs.add((k / 2) * KS + 2 * j + k % 2));
+                }
+            }
+        }
+        std::ptr::copy_nonoverlapping(acc.as_ptr(), c.add(r * ldc), 16);
+    }
 }
 
 /// Scalar [`Ready::block`]: the reference the fast kernels are tested against.
@@ -546,6 +597,42 @@ mod tests {
                 for j in 0..NB {
                     let (got, w) = (c[r * ldc + j] as f64, want[r * NB + j]);
                     assert!((got - w).abs() < 1e-5 * (1.0 + w.abs()), "{k:?} ({r}, {j}): {got} vs {w}");
+                }
+            }
+        }
+    }
+
+    /// The tall block on every kernel here (AMX where the CPU has it, the
+    /// scalar reference everywhere) against an f64 sum: four unrelated A
+    /// pointers, per-step offsets, a wide `ldc`.
+    #[test]
+    fn tall_block_matches_reference() {
+        let (lda, steps, ldc) = (70usize, 3usize, 24usize);
+        let a: Vec<u16> = pseudo_random(90 * lda + 64, 5).iter().map(|v| from_f32(*v)).collect();
+        let bv = pseudo_random(steps * KS * 16, 6);
+        let mut packed = vec![0u16; steps * TALL_STEP];
+        for s in 0..steps {
+            for k in 0..KS {
+                for j in 0..16 {
+                    packed[s * TALL_STEP + (k / 2) * KS + 2 * j + k % 2] = from_f32(bv[(s * KS + k) * 16 + j]);
+                }
+            }
+        }
+        let starts = [0usize, 40 * lda, 17 * lda + 3, 70 * lda + 1];
+        let offs = [5usize, 0, 41];
+        for kernel in Kernel::all_here() {
+            let mut c = vec![f32::NAN; TALL_MB * ldc];
+            let ptrs = starts.map(|o| unsafe { a.as_ptr().add(o) });
+            kernel.run(|ready| unsafe { ready.block_tall(ptrs, lda, &offs, packed.as_ptr(), c.as_mut_ptr(), ldc) });
+            for r in 0..TALL_MB {
+                for j in 0..16 {
+                    let base = starts[r / 16] + (r % 16) * lda;
+                    let want: f64 = (0..steps)
+                        .flat_map(|s| (0..KS).map(move |k| (s, k)))
+                        .map(|(s, k)| to_f32(a[base + offs[s] + k]) as f64 * round(bv[(s * KS + k) * 16 + j]) as f64)
+                        .sum();
+                    let got = c[r * ldc + j] as f64;
+                    assert!((got - want).abs() < 1e-5 * (1.0 + want.abs()), "{kernel:?} ({r}, {j}): {got} vs {want}");
                 }
             }
         }

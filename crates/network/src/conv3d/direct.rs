@@ -172,7 +172,7 @@ impl Geom {
 
 /// `dst[i]` = the bf16 pair (`a[i]`, `b[i]`, 0 without `b`), vectorised
 /// where AVX-512 is available.
-fn pairs_row(a: &[f32], b: Option<&[f32]>, dst: &mut [u32]) {
+pub(super) fn pairs_row(a: &[f32], b: Option<&[f32]>, dst: &mut [u32]) {
     #[inline(always)]
     fn plain(a: &[f32], b: Option<&[f32]>, dst: &mut [u32]) {
         match b {

@@ -1,0 +1,329 @@
+//! The convolution on AMX tiles: an implicit GEMM on the tall block of
+//! `nst3d_core::bf16` (64 positions × 16 output channels a call, bf16
+//! operands, fp32 sums), with no im2col.
+//!
+//! - **Forward**: the input is copied once into a zero-padded,
+//!   channels-last bf16 layout. For one `(kz, ky)` the `k` x-taps of an
+//!   output voxel read `k · cin` consecutive values, so the K dimension runs
+//!   over them in slices of 32 (zero weights past the last tap), and the
+//!   16 output voxels of an A tile are rows `stride · cin` values apart.
+//!   Every tap is an offset into the copy.
+//! - **Weight gradient** (stride 1): per tap, `dWₜᵀ = X shifted by t ·
+//!   Gᵀ`, K running over output positions. The input is copied channel by
+//!   channel into the padded grid, the output gradient spread over the
+//!   same grid (zero where no output is) and packed in the tile's pair
+//!   layout once; each A tile is 16 input channels at one tap, so a tap is
+//!   again only an offset. Positions are summed in fixed groups, in order:
+//!   the result does not depend on the thread count.
+//!
+//! The weight gradient of a strided layer, or of one whose input channels
+//! are not whole tiles, stays on the AVX-512 kernels ([`takes_weight_grad`]).
+
+use nst3d_core::bf16::{amx, from_f32, Kernel, KS, TALL_MB, TALL_STEP};
+use rayon::prelude::*;
+
+use super::Conv3d;
+use crate::volume::Volume;
+
+/// Positions of an A tile (rows of a tile).
+const ROWS: usize = 16;
+/// Tall blocks (64 positions each) one forward task computes.
+const BLOCKS_PER_TASK: usize = 16;
+/// K-slices of positions the weight gradient sums per block call (their
+/// output gradient, 64 KB a 16-channel block, stays in cache across taps).
+const DW_CHUNK_STEPS: usize = 64;
+/// The weight gradient's chunks are split into this many fixed groups.
+const DW_GROUPS: usize = 16;
+
+/// Whether the forward of `l` runs on tiles: wherever AMX is. Even a
+/// layer that fills a fifth of each K-slice (one input channel) or one
+/// column of 16 (one output channel) is faster on tiles than on AVX-512:
+/// the products are then a small part of the layer's time, next to the
+/// copies in and out.
+pub fn takes_forward(_l: &Conv3d) -> bool {
+    amx::available()
+}
+
+/// Whether the weight gradient of `l` runs on tiles: stride 1 and input
+/// channels in whole tiles of 16 (the A tiles are 16 channels at one tap).
+pub fn takes_weight_grad(l: &Conv3d) -> bool {
+    amx::available() && l.stride == 1 && l.cin.is_multiple_of(ROWS)
+}
+
+/// A raw pointer the forward's tasks write disjoint outputs through.
+#[derive(Clone, Copy)]
+struct Out(*mut f32);
+// SAFETY: tasks write disjoint elements (each output position is in one block).
+unsafe impl Send for Out {}
+unsafe impl Sync for Out {}
+
+impl Out {
+    /// Writes `v` at element `i`.
+    ///
+    /// # Safety
+    /// `i` is inside the volume and no other task writes it.
+    unsafe fn write(&self, i: usize, v: f32) {
+        *self.0.add(i) = v;
+    }
+}
+
+/// The padded input grid of a layer applied to `n` voxels.
+struct Grid {
+    s: usize,
+    p: usize,
+    n: [usize; 3],
+    o: [usize; 3],
+    /// Padded sides.
+    px: usize,
+    py: usize,
+    pz: usize,
+}
+
+impl Grid {
+    fn new(l: &Conv3d, n: [usize; 3]) -> Self {
+        let p = l.pad;
+        let [px, py, pz] = n.map(|v| v + 2 * p);
+        Self { s: l.stride, p, n, o: l.out_dims(n), px, py, pz }
+    }
+
+    fn voxels(&self) -> usize {
+        self.px * self.py * self.pz
+    }
+
+    /// Padded index of input voxel `(x, y, z)`.
+    fn at(&self, x: usize, y: usize, z: usize) -> usize {
+        ((z + self.p) * self.py + y + self.p) * self.px + x + self.p
+    }
+
+    /// Offset of tap `(kz, ky, kx)` in padded voxels.
+    fn tap(&self, kz: usize, ky: usize, kx: usize) -> usize {
+        (kz * self.py + ky) * self.px + kx
+    }
+}
+
+/// `conv3d(x, W) + b` on tiles; the caller checked [`takes_forward`].
+pub fn forward(l: &Conv3d, x: &Volume) -> Volume {
+    let g = Grid::new(l, x.dims);
+    let [ox, oy, oz] = g.o;
+    // Channels in pairs (one u32 of the copy), an odd count padded with a zero channel.
+    let cp = l.cin.next_multiple_of(2);
+    let slices = (l.k * cp).div_ceil(KS);
+    let offs: Vec<usize> = (0..l.k * l.k * slices)
+        .map(|st| g.tap(st / slices / l.k, st / slices % l.k, 0) * cp + st % slices * KS)
+        .collect();
+    let w = pack_forward_weights(l, cp, slices);
+    // Output positions m = (z · oy + y) · xb + x, rows of xb so no tile of
+    // 16 crosses a row; x ≥ ox are computed and dropped.
+    let xb = ox.next_multiple_of(ROWS);
+    let count = (oz * oy * xb).next_multiple_of(TALL_MB);
+    let input = |m: usize| {
+        let (z, y, xx) = (m / (oy * xb), m / xb % oy, m % xb);
+        ((g.s * z * g.py + g.s * y) * g.px + g.s * xx) * cp
+    };
+    let max_read = input(count - ROWS) + (ROWS - 1) * g.s * cp + offs.iter().max().unwrap_or(&0) + KS;
+    let xin = channels_last(&g, x, max_read.div_ceil(2));
+    let mut y = Volume::zeros(l.cout, g.o);
+    let n_out = y.voxels();
+    let out = Out(y.data.as_mut_ptr());
+    let nblk = l.cout.div_ceil(16);
+    let blocks = count / TALL_MB;
+    (0..blocks.div_ceil(BLOCKS_PER_TASK)).into_par_iter().for_each(|task| {
+        let mut c = [0f32; TALL_MB * 16];
+        let base = xin.as_ptr() as *const u16;
+        Kernel::Amx.run(|ready| {
+            for b in task * BLOCKS_PER_TASK..blocks.min((task + 1) * BLOCKS_PER_TASK) {
+                let m0 = b * TALL_MB;
+                // SAFETY: every tile row reads KS values at most max_read, inside the copy.
+                let a = std::array::from_fn(|i| unsafe { base.add(input(m0 + i * ROWS)) });
+                for nb in 0..nblk {
+                    let wb = &w[nb * offs.len() * TALL_STEP..][..offs.len() * TALL_STEP];
+                    // SAFETY: as above; wb holds offs.len() steps; c is 64 x 16.
+                    unsafe { ready.block_tall(a, g.s * cp, &offs, wb.as_ptr(), c.as_mut_ptr(), 16) };
+                    for t in 0..TALL_MB / ROWS {
+                        let m = m0 + t * ROWS;
+                        let (z, yy, x0) = (m / (oy * xb), m / xb % oy, m % xb);
+                        if z >= oz || x0 >= ox {
+                            continue;
+                        }
+                        let (v0, n) = ((z * oy + yy) * ox + x0, ROWS.min(ox - x0));
+                        for j in 0..16.min(l.cout - nb * 16) {
+                            let (co, tile) = (nb * 16 + j, &c[t * ROWS * 16..]);
+                            for r in 0..n {
+                                // SAFETY: position v0 + r of channel co, written by this block only.
+                                unsafe { out.write(co * n_out + v0 + r, tile[r * 16 + j] + l.bias[co]) };
+                            }
+                        }
+                    }
+                }
+            }
+        })
+    });
+    y
+}
+
+/// The weights as `[16 output channels][step][k / 2][2 · channel + k % 2]`,
+/// step `(kz, ky, slice)`, slice element `q` the tap `kx = q / cp` of
+/// channel `q % cp` (zero past the last tap and channel).
+fn pack_forward_weights(l: &Conv3d, cp: usize, slices: usize) -> Vec<u16> {
+    let k3 = l.k * l.k * l.k;
+    let steps = l.k * l.k * slices;
+    let mut w = vec![0u16; l.cout.div_ceil(16) * steps * TALL_STEP];
+    for co in 0..l.cout {
+        for st in 0..steps {
+            let (kz, ky, slice) = (st / slices / l.k, st / slices % l.k, st % slices);
+            for kk in 0..KS {
+                let q = slice * KS + kk;
+                let (kx, ci) = (q / cp, q % cp);
+                if kx < l.k && ci < l.cin {
+                    let v = l.weight[(co * l.cin + ci) * k3 + (kz * l.k + ky) * l.k + kx];
+                    w[((co / 16) * steps + st) * TALL_STEP + kk / 2 * KS + 2 * (co % 16) + kk % 2] = from_f32(v);
+                }
+            }
+        }
+    }
+    w
+}
+
+/// `x` as bf16 in the padded grid, channels last in pairs (a `u32` holds
+/// channels `2i`, `2i + 1`), zero-padded to `len` pairs at least.
+fn channels_last(g: &Grid, x: &Volume, len: usize) -> Vec<u32> {
+    let (pairs, [nx, ny, _]) = (x.channels.div_ceil(2), g.n);
+    let plane = g.py * g.px * pairs;
+    let mut buf = vec![0u32; len.max(g.voxels() * pairs)];
+    buf.par_chunks_mut(plane).enumerate().for_each_init(Vec::new, |tmp, (zz, dst)| {
+        if zz < g.p || zz >= g.p + g.n[2] || dst.len() < plane {
+            return;
+        }
+        let z = zz - g.p;
+        tmp.resize(pairs * nx, 0);
+        for yy in 0..ny {
+            let at = (z * ny + yy) * nx;
+            for (i, t) in tmp.chunks_mut(nx).enumerate() {
+                let b = (2 * i + 1 < x.channels).then(|| &x.channel(2 * i + 1)[at..][..nx]);
+                super::direct::pairs_row(&x.channel(2 * i)[at..][..nx], b, t);
+            }
+            let row = &mut dst[((yy + g.p) * g.px + g.p) * pairs..][..nx * pairs];
+            for (xx, d) in row.chunks_exact_mut(pairs).enumerate() {
+                d.iter_mut().enumerate().for_each(|(i, d)| *d = tmp[i * nx + xx]);
+            }
+        }
+    });
+    buf
+}
+
+/// The weight gradient on tiles; the caller checked [`takes_weight_grad`].
+pub fn weight_grad(l: &Conv3d, x: &Volume, grad_out: &Volume) -> Vec<f32> {
+    let g = Grid::new(l, x.dims);
+    let k3 = l.k * l.k * l.k;
+    // K runs over padded positions f = (z · py + y) · px + x of the outputs' planes.
+    let steps = (g.o[2] * g.py * g.px).div_ceil(KS);
+    let taps: Vec<usize> = (0..k3).map(|t| g.tap(t / (l.k * l.k), t / l.k % l.k, t % l.k)).collect();
+    let cblocks = l.cin / ROWS;
+    // A tiles: (tap, block of 16 input channels), four a call (the last call repeats its last tile).
+    let tiles: Vec<usize> = (0..k3 * cblocks).map(|i| i % cblocks * ROWS * g.voxels() + taps[i / cblocks]).collect();
+    let xs = channel_major(&g, x, (l.cin - 1) * g.voxels() + steps * KS + taps[k3 - 1] + KS);
+    let gp = pack_gradient(l, &g, grad_out, steps);
+    let nblk = l.cout.div_ceil(16);
+    let chunks = steps.div_ceil(DW_CHUNK_STEPS);
+    let per_group = chunks.div_ceil(DW_GROUPS);
+    let partial: Vec<Vec<f32>> = (0..chunks.div_ceil(per_group))
+        .into_par_iter()
+        .map(|grp| {
+            let mut acc = vec![0f32; tiles.len() * ROWS * l.cout];
+            let mut c = [0f32; TALL_MB * 16];
+            Kernel::Amx.run(|ready| {
+                for ch in grp * per_group..chunks.min((grp + 1) * per_group) {
+                    let s0 = ch * DW_CHUNK_STEPS;
+                    let offs: Vec<usize> = (s0..steps.min(s0 + DW_CHUNK_STEPS)).map(|s| s * KS).collect();
+                    for quad in (0..tiles.len()).step_by(4) {
+                        let idx: [usize; 4] = std::array::from_fn(|i| (quad + i).min(tiles.len() - 1));
+                        // SAFETY: xs holds every row a tile reads (sized above).
+                        let a = idx.map(|t| unsafe { xs.as_ptr().add(tiles[t]) });
+                        for nb in 0..nblk {
+                            let b = &gp[(nb * steps + s0) * TALL_STEP / 2..][..offs.len() * TALL_STEP / 2];
+                            // SAFETY: as above; b holds offs.len() steps; c is 64 x 16.
+                            unsafe {
+                                ready.block_tall(a, g.voxels(), &offs, b.as_ptr() as *const u16, c.as_mut_ptr(), 16)
+                            };
+                            for (i, &t) in idx.iter().enumerate().take(tiles.len() - quad) {
+                                for r in 0..ROWS {
+                                    let dst = &mut acc[(t * ROWS + r) * l.cout + nb * 16..];
+                                    let n = 16.min(l.cout - nb * 16);
+                                    dst[..n].iter_mut().zip(&c[(i * ROWS + r) * 16..][..n]).for_each(|(d, v)| *d += v);
+                                }
+                            }
+                        }
+                    }
+                }
+            });
+            acc
+        })
+        .collect();
+    // acc row (tap, channel block, row r) = input channel block · 16 + r at that tap.
+    let mut dw = vec![0f32; l.cout * l.cin * k3];
+    for acc in &partial {
+        for (t_cb, rows) in acc.chunks(ROWS * l.cout).enumerate() {
+            let (t, cb) = (t_cb / cblocks, t_cb % cblocks);
+            for r in 0..ROWS {
+                let ci = cb * ROWS + r;
+                for co in 0..l.cout {
+                    dw[(co * l.cin + ci) * k3 + t] += rows[r * l.cout + co];
+                }
+            }
+        }
+    }
+    dw
+}
+
+/// `x` as bf16 in the padded grid, one channel after another
+/// (`g.voxels()` apart), zero-padded to `len` values at least.
+fn channel_major(g: &Grid, x: &Volume, len: usize) -> Vec<u16> {
+    let [nx, ny, nz] = g.n;
+    let mut buf = vec![0u16; len.max(x.channels * g.voxels())];
+    buf.par_chunks_mut(g.voxels()).enumerate().for_each(|(ci, dst)| {
+        if ci >= x.channels {
+            return;
+        }
+        for z in 0..nz {
+            for y in 0..ny {
+                let src = &x.channel(ci)[(z * ny + y) * nx..][..nx];
+                nst3d_core::bf16::convert(src, &mut dst[g.at(0, y, z)..][..nx]);
+            }
+        }
+    });
+    buf
+}
+
+/// The output gradient on the padded positions `f = (z · py + y) · px + x`
+/// (zero where no output is), packed as the tall block's B (`u32` pairs):
+/// `[16 output channels][step][k / 2][2 · channel + k % 2]`. Each channel
+/// is first spread over the positions in bf16, so a pair of positions is
+/// one `u32` and a step's tile is a 16 × 16 transpose of them.
+fn pack_gradient(l: &Conv3d, g: &Grid, grad_out: &Volume, steps: usize) -> Vec<u32> {
+    let [ox, oy, oz] = g.o;
+    let half = steps * KS / 2;
+    let nblk = l.cout.div_ceil(16);
+    let mut spread = vec![0u32; nblk * 16 * half];
+    spread.par_chunks_mut(half).enumerate().for_each(|(co, dst)| {
+        if co >= l.cout {
+            return;
+        }
+        // SAFETY: u32 storage viewed as twice as many u16 (alignment and size fit).
+        let dst = unsafe { std::slice::from_raw_parts_mut(dst.as_mut_ptr() as *mut u16, 2 * half) };
+        for z in 0..oz {
+            for y in 0..oy {
+                let src = &grad_out.channel(co)[(z * oy + y) * ox..][..ox];
+                nst3d_core::bf16::convert(src, &mut dst[(z * g.py + y) * g.px..][..ox]);
+            }
+        }
+    });
+    let mut out = vec![0u32; nblk * steps * TALL_STEP / 2];
+    out.par_chunks_mut(TALL_STEP / 2).enumerate().for_each(|(i, tile)| {
+        let (nb, s) = (i / steps, i % steps);
+        for j in 0..16 {
+            let src = &spread[(nb * 16 + j) * half + s * KS / 2..][..KS / 2];
+            src.iter().enumerate().for_each(|(p, v)| tile[p * 16 + j] = *v);
+        }
+    });
+    out
+}
