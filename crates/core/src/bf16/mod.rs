@@ -7,7 +7,7 @@
 //! `precision::Path`. The hardware kernels are checked against the
 //! scalar one on this CPU before they are first used ([`self_check`]).
 //!
-//! The contract ([`Kernel::block`]): a 32 × 32 fp32 block
+//! The contract ([`Ready::block`]): a 32 × 32 fp32 block
 //! `C = Σ_s A_s · B_s` over `steps` K-slices of 32, where
 //! - `A_s` is two 16-row halves of bf16 rows, row `r` of half `h` at
 //!   `a[h] + offs[s] + r * lda` (so a direct convolution's taps are just
@@ -19,6 +19,11 @@
 //!
 //! Every implementation multiplies the same bf16 values exactly and sums
 //! in fp32; they differ only in summation order.
+//!
+//! A second shape, the tall block ([`Ready::block_tall`]: 64 rows from four
+//! independent A pointers × 16 columns), serves products of at most 16
+//! columns on AMX tiles (the 3D network's 16-channel layers), where the
+//! 32 × 32 block would multiply zeros half the time.
 
 pub mod amx;
 mod matmul;
@@ -125,7 +130,7 @@ pub fn avx512_bf16_available() -> bool {
     }
 }
 
-/// B operands packed for [`Kernel::block`]: `npairs` column pairs of 32
+/// B operands packed for [`Ready::block`]: `npairs` column pairs of 32
 /// (columns past `n` are zero) × `steps` K-slices of 32, laid out
 /// `[pair][step][tile][k / 2][2 n + k % 2]`, so one block's B streams
 /// contiguously.
@@ -262,7 +267,7 @@ impl Kernel {
     }
 
     /// Runs `f` with this kernel ready on the calling thread (AMX: tiles
-    /// configured before, released after). Call [`Kernel::block`] only
+    /// configured before, released after). Call [`Ready::block`] only
     /// inside, with the [`Ready`] token, and start no rayon work inside.
     #[inline]
     pub fn run<R>(self, f: impl FnOnce(Ready) -> R) -> R {

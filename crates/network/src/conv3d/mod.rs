@@ -301,10 +301,12 @@ impl Conv3d {
             Some(arith) => direct::weight_grad(self, arith, x, grad_out),
             None => self.weight_grad_im2col(path, x, grad_out),
         };
-        let mut grads = Conv3dGrads { weight, bias: vec![0.0; self.cout] };
-        for co in 0..self.cout {
-            grads.bias[co] = grad_out.channel(co).iter().map(|&v| v as f64).sum::<f64>() as f32;
-        }
+        // One channel a task, each summed in order: the same bits on any thread count.
+        let bias = (0..self.cout)
+            .into_par_iter()
+            .map(|co| grad_out.channel(co).iter().map(|&v| v as f64).sum::<f64>() as f32)
+            .collect();
+        let grads = Conv3dGrads { weight, bias };
         let dx = want_input.then(|| match self.stride {
             1 => self.transposed().forward_with(path, direct, grad_out),
             _ => self.input_grad_scatter(path, x.dims, out, grad_out),

@@ -303,11 +303,8 @@ fn pack_gradient(l: &Conv3d, g: &Grid, grad_out: &Volume, steps: usize) -> Vec<u
     let [ox, oy, oz] = g.o;
     let half = steps * KS / 2;
     let nblk = l.cout.div_ceil(16);
-    let mut spread = vec![0u32; nblk * 16 * half];
+    let mut spread = vec![0u32; l.cout * half];
     spread.par_chunks_mut(half).enumerate().for_each(|(co, dst)| {
-        if co >= l.cout {
-            return;
-        }
         // SAFETY: u32 storage viewed as twice as many u16 (alignment and size fit).
         let dst = unsafe { std::slice::from_raw_parts_mut(dst.as_mut_ptr() as *mut u16, 2 * half) };
         for z in 0..oz {
@@ -320,7 +317,7 @@ fn pack_gradient(l: &Conv3d, g: &Grid, grad_out: &Volume, steps: usize) -> Vec<u
     let mut out = vec![0u32; nblk * steps * TALL_STEP / 2];
     out.par_chunks_mut(TALL_STEP / 2).enumerate().for_each(|(i, tile)| {
         let (nb, s) = (i / steps, i % steps);
-        for j in 0..16 {
+        for j in 0..16.min(l.cout - nb * 16) {
             let src = &spread[(nb * 16 + j) * half + s * KS / 2..][..KS / 2];
             src.iter().enumerate().for_each(|(p, v)| tile[p * 16 + j] = *v);
         }
