@@ -27,6 +27,7 @@
 //! before.
 
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::OnceLock;
 
 use rayon::prelude::*;
@@ -205,26 +206,43 @@ impl Side {
     }
 }
 
-/// Cells along the longest axis of [`DistanceGate`]'s box.
+/// Cells along the longest axis of the mesh's box grown by [`GATE_PAD`]
+/// of its diagonal on every side: this sets [`DistanceGate`]'s cell size.
 const GATE_CELLS: usize = 64;
-/// [`DistanceGate`]'s box is the mesh's grown by this fraction of its
-/// diagonal on every side.
+/// See [`GATE_CELLS`].
 const GATE_PAD: f32 = 0.25;
+/// [`DistanceGate`]'s grid is the mesh's box grown by this fraction of its
+/// diagonal on every side (at [`GATE_CELLS`]' cell size): a groom's hair
+/// reaches far beyond the skin (monkey_curly's spikes: 440 k of its 3 M
+/// control points lay outside a grid grown by [`GATE_PAD`], and on an open
+/// mesh nothing bounds a point off the grid, so every one of them was
+/// searched in every pass).
+const GATE_REACH: f32 = 1.0;
+/// Most cells of [`DistanceGate`]'s grid along an axis (memory: at most
+/// 4 bytes a cell); the grid's reach shrinks where this binds.
+const GATE_MAX_DIM: usize = 256;
+/// A [`DistanceGate`] cell whose centre has not been measured yet (a NaN
+/// no distance computation returns: they are stored as measured or as
+/// `−∞`).
+const GATE_UNSET: u32 = 0x7FC0_6A7E;
 /// Deepest possible traversal stack: the median split halves the triangles
 /// at every level, so a `u32`-indexed tree is at most 32 deep and the stack
 /// (both children pushed per level) holds at most two entries a level.
 const MAX_STACK: usize = 72;
 
-/// Exact signed distances at the centres of a coarse grid over the mesh,
-/// used as a lower bound to answer "outside and farther than τ" without a
-/// closest-point search: unsigned distance is 1-Lipschitz, so a point `p`
+/// Exact signed distances at the centres of a grid of cells over and around
+/// the mesh, used as a lower bound to answer "outside and farther than τ"
+/// without a closest-point search: unsigned distance is 1-Lipschitz, so a point `p`
 /// whose nearest cell centre `c` is outside at distance `d(c)` is at least
 /// `d(c) − ‖p − c‖` from the surface, and, when that is positive, on the
 /// same side as `c` (exact for a closed mesh; on others a centre counts as
 /// outside only where the pseudo-normal and the ray parity agree, see
-/// [`DistanceGate::new`]). Most control points of a groom are hair far from the scalp, so
+/// [`DistanceGate::centre`]). Most control points of a groom are hair far from the scalp, so
 /// the collision projection checks millions of points a pass at the cost of
-/// a grid lookup and searches the BVH only near the skin.
+/// a grid lookup and searches the BVH only near the skin. A cell is measured
+/// the first time a point falls in it (the grid reaches far, and a groom
+/// visits a small part of it); its value depends only on its centre, so the
+/// answers do not depend on which thread measured it first.
 #[derive(Clone, Debug)]
 struct DistanceGate {
     /// The mesh's own bounding box.
@@ -233,7 +251,8 @@ struct DistanceGate {
     lo: V3,
     cell: f32,
     dims: [usize; 3],
-    signed: Vec<f32>,
+    /// Per cell the centre's signed distance as `f32` bits, or [`GATE_UNSET`].
+    signed: std::sync::Arc<[AtomicU32]>,
     /// Every edge is shared by exactly two triangles: only then is a point
     /// outside the mesh's box outside the mesh. A ground plane's box is
     /// flat, and a blade bent below the plane is outside the box but under
@@ -244,47 +263,56 @@ struct DistanceGate {
 
 impl DistanceGate {
     fn new(bvh: &MeshBvh) -> Self {
-        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
         let root = &bvh.nodes[0];
-        for a in 0..3 {
-            lo[a] = lo[a].min(root.lo[a]);
-            hi[a] = hi[a].max(root.hi[a]);
-        }
-        let diag = norm(sub(hi, lo)).max(f32::MIN_POSITIVE);
-        let (mesh_lo, mesh_hi) = (lo, hi);
-        for a in 0..3 {
-            lo[a] -= GATE_PAD * diag;
-            hi[a] += GATE_PAD * diag;
-        }
-        let longest = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f32::max);
+        let (mesh_lo, mesh_hi) = (root.lo, root.hi);
+        let diag = norm(sub(mesh_hi, mesh_lo)).max(f32::MIN_POSITIVE);
+        let longest = (0..3).map(|a| mesh_hi[a] - mesh_lo[a]).fold(0.0, f32::max) + 2.0 * GATE_PAD * diag;
         let cell = longest / GATE_CELLS as f32;
-        let dims: [usize; 3] = std::array::from_fn(|a| (((hi[a] - lo[a]) / cell).ceil() as usize).clamp(1, GATE_CELLS));
-        let signed = (0..dims[0] * dims[1] * dims[2])
-            .into_par_iter()
-            .with_min_len(256)
-            .map(|i| {
-                let c = [i % dims[0], (i / dims[0]) % dims[1], i / (dims[0] * dims[1])];
-                let centre = std::array::from_fn(|a| lo[a] + (c[a] as f32 + 0.5) * cell);
-                let s = bvh.closest_point(centre).signed_distance;
-                // A centre is trusted as outside only when the ray's parity
-                // agrees with the pseudo-normal: on a mesh with overlapping
-                // parts (eyes set into a head) or holes the pseudo-normal's
-                // sign can be wrong away from the surface, and a wrong
-                // "outside" here would let a point under the skin skip the
-                // collision projection. A disagreement costs only a search.
-                if s > 0.0 && bvh.inside_by_ray_parity(centre) {
-                    -s
-                } else {
-                    s
-                }
-            })
-            .collect();
+        let lo = mesh_lo.map(|c| c - GATE_REACH * diag);
+        let dims: [usize; 3] = std::array::from_fn(|a| {
+            (((mesh_hi[a] - mesh_lo[a] + 2.0 * GATE_REACH * diag) / cell).ceil() as usize).clamp(1, GATE_MAX_DIM)
+        });
+        // Centred on the mesh where the cap binds.
+        let lo = std::array::from_fn(|a| {
+            let span = dims[a] as f32 * cell;
+            lo[a].max(0.5 * (mesh_lo[a] + mesh_hi[a]) - 0.5 * span)
+        });
+        let signed = (0..dims[0] * dims[1] * dims[2]).map(|_| AtomicU32::new(GATE_UNSET)).collect();
         DistanceGate { mesh_lo, mesh_hi, lo, cell, dims, signed, closed: bvh.is_closed() }
+    }
+
+    /// The signed distance at cell `i`'s centre `c`, measured on first use.
+    fn at(&self, bvh: &MeshBvh, i: usize, c: V3) -> f32 {
+        let slot = &self.signed[i];
+        let bits = slot.load(Ordering::Relaxed);
+        if bits != GATE_UNSET {
+            return f32::from_bits(bits);
+        }
+        let s = Self::centre(bvh, c);
+        slot.store(s.to_bits(), Ordering::Relaxed);
+        s
+    }
+
+    /// The signed distance of a cell centre as the gate trusts it.
+    fn centre(bvh: &MeshBvh, c: V3) -> f32 {
+        let s = bvh.closest_point(c).signed_distance;
+        // A centre is trusted as outside only when the ray's parity
+        // agrees with the pseudo-normal: on a mesh with overlapping
+        // parts (eyes set into a head) or holes the pseudo-normal's
+        // sign can be wrong away from the surface, and a wrong
+        // "outside" here would let a point under the skin skip the
+        // collision projection. A disagreement costs only a search.
+        let s = if s > 0.0 && bvh.inside_by_ray_parity(c) { -s } else { s };
+        if s.is_nan() {
+            f32::NEG_INFINITY
+        } else {
+            s
+        }
     }
 
     /// A lower bound on the distance of `p` to the surface when `p` is
     /// certainly outside, else `None`.
-    fn outside_by(&self, p: V3) -> Option<f32> {
+    fn outside_by(&self, bvh: &MeshBvh, p: V3) -> Option<f32> {
         // Beyond the grid, the distance to the mesh's box bounds the
         // distance to the mesh (and a point outside the box of a closed
         // mesh is outside it).
@@ -296,15 +324,17 @@ impl DistanceGate {
             .sum();
         let outside_box = box_d2.sqrt();
         let mut idx = [0usize; 3];
+        let mut centre = [0.0f32; 3];
         let mut e2 = 0.0;
         for a in 0..3 {
             let t = ((p[a] - self.lo[a]) / self.cell).floor();
             let i = if t.is_nan() { 0 } else { (t.max(0.0) as usize).min(self.dims[a] - 1) };
             idx[a] = i;
-            let d = p[a] - (self.lo[a] + (i as f32 + 0.5) * self.cell);
+            centre[a] = self.lo[a] + (i as f32 + 0.5) * self.cell;
+            let d = p[a] - centre[a];
             e2 += d * d;
         }
-        let s = self.signed[idx[0] + self.dims[0] * (idx[1] + self.dims[1] * idx[2])];
+        let s = self.at(bvh, idx[0] + self.dims[0] * (idx[1] + self.dims[1] * idx[2]), centre);
         let near = s - e2.sqrt();
         let bound = if self.closed { near.max(outside_box) } else { near };
         (bound > 0.0).then_some(bound)
@@ -586,7 +616,7 @@ impl MeshBvh {
     /// outside `tau` beyond the surface, where the push takes it.
     pub fn closest_point_within(&self, p: [f32; 3], tau: f32) -> Option<ClosestHit> {
         let gate = self.gate.get_or_init(|| DistanceGate::new(self));
-        match gate.outside_by(p) {
+        match gate.outside_by(self, p) {
             Some(d) if d >= tau => None,
             _ => Some(self.closest_point_reaching(p, tau)),
         }
@@ -831,6 +861,38 @@ pub(crate) mod tests {
             }
         }
         assert!(skipped > 10_000, "the gate should still skip most far points ({skipped} of 40000)");
+    }
+
+    /// Hair reaches far beyond the skin: points up to 0.8 of the mesh's
+    /// diagonal off its box (on the monkey's open mesh, where the box says
+    /// nothing) are skipped when far from it, and only correctly. The grid
+    /// used to stop 0.25 diagonals off the box, and monkey_curly's spikes
+    /// beyond it were searched in every pass.
+    #[test]
+    fn the_gate_skips_far_hair_beyond_the_mesh_box() {
+        let bvh = MeshBvh::new(&data("grooms/monkey_curly_mesh.obj")).unwrap();
+        assert!(!bvh.is_closed());
+        let tau = 0.02;
+        let (lo, hi) = (bvh.nodes[0].lo, bvh.nodes[0].hi);
+        let diag = norm(sub(hi, lo));
+        let r = pseudo_random(3 * 20_000, 11);
+        let (mut far, mut far_skipped) = (0, 0);
+        for c in r.chunks(3) {
+            let p: V3 = std::array::from_fn(|a| {
+                let (l, h) = (lo[a] - 0.8 * diag, hi[a] + 0.8 * diag);
+                l + (0.5 + 0.5 * c[a]) * (h - l)
+            });
+            let exact = bvh.closest_point(p);
+            let skipped = bvh.closest_point_within(p, tau).is_none();
+            if skipped {
+                assert!(exact.signed_distance >= tau, "skipped {p:?} at {}", exact.signed_distance);
+            }
+            if exact.signed_distance > 0.1 * diag {
+                far += 1;
+                far_skipped += skipped as usize;
+            }
+        }
+        assert!(far > 10_000 && far_skipped * 100 >= 99 * far, "{far_skipped} of {far} far points skipped");
     }
 
     #[test]
