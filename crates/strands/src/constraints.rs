@@ -21,7 +21,7 @@ use crate::StrandError;
 use nst3d_core::math::{add, norm, normalize, scale, sub, V3};
 
 /// Mutable per-strand slices of a flat point array.
-fn strands_mut<'a>(points: &'a mut [V3], offsets: &[usize]) -> Vec<&'a mut [V3]> {
+pub(crate) fn strands_mut<'a>(points: &'a mut [V3], offsets: &[usize]) -> Vec<&'a mut [V3]> {
     let mut out = Vec::with_capacity(offsets.len().saturating_sub(1));
     let mut rest = points;
     for w in offsets.windows(2) {

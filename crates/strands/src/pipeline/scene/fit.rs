@@ -6,7 +6,9 @@ use nst3d_core::math::{add, cross, dot, normalize, scale, sub, V3};
 
 use super::enforce;
 use crate::bvh::MeshBvh;
-use crate::constraints::{strand_length_error, CollisionParams, ConstraintTape, Constraints};
+use rayon::prelude::*;
+
+use crate::constraints::{strand_length_error, strands_mut, CollisionParams, ConstraintTape, Constraints};
 use crate::pipeline::PipelineError;
 use crate::strands::FlatStrands;
 
@@ -48,11 +50,22 @@ pub(super) fn fit_outside(s: &mut FlatStrands, c: &Constraints, bvh: &MeshBvh) -
         *s = fitted;
         return Ok(());
     }
-    for &k in &stuck {
-        let r = s.range(k);
-        turn_out_of_mesh(&mut s.points[r], bvh);
+    // The projections act on each strand alone, so only the turned strands
+    // are fitted again; the others keep the first fit (the same points a
+    // second fit of the whole groom gave, at a fraction of its time).
+    let subset = |from: &FlatStrands| {
+        FlatStrands::from_strands(stuck.iter().map(|&k| from.strand(k).to_vec())).expect("strands of a groom")
+    };
+    let mut turned = subset(s);
+    let offsets = turned.offsets.clone();
+    strands_mut(&mut turned.points, &offsets).into_par_iter().for_each(|pts| turn_out_of_mesh(pts, bvh));
+    let sub = Constraints { rest: subset(&c.rest), collider: c.collider.clone(), collision: c.collision };
+    enforce(&mut turned, &sub, 200, &mut ConstraintTape::off())?;
+    for (i, &k) in stuck.iter().enumerate() {
+        let r = fitted.range(k);
+        fitted.points[r].copy_from_slice(turned.strand(i));
     }
-    enforce(s, c, 200, &mut ConstraintTape::off())?;
+    *s = fitted;
     Ok(())
 }
 
@@ -71,20 +84,31 @@ pub(super) const STUCK_LENGTH_ERROR: f32 = 0.01;
 /// 8.6 %.
 fn turn_out_of_mesh(pts: &mut [V3], bvh: &MeshBvh) {
     let root = pts[0];
-    let depth = |q: &[V3]| -> f32 { q.iter().skip(1).map(|&p| (-bvh.signed_distance(p)).max(0.0)).sum() };
+    // The summed depth of `q`'s points inside, or `None` once it reaches
+    // `bound` (a pose no better than the best so far). A point the collision
+    // gate shows outside adds nothing without a search.
+    let depth = |q: &[V3], bound: f32| -> Option<f32> {
+        let mut sum = 0.0f32;
+        for &p in &q[1..] {
+            sum += bvh.closest_point_within(p, 0.0).map_or(0.0, |h| (-h.signed_distance).max(0.0));
+            if !(sum < bound) {
+                return None;
+            }
+        }
+        Some(sum)
+    };
     let n = bvh.closest_point(root).normal;
     let helper = if n[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
     let Some(e1) = normalize(cross(n, helper)) else { return };
     let e2 = cross(n, e1);
-    let mut best = (depth(pts), pts.to_vec());
+    let mut best = (depth(pts, f32::INFINITY).unwrap_or(f32::INFINITY), pts.to_vec());
     'search: for step in 1..=24 {
         let theta = (7.5 * step as f32).to_radians();
         for a in 0..8 {
             let phi = a as f32 * std::f32::consts::TAU / 8.0;
             let axis = add(scale(e1, phi.cos()), scale(e2, phi.sin()));
             let turned: Vec<V3> = pts.iter().map(|&p| add(root, rotate(sub(p, root), axis, theta))).collect();
-            let d = depth(&turned);
-            if d < best.0 {
+            if let Some(d) = depth(&turned, best.0) {
                 best = (d, turned);
             }
         }
