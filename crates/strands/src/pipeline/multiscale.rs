@@ -283,6 +283,7 @@ pub fn stylize_mapped(
     let per_scale = views_per_scale(params);
     let angles = poisson_view_angles(&scene.frame, p.polar_deg, p.azimuth_deg, per_scale.iter().sum(), params.seed);
     let (mut first, mut finest) = (0, None);
+    let mut rest_matches: Option<HashMap<usize, NnstMatch>> = None;
     // λ of the orientation term, set at its first iteration.
     let mut lambda: Option<f32> = None;
     for (l, &iters) in params.iterations.iter().enumerate() {
@@ -321,6 +322,12 @@ pub fn stylize_mapped(
                 });
                 nst3d_core::stop::check()?;
             }
+            // The finest scale's views matched on the rest groom are the
+            // evaluation's "before" matches.
+            let evaluated = |k: &usize| *k < params.eval_views;
+            rest_matches = base
+                .is_none()
+                .then(|| cache.into_iter().filter(|(k, _)| evaluated(k)).map(|(k, view)| (k, view.1)).collect());
         }
         finest = Some(looks);
     }
@@ -330,7 +337,8 @@ pub fn stylize_mapped(
     if strands.points.iter().any(|p| p.iter().any(|c| !c.is_finite())) {
         return Err(PipelineError::Diverged("non-finite control points".into()));
     }
-    let eval = evaluate(scene, vgg, params, (&angles, &per_scale), &finest, &strands)?;
+    let finest_views = (&angles[..], &per_scale[..], rest_matches.as_ref());
+    let eval = evaluate(scene, vgg, params, finest_views, &finest, &strands)?;
     let held_out = if params.held_out_views > 0 {
         held_out_loss(scene, vgg, &finest, &strands, params)?
     } else {
@@ -472,28 +480,38 @@ struct Evaluation {
 /// the finest scale's targets, from the first `eval_views` of the finest
 /// scale's cached views (the optimized views; each costs two matches, a
 /// tenth of a Short Hair frame for all eight); with a fresh camera per
-/// iteration, a fixed set drawn from the same distribution.
+/// iteration, a fixed set drawn from the same distribution. `rest_matches`
+/// holds the finest scale's cached views' targets where they were matched
+/// on the rest groom (by view index): those views are not matched again.
 fn evaluate(
     scene: &StrandScene,
     vgg: &Vgg19,
     params: &StylizeParams,
-    (angles, per_scale): (&[(f32, f32)], &[usize]),
+    (angles, per_scale, rest_matches): (&[(f32, f32)], &[usize], Option<&HashMap<usize, NnstMatch>>),
     finest: &PaintingTargets<'_>,
     strands: &FlatStrands,
 ) -> Result<Evaluation, PipelineError> {
     let p = params.preset;
-    let eval_angles = if params.views_per_scale > 0 && params.iterations[2] > 0 {
+    let cached = params.views_per_scale > 0 && params.iterations[2] > 0;
+    let eval_angles = if cached {
         let finest = &angles[angles.len() - per_scale[2]..];
         finest[..params.eval_views.min(finest.len())].to_vec()
     } else {
         poisson_view_angles(&scene.frame, p.polar_deg, p.azimuth_deg, params.eval_views, params.seed ^ 0xE7A1)
     };
     let (mut before, mut after, mut rematched) = (0.0f64, 0.0f64, 0.0f64);
-    for &(psi, delta) in &eval_angles {
+    for (i, &(psi, delta)) in eval_angles.iter().enumerate() {
         let cam = scene.camera(psi, delta)?;
         let img0 = scene.render(&scene.undeformed, &cam)?;
         let f0 = vgg.forward(&img0, &NNST_LAYERS, false);
-        let matched = finest.match_on(scene, &scene.undeformed, f0.taps(), &cam)?;
+        let matched_here;
+        let matched = match rest_matches.filter(|_| cached).and_then(|m| m.get(&i)) {
+            Some(m) => m,
+            None => {
+                matched_here = finest.match_on(scene, &scene.undeformed, f0.taps(), &cam)?;
+                &matched_here
+            }
+        };
         let img = scene.render(strands, &cam)?;
         let feats = vgg.forward(&img, &NNST_LAYERS, false);
         before += nnst_loss_matched(f0.taps(), &matched)?.0 as f64;
