@@ -282,8 +282,7 @@ pub fn stylize_mapped(
     // scales see different views.
     let per_scale = views_per_scale(params);
     let angles = poisson_view_angles(&scene.frame, p.polar_deg, p.azimuth_deg, per_scale.iter().sum(), params.seed);
-    let (mut first, mut finest) = (0, None);
-    let mut rest_matches: Option<HashMap<usize, NnstMatch>> = None;
+    let (mut first, mut finest, mut rest_matches) = (0, None, None);
     // λ of the orientation term, set at its first iteration.
     let mut lambda: Option<f32> = None;
     for (l, &iters) in params.iterations.iter().enumerate() {
@@ -324,10 +323,7 @@ pub fn stylize_mapped(
             }
             // The finest scale's views matched on the rest groom are the
             // evaluation's "before" matches.
-            let evaluated = |k: &usize| *k < params.eval_views;
-            rest_matches = base
-                .is_none()
-                .then(|| cache.into_iter().filter(|(k, _)| evaluated(k)).map(|(k, view)| (k, view.1)).collect());
+            rest_matches = base.is_none().then(|| evaluation_matches(cache, params.eval_views));
         }
         finest = Some(looks);
     }
@@ -337,13 +333,12 @@ pub fn stylize_mapped(
     if strands.points.iter().any(|p| p.iter().any(|c| !c.is_finite())) {
         return Err(PipelineError::Diverged("non-finite control points".into()));
     }
-    let finest_views = (&angles[..], &per_scale[..], rest_matches.as_ref());
-    let eval = evaluate(scene, vgg, params, finest_views, &finest, &strands)?;
-    let held_out = if params.held_out_views > 0 {
-        held_out_loss(scene, vgg, &finest, &strands, params)?
-    } else {
-        HeldOut::default()
-    };
+    let views = Views { angles: &angles, per_scale: &per_scale, rest_matches: rest_matches.as_ref() };
+    let eval = evaluate(scene, vgg, params, views, &finest, &strands)?;
+    let held_out = (params.held_out_views > 0)
+        .then(|| held_out_loss(scene, vgg, &finest, &strands, params))
+        .transpose()?
+        .unwrap_or_default();
     // Colour: a stage of its own on the finished strands.
     let colors = match params.color {
         true => Some(color_stage(scene, (paintings, shares), vgg, &strands, params, progress)?),
@@ -363,6 +358,12 @@ pub fn stylize_mapped(
         eval_angles: eval.angles,
         held_out,
     })
+}
+
+/// The targets of the cached views `evaluate` measures (the first
+/// `eval_views`), by view index.
+fn evaluation_matches(cache: HashMap<usize, ScaleView>, eval_views: usize) -> HashMap<usize, NnstMatch> {
+    cache.into_iter().filter(|(k, _)| *k < eval_views).map(|(k, view)| (k, view.1)).collect()
 }
 
 /// The settings are sound and every painting usable.
@@ -476,18 +477,27 @@ struct Evaluation {
     after_rematched: f32,
 }
 
+/// The optimisation's views, for [`evaluate`].
+struct Views<'a> {
+    /// Every scale's camera angles, in order.
+    angles: &'a [(f32, f32)],
+    /// How many of them each scale has.
+    per_scale: &'a [usize],
+    /// The finest scale's cached views' targets where they were matched on
+    /// the rest groom (by view index): those views are not matched again.
+    rest_matches: Option<&'a HashMap<usize, NnstMatch>>,
+}
+
 /// The NNST loss of the rest groom and of the stylized `strands` against
 /// the finest scale's targets, from the first `eval_views` of the finest
 /// scale's cached views (the optimized views; each costs two matches, a
 /// tenth of a Short Hair frame for all eight); with a fresh camera per
-/// iteration, a fixed set drawn from the same distribution. `rest_matches`
-/// holds the finest scale's cached views' targets where they were matched
-/// on the rest groom (by view index): those views are not matched again.
+/// iteration, a fixed set drawn from the same distribution.
 fn evaluate(
     scene: &StrandScene,
     vgg: &Vgg19,
     params: &StylizeParams,
-    (angles, per_scale, rest_matches): (&[(f32, f32)], &[usize], Option<&HashMap<usize, NnstMatch>>),
+    Views { angles, per_scale, rest_matches }: Views<'_>,
     finest: &PaintingTargets<'_>,
     strands: &FlatStrands,
 ) -> Result<Evaluation, PipelineError> {
@@ -514,8 +524,8 @@ fn evaluate(
         };
         let img = scene.render(strands, &cam)?;
         let feats = vgg.forward(&img, &NNST_LAYERS, false);
-        before += nnst_loss_matched(f0.taps(), &matched)?.0 as f64;
-        after += nnst_loss_matched(feats.taps(), &matched)?.0 as f64;
+        before += nnst_loss_matched(f0.taps(), matched)?.0 as f64;
+        after += nnst_loss_matched(feats.taps(), matched)?.0 as f64;
         let again = finest.match_on(scene, strands, feats.taps(), &cam)?;
         rematched += nnst_loss_matched(feats.taps(), &again)?.0 as f64;
     }

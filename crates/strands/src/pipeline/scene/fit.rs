@@ -91,6 +91,7 @@ fn turn_out_of_mesh(pts: &mut [V3], bvh: &MeshBvh) {
         let mut sum = 0.0f32;
         for &p in &q[1..] {
             sum += bvh.closest_point_within(p, 0.0).map_or(0.0, |h| (-h.signed_distance).max(0.0));
+            // A NaN depth counts as no better.
             if !(sum < bound) {
                 return None;
             }
