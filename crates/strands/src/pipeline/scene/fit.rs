@@ -4,10 +4,10 @@
 
 use nst3d_core::math::{add, cross, dot, normalize, scale, sub, V3};
 
-use super::enforce;
-use crate::bvh::MeshBvh;
 use rayon::prelude::*;
 
+use super::enforce;
+use crate::bvh::MeshBvh;
 use crate::constraints::{strand_length_error, strands_mut, CollisionParams, ConstraintTape, Constraints};
 use crate::pipeline::PipelineError;
 use crate::strands::FlatStrands;
@@ -53,13 +53,11 @@ pub(super) fn fit_outside(s: &mut FlatStrands, c: &Constraints, bvh: &MeshBvh) -
     // The projections act on each strand alone, so only the turned strands
     // are fitted again; the others keep the first fit (the same points a
     // second fit of the whole groom gave, at a fraction of its time).
-    let subset = |from: &FlatStrands| {
-        FlatStrands::from_strands(stuck.iter().map(|&k| from.strand(k).to_vec())).expect("strands of a groom")
-    };
-    let mut turned = subset(s);
+    let subset = |from: &FlatStrands| FlatStrands::from_strands(stuck.iter().map(|&k| from.strand(k).to_vec()));
+    let mut turned = subset(s)?;
     let offsets = turned.offsets.clone();
     strands_mut(&mut turned.points, &offsets).into_par_iter().for_each(|pts| turn_out_of_mesh(pts, bvh));
-    let sub = Constraints { rest: subset(&c.rest), collider: c.collider.clone(), collision: c.collision };
+    let sub = Constraints { rest: subset(&c.rest)?, collider: c.collider.clone(), collision: c.collision };
     enforce(&mut turned, &sub, 200, &mut ConstraintTape::off())?;
     for (i, &k) in stuck.iter().enumerate() {
         let r = fitted.range(k);
