@@ -490,9 +490,10 @@ struct Views<'a> {
 
 /// The NNST loss of the rest groom and of the stylized `strands` against
 /// the finest scale's targets, from the first `eval_views` of the finest
-/// scale's cached views (the optimized views; each costs two matches, a
-/// tenth of a Short Hair frame for all eight); with a fresh camera per
-/// iteration, a fixed set drawn from the same distribution.
+/// scale's cached views (the optimized views, whose rest-groom targets the
+/// scale already matched; the result's re-match is the one new match); with
+/// a fresh camera per iteration, a fixed set drawn from the same
+/// distribution.
 fn evaluate(
     scene: &StrandScene,
     vgg: &Vgg19,
