@@ -392,15 +392,20 @@ fn preset_values_quoted_in_the_strand_guide_are_the_presets() {
         let row = text.lines().find(|l| l.starts_with(&format!("| `--{flag}` |"))).expect("row in the table");
         let cell = row.split('|').nth(2).unwrap().trim();
         let list = cell.strip_prefix("the preset's: ").unwrap_or_else(|| panic!("--{flag}: {cell}"));
-        list.split(", ")
-            .map(|item| match item.strip_prefix("else ") {
-                Some(v) => (v.parse().unwrap(), vec![]),
-                None => {
-                    let (v, names) = item.split_once(" for ").unwrap_or_else(|| panic!("--{flag}: {item}"));
-                    (v.parse().unwrap(), names.split(" and ").map(|n| n.trim_matches('`').to_string()).collect())
-                }
-            })
-            .collect()
+        // "3 for `a`, `b` and `c`, 1.5 for `d`, else 0": an item without
+        // " for " names more presets of the value before it.
+        let names =
+            |list: &str| -> Vec<String> { list.split(" and ").map(|n| n.trim_matches('`').to_string()).collect() };
+        let mut items: Vec<(f32, Vec<String>)> = Vec::new();
+        for item in list.split(", ") {
+            match (item.strip_prefix("else "), item.split_once(" for "), items.last_mut()) {
+                (Some(v), _, _) => items.push((v.parse().unwrap(), vec![])),
+                (None, Some((v, list)), _) => items.push((v.parse().unwrap(), names(list))),
+                (None, None, Some(last)) if !last.1.is_empty() => last.1.extend(names(item)),
+                _ => panic!("--{flag}: {item}"),
+            }
+        }
+        items
     };
     for (flag, value) in [
         ("style-scale", (|p: Preset| p.params().style_scale) as fn(Preset) -> f32),

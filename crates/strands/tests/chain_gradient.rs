@@ -60,26 +60,30 @@ fn check_chain(with_head: bool) {
 /// [`check_chain`] at `at`, with the orientation term in the loss when
 /// `orientation` is set (weight 1).
 fn check_chain_at(with_head: bool, at: At, orientation: bool) {
-    check_chain_mapped(with_head, at, orientation, false)
+    check_chain_mapped(with_head, at, orientation, false, None)
 }
 
 /// The paintings' targets and stroke fields: one painting, or with
 /// `mapped` two shared by a style map that blends them across the groom
 /// (each guide's root from left to right), as `stylize_mapped` builds them.
+/// The stroke fields are laid through `projector` where given (a
+/// projected preset's middle camera), else through `cam`.
 fn looks(
     scene: &StrandScene,
     vgg: &Vgg19,
     cam: &SplatCamera,
     mapped: bool,
+    projector: Option<&SplatCamera>,
 ) -> (NnstMatch, Vec<(StrokeField, OrientationView)>) {
-    let hair = hair_pixels(&scene.render(&scene.undeformed, cam).unwrap(), scene.style.background);
+    let ocam = projector.unwrap_or(cam);
+    let hair = hair_pixels(&scene.render(&scene.undeformed, ocam).unwrap(), scene.style.background);
     let rest = nst3d_splat::Strands {
         points: &scene.undeformed.points,
         offsets: &scene.undeformed.offsets,
         colors: None,
         root_normals: None,
     };
-    let view = |strokes: &StrokeField| OrientationView::new(strokes, &rest, &hair, &scene.style, cam).unwrap();
+    let view = |strokes: &StrokeField| OrientationView::new(strokes, &rest, &hair, &scene.style, ocam).unwrap();
     if !mapped {
         let target = style_target(vgg, &painting(64), 48).unwrap();
         let (matched, _) = match_view(scene, vgg, &target, cam).unwrap();
@@ -125,7 +129,10 @@ fn transposed(img: &Image) -> Image {
 
 /// [`check_chain_at`], with `mapped` two paintings shared by a style map
 /// (blended targets, each painting's orientation view weighed by the shares).
-fn check_chain_mapped(with_head: bool, at: At, orientation: bool, mapped: bool) {
+/// [`check_chain_at`] with two paintings shared by a style map when
+/// `mapped` is set, and the orientation term seen from `projector` (polar
+/// and azimuth degrees) instead of the NNST view when given.
+fn check_chain_mapped(with_head: bool, at: At, orientation: bool, mapped: bool, projector: Option<(f32, f32)>) {
     let groom = nst3d_io::groom::read_groom(&data("Bangs_100.hair")).expect("read Bangs_100.hair");
     let head = nst3d_io::mesh::read_mesh(&data("Bangs_head.ply")).expect("read Bangs_head.ply");
     let mut params = StylizeParams::from_preset(Preset::ShortHair.params(), groom.strand_count());
@@ -144,7 +151,8 @@ fn check_chain_mapped(with_head: bool, at: At, orientation: bool, mapped: bool) 
     // depth and, with the head, every large entry sits on a depth-order
     // switch (10°: 0 of 16 entries smooth; 25°: 3 of 5 agree).
     let cam = scene.camera(40.0, 5.0).unwrap();
-    let (matched, fields) = looks(&scene, &vgg, &cam, mapped);
+    let projector = projector.map(|(polar, azimuth)| scene.camera(polar, azimuth).unwrap());
+    let (matched, fields) = looks(&scene, &vgg, &cam, mapped, projector.as_ref());
     let term: Vec<OrientationTerm> = match orientation {
         true => fields.iter().map(|(field, view)| OrientationTerm { field, view, weight: 1.0 }).collect(),
         false => Vec::new(),
@@ -289,8 +297,19 @@ fn loss_and_gradient_with_the_orientation_term_matches_finite_differences() {
 #[test]
 fn loss_and_gradient_with_a_style_map_matches_finite_differences() {
     nst3d_core::precision::fp32(|| {
-        check_chain_mapped(false, At::NearRest, true, true);
-        check_chain_mapped(false, At::AfterSteps, true, true);
+        check_chain_mapped(false, At::NearRest, true, true, None);
+        check_chain_mapped(false, At::AfterSteps, true, true, None);
+    })
+}
+
+/// The orientation term projected from another camera than the one NNST
+/// looks through (a projected preset's middle camera, 15° away), at rest
+/// and after ten steps.
+#[test]
+fn loss_and_gradient_with_a_projected_orientation_term_matches_finite_differences() {
+    nst3d_core::precision::fp32(|| {
+        check_chain_mapped(false, At::Rest, true, false, Some((30.0, -5.0)));
+        check_chain_mapped(false, At::AfterSteps, true, false, Some((30.0, -5.0)));
     })
 }
 

@@ -283,8 +283,7 @@ pub fn stylize_mapped(
     let per_scale = views_per_scale(params);
     let angles = poisson_view_angles(&scene.frame, p.polar_deg, p.azimuth_deg, per_scale.iter().sum(), params.seed);
     let (mut first, mut finest, mut rest_matches) = (0, None, None);
-    // λ of the orientation term, set at its first iteration.
-    let mut lambda: Option<f32> = None;
+    let mut lambda: Option<f32> = None; // the orientation term's λ, set at its first iteration
     for (l, &iters) in params.iterations.iter().enumerate() {
         let views = &angles[first..first + per_scale[l]];
         first += per_scale[l];
@@ -296,15 +295,16 @@ pub fn stylize_mapped(
         let base = if params.rematch && l > 0 && iters > 0 { Some(scene.deform(&unflatten(&v))?.0) } else { None };
         if iters > 0 {
             adam.lr = scale_learning_rate(scene, params, l);
+            let strands = base.as_ref().unwrap_or(&scene.undeformed);
+            let projected = projected_views(scene, &looks, strands, p.orientation_projector())?;
             let mut cache: HashMap<usize, ScaleView> = HashMap::new();
             for m in 0..iters {
                 let k = m as usize % views.len();
                 if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(k) {
-                    let strands = base.as_ref().unwrap_or(&scene.undeformed);
-                    e.insert(scale_view(scene, vgg, &looks, strands, views[k])?);
+                    e.insert(scale_view(scene, vgg, &looks, strands, views[k], projected.is_none())?);
                 }
                 let (cam, matched, oriented) = &cache[&k];
-                let units = orientation_units(&looks, oriented);
+                let units = orientation_units(&looks, projected.as_deref().unwrap_or(oriented));
                 let terms = orientation_terms(&mut lambda, scene, vgg, cam, matched, units, params, &v)?;
                 hooks.before(IterationClock { scale: l, iteration: m, iterations: iters, done, total }, &mut v)?;
                 done += 1;
@@ -422,41 +422,83 @@ fn views_per_scale(params: &StylizeParams) -> Vec<usize> {
 
 /// A cached view of a scale: its camera, the NNST targets matched there
 /// and the orientation term's view of each painting (none without the
-/// term or with no hair in sight).
+/// term, with no hair in sight, or where the scale projects the paintings
+/// from one camera: [`projected_views`]).
 type ScaleView = (SplatCamera, NnstMatch, Vec<Option<OrientationView>>);
 
 /// The view at `angle` of `strands` (where the scale's targets are
-/// matched) with the scale's targets and orientation views.
+/// matched) with the scale's targets and, with `oriented`, the paintings'
+/// stroke fields laid over this view.
 fn scale_view(
     scene: &StrandScene,
     vgg: &Vgg19,
     looks: &PaintingTargets<'_>,
     strands: &FlatStrands,
     angle: (f32, f32),
+    oriented: bool,
 ) -> Result<ScaleView, PipelineError> {
     let cam = scene.camera(angle.0, angle.1)?;
     let img = scene.render(strands, &cam)?;
     let feats = vgg.forward(&img, &NNST_LAYERS, false);
     let matched = looks.match_on(scene, strands, feats.taps(), &cam)?;
-    let hair = hair_pixels(&img, scene.style.background);
+    let views = match oriented {
+        true => orientation_views(scene, looks, strands, &cam, &img)?,
+        false => Vec::new(),
+    };
+    Ok((cam, matched, views))
+}
+
+/// With a projector (a frontal preset's
+/// [`orientation_projector`](crate::preset::PresetParams::orientation_projector)),
+/// the paintings' stroke fields laid over `strands` seen from it, for
+/// every view of the scale: a strand then has one target direction in
+/// every view, as a texture projected from the front camera has. Laid
+/// over each view's own box instead, a motif slides across the hair as
+/// the camera moves, and a fine one (a triangle tessellation on long
+/// hair) asks each strand for different directions in different views.
+fn projected_views(
+    scene: &StrandScene,
+    looks: &PaintingTargets<'_>,
+    strands: &FlatStrands,
+    projector: Option<(f32, f32)>,
+) -> Result<Option<Vec<Option<OrientationView>>>, PipelineError> {
+    let Some((polar, azimuth)) = projector else { return Ok(None) };
+    if looks.strokes.is_empty() {
+        return Ok(Some(Vec::new()));
+    }
+    let cam = scene.camera(polar, azimuth)?;
+    let img = scene.render(strands, &cam)?;
+    Ok(Some(orientation_views(scene, looks, strands, &cam, &img)?))
+}
+
+/// The orientation term's view of each painting through `cam`, whose
+/// render of `strands` is `img`: each stroke field laid over the box of
+/// the hair in `img` (none for a painting whose region is out of sight).
+fn orientation_views(
+    scene: &StrandScene,
+    looks: &PaintingTargets<'_>,
+    strands: &FlatStrands,
+    cam: &SplatCamera,
+    img: &Image,
+) -> Result<Vec<Option<OrientationView>>, PipelineError> {
+    let hair = hair_pixels(img, scene.style.background);
     let s = scene.strands(strands, None);
     // With a map each painting is laid over its own region's box, so a
     // region takes its painting's whole motif at the style scale.
     let map = match looks.shares.paintings() > 1 && !looks.strokes.is_empty() {
-        true => Some(looks.shares.view_map(scene, strands, &cam)?),
+        true => Some(looks.shares.view_map(scene, strands, cam)?),
         false => None,
     };
     let mut views = Vec::with_capacity(looks.strokes.len());
     for (k, field) in looks.strokes.iter().enumerate() {
         let view = match &map {
-            Some(map) => OrientationView::new(field, &s, &map.region(k, &hair), &scene.style, &cam)
+            Some(map) => OrientationView::new(field, &s, &map.region(k, &hair), &scene.style, cam)
                 .map(|v| v.shared(&looks.shares.point_shares(k, strands))),
-            None => OrientationView::new(field, &s, &hair, &scene.style, &cam),
+            None => OrientationView::new(field, &s, &hair, &scene.style, cam),
         };
-        // A painting whose region is out of sight has no term in this view.
         views.push(view);
     }
-    Ok((cam, matched, views))
+    Ok(views)
 }
 
 /// A diverged iteration says where it diverged.

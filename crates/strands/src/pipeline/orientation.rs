@@ -15,9 +15,12 @@
 //!   ([`STROKE_GRADIENT`]) so that only visible strokes have a direction. Kept in
 //!   doubled-angle form `(c cos 2θ, c sin 2θ, c)` so bilinear sampling
 //!   averages headless directions correctly.
-//! - **Placement.** The painting is laid over the rest hair's box in each
-//!   view (cover fit, centred, aspect kept), so a spiral is drawn onto the
-//!   hair as a spiral. The style's scale on the hair ([`StrokeField::laid_at`],
+//! - **Placement.** The painting is laid over the rest hair's box as one
+//!   camera sees it (cover fit, centred, aspect kept), so a spiral is drawn
+//!   onto the hair as a spiral. A preset that faces the groom from one side
+//!   projects it from the middle of its camera range, whichever view NNST
+//!   is looking through (a texture projected from the front camera); a
+//!   360° preset lays it over each view's own box. The style's scale on the hair ([`StrokeField::laid_at`],
 //!   NNST's `style_scale`: 2 makes strokes twice as large) enlarges it by
 //!   that factor, centred, or shrinks it, tiled (below 1): a motif finer
 //!   than the groom's field can bend to (a triangle tessellation six across
@@ -215,6 +218,8 @@ pub struct OrientationView {
     /// `Σ w_s` of the whole view, the loss's normaliser (kept when
     /// [`OrientationView::shared`] splits the weights among paintings).
     total: f64,
+    /// The camera the field is laid through.
+    cam: SplatCamera,
 }
 
 impl OrientationView {
@@ -246,7 +251,7 @@ impl OrientationView {
         let half = [field_size.0 as f32 / 2.0, field_size.1 as f32 / 2.0];
         let (weights, inv_full2) = segment_weights(rest, style, cam);
         let total = weights.iter().map(|&w| w as f64).sum();
-        Some(Self { centre, scale, half, weights, inv_full2, total })
+        Some(Self { centre, scale, half, weights, inv_full2, total, cam: *cam })
     }
 
     /// The view with each segment's weight times its strand's share of
@@ -307,14 +312,10 @@ fn projection_jacobian(cam: &SplatCamera, p: [f32; 3]) -> [[f32; 3]; 2] {
 }
 
 /// The orientation loss of `strands` (the layout of the rest groom the view
-/// was built from) in view `view` of `field` through `cam`, and its
-/// gradient with respect to every point.
-pub fn orientation_loss(
-    field: &StrokeField,
-    view: &OrientationView,
-    strands: &FlatStrands,
-    cam: &SplatCamera,
-) -> (f32, Vec<[f32; 3]>) {
+/// was built from) in view `view` of `field`, seen through the view's own
+/// camera, and its gradient with respect to every point.
+pub fn orientation_loss(field: &StrokeField, view: &OrientationView, strands: &FlatStrands) -> (f32, Vec<[f32; 3]>) {
+    let cam = &view.cam;
     let pts = &strands.points;
     let mut grad = vec![[0.0f32; 3]; pts.len()];
     let total = view.total;
@@ -468,9 +469,9 @@ mod tests {
         let loss = |x: &[f32]| {
             let s =
                 FlatStrands { points: x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect(), offsets: g.offsets.clone() };
-            orientation_loss(&field, &view, &s, &cam).0 as f64
+            orientation_loss(&field, &view, &s).0 as f64
         };
-        let (l, grad) = orientation_loss(&field, &view, &g, &cam);
+        let (l, grad) = orientation_loss(&field, &view, &g);
         assert!(l > 0.0 && l < 1.0, "loss {l}");
         let grad: Vec<f32> = grad.iter().flatten().copied().collect();
         // A step of 3e-3 (a hundredth of the segment spacing): at 1e-3 the

@@ -171,7 +171,7 @@ pub fn loss_and_gradient_with(
     let mut grad_points = render_backward(&s, cam, &scene.style, &cache, &grad_img)?;
     let mut orientation_value = 0.0;
     for term in orientation {
-        let (value, g) = orientation_loss(term.field, term.view, &strands, cam);
+        let (value, g) = orientation_loss(term.field, term.view, &strands);
         orientation_value += value;
         grad_points.iter_mut().zip(&g).for_each(|(a, b)| (0..3).for_each(|k| a[k] += term.weight * b[k]));
     }
