@@ -448,7 +448,7 @@ fn scale_view(
     Ok((cam, matched, views))
 }
 
-/// With a projector (a frontal preset's
+/// With a projector (a projected preset's
 /// [`orientation_projector`](crate::preset::PresetParams::orientation_projector)),
 /// the paintings' stroke fields laid over `strands` seen from it, for
 /// every view of the scale: a strand then has one target direction in

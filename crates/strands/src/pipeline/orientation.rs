@@ -17,10 +17,10 @@
 //!   averages headless directions correctly.
 //! - **Placement.** The painting is laid over the rest hair's box as one
 //!   camera sees it (cover fit, centred, aspect kept), so a spiral is drawn
-//!   onto the hair as a spiral. A preset that faces the groom from one side
-//!   projects it from the middle of its camera range, whichever view NNST
-//!   is looking through (a texture projected from the front camera); a
-//!   360° preset lays it over each view's own box. The style's scale on the hair ([`StrokeField::laid_at`],
+//!   onto the hair as a spiral. A projected preset (long hair) lays it as
+//!   the middle camera of its range sees it, whichever view NNST is looking
+//!   through (a texture projected from the front camera); the others lay
+//!   it over each view's own box. The style's scale on the hair ([`StrokeField::laid_at`],
 //!   NNST's `style_scale`: 2 makes strokes twice as large) enlarges it by
 //!   that factor, centred, or shrinks it, tiled (below 1): a motif finer
 //!   than the groom's field can bend to (a triangle tessellation six across
