@@ -68,9 +68,11 @@ def orient_dist(ha, hb):
 
 def stroke_field(img, sigma=2.0, gate=None):
     """Doubled-angle stroke field (c cos 2t, c sin 2t, c) of a grey image:
-    the structure tensor's minor eigenvector, weighted by coherence and, with
-    `gate`, by E/(E + (gate/h)^2) of the gradient energy (as nst3d's
-    orientation term weighs a painting's strokes)."""
+    the structure tensor's minor eigenvector, weighted by the squared
+    coherence and, with `gate`, by E/(E + (gate/h)^2) of the gradient energy.
+    nst3d's orientation term gates the same way but weighs by the coherence
+    unsquared; the judge keeps the stricter square, so loosely brushed
+    strokes count for less here than in the term."""
     jxx, jxy, jyy = structure_tensor(img, sigma)
     tr = jxx + jyy
     disc = np.sqrt((jxx - jyy) ** 2 + 4 * jxy ** 2)

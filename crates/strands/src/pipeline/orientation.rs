@@ -10,9 +10,12 @@
 //! - **Stroke field.** The structure tensor `J = G_σ * ∇I ∇Iᵀ` of the
 //!   painting's luminance at the scale's style size (Sobel gradients,
 //!   `σ` = [`STRUCTURE_SIGMA`] pixels); the stroke runs along the smaller
-//!   eigenvector, with weight `c = ((λ₁ − λ₂)/(λ₁ + λ₂ + ε))² · E/(E + E₀)`,
+//!   eigenvector, with weight `c = (λ₁ − λ₂)/(λ₁ + λ₂ + ε) · E/(E + E₀)`,
 //!   the coherence times a gate on the gradient energy `E = λ₁ + λ₂`
-//!   ([`STROKE_GRADIENT`]) so that only visible strokes have a direction. Kept in
+//!   ([`STROKE_GRADIENT`]) so that only visible strokes have a direction.
+//!   The coherence is not squared: squared, a painting's loosely brushed
+//!   strokes (The Shipwreck's waves) pulled at a fifth of a stripe's
+//!   strength and NNST's frizz won there (docs/design/strands.md). Kept in
 //!   doubled-angle form `(c cos 2θ, c sin 2θ, c)` so bilinear sampling
 //!   averages headless directions correctly.
 //! - **Placement.** The painting is laid over the rest hair's box as one
@@ -111,7 +114,7 @@ impl StrokeField {
             .map(|&[jxx, jxy, jyy]| {
                 let disc = ((jxx - jyy).powi(2) + 4.0 * jxy * jxy).max(0.0).sqrt();
                 let energy = jxx + jyy;
-                let coherence = (disc / (energy + eps)).powi(2);
+                let coherence = disc / (energy + eps);
                 let c = coherence * energy / (energy + stroke_energy);
                 (gated, coherent) = (gated + c as f64, coherent + coherence as f64);
                 // The gradient's doubled angle is atan2(2 jxy, jxx − jyy);
