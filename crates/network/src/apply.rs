@@ -63,11 +63,6 @@ pub fn mass_ratio(before: f64, after: f64) -> f32 {
     }
 }
 
-/// The `mass` a density model trained with its total kept and its scale
-/// pinned at 1 declares in its metadata (velocity models and older density
-/// models say `conserved`).
+/// The `mass` a density model trained with the training's scale pin declares in its
+/// metadata (velocity models and older density models say `conserved`).
 pub const MASS_PINNED: &str = "conserved, scale pinned";
-
-/// The `mass` a density model trained on `d · s` itself, its level held in a
-/// band, declares in its metadata: inference keeps each frame's total.
-pub const MASS_BANDED: &str = "level within a band, total kept at inference";

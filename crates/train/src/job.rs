@@ -329,7 +329,7 @@ fn write_outputs(
     info.insert("patch".to_string(), s.patch.to_string());
     info.insert("octaves".to_string(), s.octaves.to_string());
     info.insert("view_axes".to_string(), s.view_axes.name().to_string());
-    info.insert("mass".to_string(), if s.velocity { "conserved" } else { crate::step::MASS_BANDED }.to_string());
+    info.insert("mass".to_string(), if s.velocity { "conserved" } else { crate::step::MASS_PINNED }.to_string());
     info.insert("steps".to_string(), t.steps().to_string());
     // Only where it is not the one patch every model was trained with, so
     // an unbatched model keeps its bytes.

@@ -8,9 +8,7 @@ use nst3d_core::Grid3;
 use nst3d_network::{FeedForward, Volume};
 // The inference half lives with the network (the volume job applies a
 // trained model without the training crate); re-exported for the trainer.
-pub use nst3d_network::apply::{
-    apply, apply_with_strength, mass_ratio, velocity_field, Stylization, MASS_BANDED, MASS_PINNED,
-};
+pub use nst3d_network::apply::{apply, apply_with_strength, mass_ratio, velocity_field, Stylization, MASS_PINNED};
 use nst3d_optim::{clip_grad_norm, Adam, OneCycle};
 use nst3d_stylize::frame::view_at;
 use nst3d_stylize::{ViewError, ViewLoss, ViewSpec};
@@ -44,16 +42,13 @@ pub fn apply_backward(d: &Grid3, o: &Volume, s: Stylization, grad: &[f32]) -> Vo
 
 /// `d*` scaled so the stylization redistributes the smoke without adding or
 /// removing any: `k d*` with `k = Σ d / Σ d*`. Returns the scaled grid and `k`.
-/// Velocity-mode training scores this; density mode scores `d*` itself and
-/// keeps `k` in a band ([`scale_pin`]); inference rescales every frame of
-/// either mode this way.
 ///
 /// Why: the Gram loss of a render can be lowered by simply having less
 /// smoke (an empty render is closer to a dark painting than bright smoke
-/// is), and a network finds that route: velocity mode thinned the smoke by
-/// reading from the empty space around it (docs/design/feedforward.md).
-/// Fixing the total takes that route away and leaves the look to the
-/// pattern.
+/// is), and a network finds that route: density mode learned `s → 0`
+/// everywhere, velocity mode thinned the smoke by reading from the empty
+/// space around it (docs/design/feedforward.md). Fixing the
+/// total takes that route away and leaves the look to the pattern.
 pub fn conserve_mass(d: &Grid3, dstar: &Grid3) -> (Grid3, f32) {
     let k = mass_ratio(d.data.iter().map(|v| *v as f64).sum(), dstar.data.iter().map(|v| *v as f64).sum());
     (Grid3::from_vec(dstar.dims, dstar.data.iter().map(|v| v * k).collect()), k)
@@ -72,49 +67,30 @@ pub fn conserve_mass_backward(dstar: &Grid3, k: f32, grad: &[f32]) -> Vec<f32> {
     grad.iter().map(|g| k * g - shift).collect()
 }
 
-/// `k = Σ d / Σ d*`: how many times thinner (above 1) or denser the
-/// stylized patch is than its input; 1 when either is empty.
-pub fn level_ratio(d: &Grid3, dstar: &Grid3) -> f32 {
-    mass_ratio(d.data.iter().map(|v| *v as f64).sum(), dstar.data.iter().map(|v| *v as f64).sum())
-}
-
 /// Weight `λ` of the density-mode scale pin ([`scale_pin`]).
 pub const SCALE_PIN: f32 = 100.0;
 
-/// How far the density-mode level may move freely: the mass ratio `k` is
-/// pinned only outside `[1/band, band]` ([`scale_pin`]).
-pub const SCALE_BAND: f32 = 4.0;
-
-/// The level pin of density mode, `λ (ln k − c)²` with `k = Σ d / Σ d*`
-/// ([`level_ratio`]) and `c` = `ln k` clamped to `±ln band`, and its
-/// gradient w.r.t. every voxel of `dstar` (the same for all:
-/// `−2λ (ln k − c) / Σ d*`).
+/// The scale pin of density mode, `λ (ln k)²` with `k = Σ d / Σ d*` the
+/// [`conserve_mass`] ratio, and its gradient w.r.t. every voxel of the
+/// unscaled `dstar` (the same for all: `−2λ ln k / Σ d*`).
 ///
-/// Why density training scores `d · s` itself, as the paper does: scored
-/// with its total kept ([`conserve_mass`]) and `k` pinned at 1, a network's
-/// rescaled scale stays in the optimiser's `[0, 2]`, so carving smoke away
-/// means saturating the rest at 2, and the networks mottled the smoke
-/// instead of carving it (from 8 held-out views, worst-view Gram loss 0.87
-/// of the input's where the paper's way reaches 0.82 and an independent
-/// PyTorch reference of the paper's training 0.77; docs/design/feedforward.md).
-/// Scored as is, a network thins its patches about threefold, and inference
-/// gives each frame its total back.
-///
-/// Why a band: nothing else holds the level, and an empty render is closer
-/// to a dark painting than smoke is, so an unbounded level is free to fall
-/// towards `s → 0` everywhere, where `tanh` saturates and no gradient brings
-/// it back (the first density network did exactly that). Within
-/// `[1/band, band]` the loss chooses; beyond it the pin pulls back, and no
-/// voxel of a rescaled frame grows more than about `2 · band`-fold.
-pub fn scale_pin(dstar: &Grid3, k: f32, weight: f32, band: f32) -> (f32, f32) {
+/// Why: conserving the mass makes the style loss blind to the level of
+/// `s = 1 + tanh o` — `s` and `c s` give the same `k d*` — so nothing held
+/// the networks' level, and the loss, which likes contrast, drove it into
+/// `tanh`'s floor: the two-hour density models came out with `k ≈ 10⁵`,
+/// `s ≈ 2e^{2o}` an unbounded exponential, and a frame unlike their
+/// training data had its faint haze lifted 10⁴-fold into a box-shaped
+/// cloud (docs/design/feedforward.md). With the pin `k` stays
+/// near 1, so `k s` keeps the optimiser's `[0, 2]` and no voxel can grow
+/// more than about twofold; the conservation still closes the "less smoke"
+/// route.
+pub fn scale_pin(dstar: &Grid3, k: f32, weight: f32) -> (f32, f32) {
     let total: f64 = dstar.data.iter().map(|v| *v as f64).sum();
     if total <= 0.0 || k <= 0.0 {
         return (0.0, 0.0);
     }
     let ln_k = (k as f64).ln();
-    let free = (band.max(1.0) as f64).ln();
-    let excess = ln_k - ln_k.clamp(-free, free);
-    ((weight as f64 * excess * excess) as f32, (-2.0 * weight as f64 * excess / total) as f32)
+    ((weight as f64 * ln_k * ln_k) as f32, (-2.0 * weight as f64 * ln_k / total) as f32)
 }
 
 /// The style loss of `d` summed over `octaves` scales and its gradient:
@@ -256,11 +232,7 @@ impl TrainStep {
         let x = Volume::from_grid(patch);
         let (o, tape) = self.net.forward(&x);
         let raw = apply(patch, &o, self.stylization);
-        // Density mode scores `d · s` itself, as the paper trains it, and
-        // only keeps its level in a band; velocity mode scores the smoke
-        // with its total kept ([`conserve_mass`] says why).
-        let conserve = self.stylization != Stylization::Density;
-        let (dstar, k) = if conserve { conserve_mass(patch, &raw) } else { (raw.clone(), level_ratio(patch, &raw)) };
+        let (dstar, k) = conserve_mass(patch, &raw);
         let (mut l, mut grad_dstar) = (0.0f32, vec![0.0f32; dstar.len()]);
         let share = 1.0 / axes.len() as f32;
         for &axis in axes {
@@ -270,9 +242,9 @@ impl TrainStep {
                 *g += share * a;
             }
         }
-        let mut grad_raw = if conserve { conserve_mass_backward(&raw, k, &grad_dstar) } else { grad_dstar };
+        let mut grad_raw = conserve_mass_backward(&raw, k, &grad_dstar);
         if self.stylization == Stylization::Density {
-            let (_, g) = scale_pin(&raw, k, SCALE_PIN, SCALE_BAND);
+            let (_, g) = scale_pin(&raw, k, SCALE_PIN);
             grad_raw.iter_mut().for_each(|x| *x += g);
         }
         let grad_o = apply_backward(patch, &o, self.stylization, &grad_raw);
@@ -421,10 +393,10 @@ mod tests {
     }
 
     /// The whole chain a training step descends, from the network's weights
-    /// through the density scale, the level pin, a turned patch and the
-    /// two-octave render and Gram loss, against finite differences: with
-    /// the level inside the band (no pin) and beyond it (the last bias
-    /// thins the patch about sixfold, so the pin pulls).
+    /// through the density scale, the kept total, the scale pin, a turned
+    /// patch and the two-octave render and Gram loss, against finite
+    /// differences: near the input's level and with the last bias thinning
+    /// the patch about sixfold (so the pin pulls hard).
     #[test]
     fn a_training_step_gradient_matches_finite_differences() {
         nst3d_core::precision::fp32(training_step_check)
@@ -444,20 +416,19 @@ mod tests {
         let view = ViewSpec { camera: None, gamma: 0.5, exposure: 0.5, equalize: false };
         let patch = Grid3::from_vec([12; 3], pseudo_random(1728, 11).iter().map(|v| 0.5 + 0.5 * v).collect());
         let schedule = OneCycle::new(1e-4, 10, 20.0);
+        // What the step descends: the style loss it reports plus the pin.
         let total = |net: &FeedForward| -> f64 {
             let t = TrainStep::new(net.clone(), Stylization::Density, schedule.clone());
             let l = t.gradient(&patch, &loss, &view, &[Axis::Y]).unwrap().loss;
             let raw = apply(&patch, &net.forward(&Volume::from_grid(&patch)).0, Stylization::Density);
-            l as f64 + scale_pin(&raw, level_ratio(&patch, &raw), SCALE_PIN, SCALE_BAND).0 as f64
+            let (_, k) = conserve_mass(&patch, &raw);
+            l as f64 + scale_pin(&raw, k, SCALE_PIN).0 as f64
         };
-        for (bias, pinned) in [(0.0f32, false), (-1.2, true)] {
+        for bias in [0.0f32, -1.2] {
             let mut net = FeedForward::new(2, 1, 5);
             let mut w = net.flat();
             *w.last_mut().unwrap() = bias;
             net.set_flat(&w);
-            let raw = apply(&patch, &net.forward(&Volume::from_grid(&patch)).0, Stylization::Density);
-            let k = level_ratio(&patch, &raw);
-            assert_eq!(k > SCALE_BAND, pinned, "bias {bias}: k {k}");
             let t = TrainStep::new(net.clone(), Stylization::Density, schedule.clone());
             let g = t.gradient(&patch, &loss, &view, &[Axis::Y]).unwrap().grads;
             let big = g.iter().fold(0f32, |m, v| m.max(v.abs())) as f64;
@@ -469,14 +440,14 @@ mod tests {
                     n.set_flat(x);
                     total(&n)
                 },
-                // The loss is an f32 sum of about 300: steps of 1e-2 and
-                // a floor of 1 % of the largest gradient keep its rounding
-                // (about 1e-3 in a difference quotient) out.
+                // The loss is an f32 sum of about 300: steps of 1e-2 and a
+                // floor of 3 % of the largest gradient keep its rounding
+                // (about 1e-2 in a difference quotient here) out.
                 1e-2,
                 120,
-                1e-2 * big,
+                3e-2 * big,
             );
-            assert!(r.max_rel_err < 2e-2, "bias {bias}: {r:?}");
+            assert!(r.max_rel_err < 3e-2, "bias {bias}: {r:?}");
         }
     }
 
@@ -506,25 +477,20 @@ mod tests {
     fn the_scale_pin_gradient_matches_finite_differences() {
         let dims = [4, 5, 3];
         let d = Grid3::from_vec(dims, pseudo_random(60, 7).iter().map(|v| v.abs()).collect());
-        let pin = |x: &[f32], band: f32| {
+        let pin = |x: &[f32]| {
             let raw = Grid3::from_vec(dims, x.to_vec());
             let (_, k) = conserve_mass(&d, &raw);
-            scale_pin(&raw, k, 3.0, band)
+            scale_pin(&raw, k, 3.0)
         };
-        // Below, at and above the input's level (k about 7, 1.4 and 0.36),
-        // pinned at 1 and with a band of 2 (where k = 1.4 is free).
-        for band in [1.0f32, 2.0] {
-            for level in [0.1f32, 0.5, 2.0] {
-                let raw: Vec<f32> = pseudo_random(60, 8).iter().map(|v| level * (0.2 + v.abs())).collect();
-                let (p, g) = pin(&raw, band);
-                assert!(p >= 0.0);
-                assert_eq!(p == 0.0, band == 2.0 && level == 0.5, "band {band} level {level}: pin {p}");
-                let r = check_gradient(&raw, &vec![g; 60], |x| pin(x, band).0 as f64, 1e-2 * level, 60, 1e-2);
-                assert!(r.max_rel_err < 1e-2, "band {band} level {level}: {r:?}");
-            }
+        // Below, at and above the input's level.
+        for level in [0.1f32, 0.5, 2.0] {
+            let raw: Vec<f32> = pseudo_random(60, 8).iter().map(|v| level * (0.2 + v.abs())).collect();
+            let (p, g) = pin(&raw);
+            assert!(p >= 0.0);
+            let r = check_gradient(&raw, &vec![g; 60], |x| pin(x).0 as f64, 1e-2 * level, 60, 1e-2);
+            assert!(r.max_rel_err < 1e-2, "level {level}: {r:?}");
         }
         // At the input's own total the pin is zero and flat.
-        let pin = |x: &[f32]| pin(x, 1.0);
         assert_eq!(pin(&d.data), (0.0, 0.0));
     }
 }

@@ -12,7 +12,7 @@ use anyhow::{bail, Context, Result};
 use nst3d_core::{Grid3, Reporter};
 use nst3d_io::vdb::{read_vdb, GridValues, SparseGrid, VdbGrid, LEAF_DIM};
 use nst3d_job::{expand_pattern, FrameSpec};
-use nst3d_network::apply::{apply_with_strength, mass_ratio, Stylization, MASS_BANDED, MASS_PINNED};
+use nst3d_network::apply::{apply_with_strength, mass_ratio, Stylization, MASS_PINNED};
 use nst3d_network::tiled::infer_tiles;
 use nst3d_network::{Model, Volume};
 use nst3d_stylize::Mode;
@@ -210,9 +210,8 @@ fn stylize_sparse(
         written += values.iter().filter(|v| **v > 0.0).map(|v| *v as f64).sum::<f64>();
         out.insert_region(at(t.lo), core, &values, |v| v > 0.0 || !v.is_finite());
     });
-    // The frame keeps its total density (train::step::conserve_mass): the
-    // network redistributes smoke; a density network, trained on thinned
-    // patches, gets its frame's level back here.
+    // The frame keeps its total density, as every training patch did
+    // (train::step::conserve_mass): the network redistributes smoke.
     let k = mass_ratio(grid.iter_active().map(|(_, v)| v as f64).sum(), written);
     for leaf in out.leaves_mut() {
         leaf.values.iter_mut().for_each(|v| *v *= k);
@@ -328,8 +327,7 @@ fn blend(
 /// What a user should know about a model file before trusting its result:
 /// trained before the density pin, or along one axis only.
 fn notes_on(model: &Model, mode: Mode, path: &Path, reporter: &mut dyn Reporter) {
-    let held = matches!(model.info.get("mass").map(String::as_str), Some(MASS_PINNED | MASS_BANDED));
-    if mode == Mode::Density && !held {
+    if mode == Mode::Density && model.info.get("mass").map(String::as_str) != Some(MASS_PINNED) {
         reporter.note(&format!(
             "{} was trained before the density scale pin: on smoke unlike its training data it can lift faint \
              haze many times over (docs/design/feedforward.md); retrain it to fix that",
