@@ -2,10 +2,10 @@
 //! products on the bf16 block kernel of `nst3d_core::bf16` (operands rounded
 //! to bf16, sums in fp32), taken when the precision in force is bf16.
 //!
-//! `G = F Fᵀ`: `F` is copied once into bf16 rows (one per channel, the
-//! pixels contiguous: the kernel's A) and once into the kernel's packed B
+//! `G = F Fᵀ`: `F` is copied once into bf16 slices of 32 channels × 32
+//! pixels (the kernel's A) and once into the kernel's packed B
 //! (pixel pairs interleaved); only blocks on and above the diagonal are
-//! multiplied, and the long pixel axis is cut into a fixed number of chunks
+//! multiplied, and the long pixel axis is cut into chunks fixed by the shape,
 //! summed in order, so the result does not depend on the thread count.
 //! `dF = F · sym`: `F` in bf16 rows of channels (pixel-major) against the
 //! small `C x C` matrix packed once.
@@ -14,8 +14,11 @@ use nst3d_core::bf16::{self, Kernel, PackedB, KS, MB, NB};
 use nst3d_core::FeatureView;
 use rayon::prelude::*;
 
-/// Pixel chunks of one Gram (fixed, so sums do not depend on threads).
+/// Most pixel chunks of one Gram.
 const CHUNKS: usize = 8;
+/// Fewest K-slices of 32 pixels a chunk holds (a task's fixed costs, the
+/// tile set-up among them, amortise over them).
+const MIN_CHUNK_STEPS: usize = 32;
 
 /// `scale · F Fᵀ`, full `C x C` (both triangles), on `kernel`.
 pub(crate) fn gram(kernel: Kernel, f: FeatureView<'_>, scale: f32) -> Vec<f32> {
@@ -23,42 +26,32 @@ pub(crate) fn gram(kernel: Kernel, f: FeatureView<'_>, scale: f32) -> Vec<f32> {
     let (row, col) = f.strides();
     let (cp, pp) = (c.div_ceil(MB) * MB, p.div_ceil(KS) * KS);
     let steps = pp / KS;
-    // A: channel rows of bf16 pixels (zero past p and past c).
-    let mut a = vec![0u16; cp * pp];
-    a.par_chunks_mut(pp).take(c).enumerate().for_each(|(i, r)| {
-        for (q, v) in r[..p].iter_mut().enumerate() {
-            *v = bf16::from_f32(f.data[i * row + q * col]);
-        }
-    });
+    let a = channel_blocks(f, cp, steps);
     // B: step s holds pixels 32 s .. 32 s + 32 of every channel.
-    let b = PackedB::new(steps, c, |s, k, n| {
-        let q = s * KS + k;
-        if q < p {
-            f.data[n * row + q * col]
-        } else {
-            0.0
-        }
-    });
+    let b = PackedB::from_strided(p, c, f.data, (col, row));
     let blocks = cp / MB;
     let pairs: Vec<(usize, usize)> = (0..blocks).flat_map(|i| (i..blocks).map(move |j| (i, j))).collect();
-    let chunk = steps.div_ceil(CHUNKS);
-    let offs: Vec<usize> = (0..steps).map(|s| s * KS).collect();
+    // Chunks of at least MIN_CHUNK_STEPS slices (a deep layer's few pixels
+    // are one chunk): fixed by the shape, so sums do not depend on threads.
+    let chunks = (steps / MIN_CHUNK_STEPS).clamp(1, CHUNKS);
+    let chunk = steps.div_ceil(chunks);
+    let offs: Vec<usize> = (0..steps).map(|s| s * MB * KS).collect();
     // One 32 x 32 partial block per (block pair, chunk), summed in chunk order.
-    let partial: Vec<[f32; MB * NB]> = (0..pairs.len() * CHUNKS)
+    let partial: Vec<[f32; MB * NB]> = (0..pairs.len() * chunks)
         .into_par_iter()
         .map(|t| {
-            let ((bi, bj), ch) = (pairs[t / CHUNKS], t % CHUNKS);
+            let ((bi, bj), ch) = (pairs[t / chunks], t % chunks);
             let (s0, s1) = ((ch * chunk).min(steps), ((ch + 1) * chunk).min(steps));
             let mut blk = [0f32; MB * NB];
             if s0 < s1 {
-                let a0 = a[bi * MB * pp..].as_ptr();
-                // SAFETY: rows bi*32 .. +32 of a hold pp values each; the
-                // pair holds `steps` steps; blk is 32 x 32.
+                let a0 = a[bi * steps * MB * KS..].as_ptr();
+                // SAFETY: channel block bi holds `steps` slices of 32 rows of
+                // KS values; the pair holds `steps` steps; blk is 32 x 32.
                 kernel.run(|ready| unsafe {
                     ready.block(
                         a0,
-                        a0.add(16 * pp),
-                        pp,
+                        a0.add(16 * KS),
+                        KS,
                         &offs[s0..s1],
                         b.pair(bj).as_ptr().add(s0 * bf16::B_STEP),
                         blk.as_mut_ptr(),
@@ -72,7 +65,7 @@ pub(crate) fn gram(kernel: Kernel, f: FeatureView<'_>, scale: f32) -> Vec<f32> {
     let mut g = vec![0.0f32; c * c];
     for (pi, &(bi, bj)) in pairs.iter().enumerate() {
         let mut sum = [0f32; MB * NB];
-        for blk in &partial[pi * CHUNKS..(pi + 1) * CHUNKS] {
+        for blk in &partial[pi * chunks..(pi + 1) * chunks] {
             sum.iter_mut().zip(blk).for_each(|(s, v)| *s += v);
         }
         for r in 0..MB.min(c - bi * MB) {
@@ -86,6 +79,28 @@ pub(crate) fn gram(kernel: Kernel, f: FeatureView<'_>, scale: f32) -> Vec<f32> {
     g
 }
 
+/// `F` as the block kernel's A, one 32-channel × 32-pixel slice after
+/// another: `[channel block][step][row][32]` (zero past the pixels and the
+/// channels). A tile's 16 rows are then 64 bytes apart, where rows of whole
+/// pixel runs put them tens of kilobytes apart, in the same cache sets; and
+/// a channels-last map is read one pixel's 32 channels at a time.
+fn channel_blocks(f: FeatureView<'_>, cp: usize, steps: usize) -> Vec<u16> {
+    let (c, p) = (f.channels, f.pixels());
+    let (row, col) = f.strides();
+    let mut a = vec![0u16; cp * steps * KS];
+    a.par_chunks_mut(MB * KS).enumerate().for_each(|(t, slice)| {
+        let (i0, s) = (t / steps * MB, t % steps);
+        let n = MB.min(c.saturating_sub(i0));
+        for kk in 0..KS.min(p.saturating_sub(s * KS)) {
+            let q = s * KS + kk;
+            for r in 0..n {
+                slice[r * KS + kk] = bf16::from_f32(f.data[(i0 + r) * row + q * col]);
+            }
+        }
+    });
+    a
+}
+
 /// `scale · Fᵀ sym` as `P x C` (pixel-major), on `kernel`; `sym` is `C x C`
 /// and symmetric.
 pub(crate) fn gram_backward_channels_last(kernel: Kernel, f: FeatureView<'_>, sym: &[f32], scale: f32) -> Vec<f32> {
@@ -93,14 +108,7 @@ pub(crate) fn gram_backward_channels_last(kernel: Kernel, f: FeatureView<'_>, sy
     let (row, col) = f.strides();
     let cp = c.div_ceil(KS) * KS;
     let steps = cp / KS;
-    let b = PackedB::new(steps, c, |s, k, n| {
-        let i = s * KS + k;
-        if i < c {
-            sym[i * c + n]
-        } else {
-            0.0
-        }
-    });
+    let b = PackedB::from_strided(c, c, sym, (c, 1));
     let offs: Vec<usize> = (0..steps).map(|s| s * KS).collect();
     let mut out = vec![0.0f32; p * c];
     // Tasks of 32 pixels: their bf16 rows (channels contiguous) are made
@@ -110,8 +118,12 @@ pub(crate) fn gram_backward_channels_last(kernel: Kernel, f: FeatureView<'_>, sy
         let nq = o.len() / c;
         let mut a = vec![0u16; MB * cp];
         for q in 0..nq {
-            for i in 0..c {
-                a[q * cp + i] = bf16::from_f32(f.data[i * row + (q0 + q) * col]);
+            if row == 1 {
+                bf16::convert(&f.data[(q0 + q) * col..][..c], &mut a[q * cp..][..c]);
+            } else {
+                for i in 0..c {
+                    a[q * cp + i] = bf16::from_f32(f.data[i * row + (q0 + q) * col]);
+                }
             }
         }
         let mut blk = [0f32; MB * NB];

@@ -4,86 +4,109 @@
 //!
 //! With a factor of 2 the weights are fixed: fine sample `2i` is
 //! `3/4 x[i] + 1/4 x[i−1]` and `2i+1` is `3/4 x[i] + 1/4 x[i+1]`, the
-//! neighbour clamped at the border. The filter is separable, so one 1D
-//! kernel runs along each axis in turn, and the backward runs its transpose
-//! along the axes in the opposite order.
+//! neighbour clamped at the border. The filter is separable: the forward
+//! blends along z, then y, then x, a fine plane at a time; the backward
+//! runs the transposes in the opposite order.
 
 use rayon::prelude::*;
 
 use crate::volume::Volume;
 
-/// Strides and sizes of `axis` in a `(C, z, y, x)` layout: (length along
-/// the axis, stride of the axis, number of contiguous elements below it).
-fn axis_layout(dims: [usize; 3], axis: usize) -> (usize, usize) {
-    let n = dims[axis];
-    let inner: usize = dims[..axis].iter().product();
-    (n, inner)
+use std::mem::MaybeUninit;
+
+/// The two coarse samples fine sample `f` of a ×2 axis of `n` samples
+/// blends, 3/4 and 1/4: `f / 2`, and its neighbour on `f`'s side, clamped.
+fn taps(f: usize, n: usize) -> (usize, usize) {
+    let i = f / 2;
+    (i, if f % 2 == 0 { i.saturating_sub(1) } else { (i + 1).min(n - 1) })
 }
 
-/// One axis ×2: `src` has `n` samples along `axis`, the result `2n`.
-fn up_axis(src: &[f32], dims: [usize; 3], axis: usize) -> Vec<f32> {
-    let (n, inner) = axis_layout(dims, axis);
-    let outer_len = n * inner;
-    let mut out = vec![0.0f32; src.len() * 2];
-    out.par_chunks_mut(2 * outer_len).zip(src.par_chunks(outer_len)).for_each(|(o, s)| {
-        for i in 0..n {
-            let (lo, hi) = (i.saturating_sub(1), (i + 1).min(n - 1));
-            let (c, l, h) = (&s[i * inner..][..inner], &s[lo * inner..][..inner], &s[hi * inner..][..inner]);
-            let (even, odd) = o[2 * i * inner..][..2 * inner].split_at_mut(inner);
-            for j in 0..inner {
-                even[j] = 0.75 * c[j] + 0.25 * l[j];
-                odd[j] = 0.75 * c[j] + 0.25 * h[j];
-            }
-        }
-    });
-    out
+/// `dst[j] = 3/4 a[j] + 1/4 b[j]`.
+fn blend(dst: &mut [f32], a: &[f32], b: &[f32]) {
+    dst.iter_mut().zip(a.iter().zip(b)).for_each(|(d, (a, b))| *d = 0.75 * a + 0.25 * b);
 }
 
-/// Transpose of [`up_axis`]: `grad` has `2n` samples along `axis`, the result `n`.
-fn up_axis_backward(grad: &[f32], dims: [usize; 3], axis: usize) -> Vec<f32> {
-    let (n, inner) = axis_layout(dims, axis);
-    let outer_len = n * inner;
-    let mut out = vec![0.0f32; grad.len() / 2];
-    out.par_chunks_mut(outer_len).zip(grad.par_chunks(2 * outer_len)).for_each(|(o, g)| {
-        for i in 0..n {
-            let (lo, hi) = (i.saturating_sub(1), (i + 1).min(n - 1));
-            let (even, odd) = g[2 * i * inner..][..2 * inner].split_at(inner);
-            for j in 0..inner {
-                o[i * inner + j] += 0.75 * (even[j] + odd[j]);
-                o[lo * inner + j] += 0.25 * even[j];
-                o[hi * inner + j] += 0.25 * odd[j];
-            }
-        }
-    });
-    out
+/// One row ×2 along x: `dst` (2n values, written once) from `row` (n).
+fn up_row(dst: &mut [MaybeUninit<f32>], row: &[f32]) {
+    let n = row.len();
+    for (i, pair) in dst.chunks_exact_mut(2).enumerate() {
+        let (lo, hi) = (row[i.saturating_sub(1)], row[(i + 1).min(n - 1)]);
+        pair[0].write(0.75 * row[i] + 0.25 * lo);
+        pair[1].write(0.75 * row[i] + 0.25 * hi);
+    }
 }
 
 /// `x` upsampled ×2 along x, y and z (trilinear, `align_corners=False`).
+///
+/// One fine plane a task: its two coarse planes blended, then each fine
+/// row from two blended rows, then ×2 along the row, straight into the
+/// result (every value written once, nothing zeroed first).
 pub fn upsample2(x: &Volume) -> Volume {
-    let mut dims = x.dims;
-    let mut data = x.data.clone();
-    for axis in 0..3 {
-        // The per-channel blocks are contiguous, so the outer loop of
-        // `up_axis` runs over channels and the axes above `axis` together.
-        data = up_axis(&data, dims, axis);
-        dims[axis] *= 2;
-    }
+    let [nx, ny, nz] = x.dims;
+    let dims = x.dims.map(|n| 2 * n);
+    let fine_plane = 4 * nx * ny;
+    let mut data: Vec<f32> = Vec::with_capacity(x.channels * 2 * nz * fine_plane);
+    data.spare_capacity_mut().par_chunks_mut(fine_plane).enumerate().for_each_init(
+        || (vec![0.0f32; nx * ny], vec![0.0f32; nx]),
+        |(plane, row), (cz, dst)| {
+            let (c, z) = (cz / (2 * nz), cz % (2 * nz));
+            let (a, b) = taps(z, nz);
+            let src = x.channel(c);
+            blend(plane, &src[a * nx * ny..][..nx * ny], &src[b * nx * ny..][..nx * ny]);
+            for (y, out) in dst.chunks_exact_mut(2 * nx).enumerate() {
+                let (a, b) = taps(y, ny);
+                blend(row, &plane[a * nx..][..nx], &plane[b * nx..][..nx]);
+                up_row(out, row);
+            }
+        },
+    );
+    // SAFETY: the tasks above wrote every value of the capacity (one fine plane each).
+    unsafe { data.set_len(data.capacity()) };
     Volume::from_vec(x.channels, dims, data)
 }
 
 /// Backward of [`upsample2`]: the gradient w.r.t. its input (of `dims`)
 /// from the gradient w.r.t. its output.
 ///
+/// Two passes: each fine plane reduced along x and y to a coarse-sized
+/// plane (the transposes of the row and column steps), then each coarse
+/// plane summed from the four reduced planes that read it, in a fixed order.
+///
 /// # Panics
 /// If `grad` is not twice `dims` along every axis.
 pub fn upsample2_backward(grad: &Volume, dims: [usize; 3]) -> Volume {
     assert_eq!(grad.dims, dims.map(|n| 2 * n), "upsample2_backward: gradient size");
-    let mut d = grad.dims;
-    let mut data = grad.data.clone();
-    for axis in (0..3).rev() {
-        d[axis] /= 2;
-        data = up_axis_backward(&data, d, axis);
-    }
+    let [nx, ny, nz] = dims;
+    let (plane, fine_plane) = (nx * ny, 4 * nx * ny);
+    let mut reduced = vec![0.0f32; grad.channels * 2 * nz * plane];
+    reduced.par_chunks_mut(plane).zip(grad.data.par_chunks(fine_plane)).for_each_init(
+        || vec![0.0f32; nx],
+        |row, (dst, src)| {
+            for (y, fine) in src.chunks_exact(2 * nx).enumerate() {
+                row.fill(0.0);
+                for (i, pair) in fine.chunks_exact(2).enumerate() {
+                    row[i] += 0.75 * (pair[0] + pair[1]);
+                    row[i.saturating_sub(1)] += 0.25 * pair[0];
+                    row[(i + 1).min(nx - 1)] += 0.25 * pair[1];
+                }
+                let (a, b) = taps(y, ny);
+                dst[a * nx..][..nx].iter_mut().zip(row.iter()).for_each(|(d, r)| *d += 0.75 * r);
+                dst[b * nx..][..nx].iter_mut().zip(row.iter()).for_each(|(d, r)| *d += 0.25 * r);
+            }
+        },
+    );
+    let mut data = vec![0.0f32; grad.channels * nz * plane];
+    data.par_chunks_mut(plane).enumerate().for_each(|(cz, dst)| {
+        let (c, z) = (cz / nz, cz % nz);
+        for f in (2 * z).saturating_sub(1)..(2 * z + 3).min(2 * nz) {
+            let (a, b) = taps(f, nz);
+            let w = if a == z { 0.75 } else { 0.0 } + if b == z { 0.25 } else { 0.0 };
+            if w != 0.0 {
+                let src = &reduced[(c * 2 * nz + f) * plane..][..plane];
+                dst.iter_mut().zip(src).for_each(|(d, s)| *d += w * s);
+            }
+        }
+    });
     Volume::from_vec(grad.channels, dims, data)
 }
 
@@ -107,6 +130,56 @@ mod tests {
             1e-3,
         );
         assert!(r.max_rel_err < 1e-3, "{r:?}");
+    }
+
+    /// Every fine voxel as PyTorch defines it: the 8 coarse corners around
+    /// its centre, trilinear weights, borders clamped; sides of 1 included.
+    #[test]
+    fn matches_the_trilinear_definition() {
+        let dims = [3, 1, 5];
+        let x = Volume::from_vec(2, dims, pseudo_random(30, 5));
+        let y = upsample2(&x);
+        let w = |f: usize, n: usize| {
+            // Source coordinate (f + 1/2) / 2 − 1/2, clamped at 0 as PyTorch does.
+            let s = ((f as f32 + 0.5) / 2.0 - 0.5).max(0.0);
+            let i = (s.floor() as usize).min(n - 1);
+            (i, (i + 1).min(n - 1), s - i as f32)
+        };
+        for c in 0..2 {
+            for z in 0..10 {
+                for yy in 0..2 {
+                    for xx in 0..6 {
+                        let ([x0, x1, fx], [y0, y1, fy], [z0, z1, fz]) = (
+                            {
+                                let (a, b, f) = w(xx, 3);
+                                [a as f32, b as f32, f]
+                            },
+                            {
+                                let (a, b, f) = w(yy, 1);
+                                [a as f32, b as f32, f]
+                            },
+                            {
+                                let (a, b, f) = w(z, 5);
+                                [a as f32, b as f32, f]
+                            },
+                        );
+                        let at = |i: f32, j: f32, k: f32| {
+                            x.channel(c)[((k as usize) * dims[1] + j as usize) * dims[0] + i as usize]
+                        };
+                        let mut want = 0.0;
+                        for (k, wk) in [(z0, 1.0 - fz), (z1, fz)] {
+                            for (j, wj) in [(y0, 1.0 - fy), (y1, fy)] {
+                                for (i, wi) in [(x0, 1.0 - fx), (x1, fx)] {
+                                    want += wk * wj * wi * at(i, j, k);
+                                }
+                            }
+                        }
+                        let got = y.channel(c)[(z * 2 + yy) * 6 + xx];
+                        assert!((got - want).abs() < 1e-6, "c{c} ({xx},{yy},{z}): {got} vs {want}");
+                    }
+                }
+            }
+        }
     }
 
     #[test]

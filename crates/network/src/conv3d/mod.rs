@@ -26,9 +26,11 @@ use crate::volume::Volume;
 
 mod direct;
 pub mod kernels;
+mod route;
 mod tiles;
 
 use direct::Arith;
+use route::Route;
 
 /// im2col matrices are built for slabs of output rows holding about this
 /// many floats (1 MB), so they stay in cache.
@@ -208,10 +210,10 @@ impl Conv3d {
     /// im2col products in `path`'s.
     fn forward_with(&self, path: Path, direct: Option<Arith>, x: &Volume) -> Volume {
         self.check_input(x);
-        match direct {
-            Some(Arith::Bf16) if path == Path::Bf16Amx && tiles::takes_forward(self) => tiles::forward(self, x),
-            Some(arith) => direct::forward(self, arith, x),
-            None => self.forward_im2col(path, x),
+        match route::forward(self, path, direct) {
+            Route::Tiles => tiles::forward(self, x),
+            Route::Direct(arith) => direct::forward(self, arith, x),
+            Route::Im2col => self.forward_im2col(path, x),
         }
     }
 
@@ -294,12 +296,10 @@ impl Conv3d {
         self.check_input(x);
         let out = self.out_dims(x.dims);
         assert_eq!((grad_out.channels, grad_out.dims), (self.cout, out), "conv3d backward: gradient size");
-        let weight = match direct {
-            Some(Arith::Bf16) if path == Path::Bf16Amx && tiles::takes_weight_grad(self) => {
-                tiles::weight_grad(self, x, grad_out)
-            }
-            Some(arith) => direct::weight_grad(self, arith, x, grad_out),
-            None => self.weight_grad_im2col(path, x, grad_out),
+        let weight = match route::weight_grad(self, path, direct) {
+            Route::Tiles => tiles::weight_grad(self, x, grad_out),
+            Route::Direct(arith) => direct::weight_grad(self, arith, x, grad_out),
+            Route::Im2col => self.weight_grad_im2col(path, x, grad_out),
         };
         // One channel a task, each summed in order: the same bits on any thread count.
         let bias = (0..self.cout)
@@ -569,35 +569,38 @@ mod tests {
     /// in fp32).
     #[test]
     fn bf16_matches_fp32_within_tolerance() {
-        use nst3d_core::precision::{fp32, scoped, Precision};
-        let rel = |a: &[f32], b: &[f32]| {
-            let m = b.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-            a.iter().zip(b).fold(0.0f32, |e, (x, y)| e.max((x - y).abs())) / m
-        };
-        for (cin, cout, k, s, p, dims) in
-            [(16, 16, 3, 1, 1, [9, 8, 10]), (16, 32, 3, 2, 1, [12, 9, 8]), (1, 16, 5, 2, 2, [11, 10, 9])]
-        {
-            let c = layer(cin, cout, k, s, p, 60);
-            let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 61));
-            let out = c.out_dims(dims);
-            let g = Volume::from_vec(cout, out, pseudo_random(cout * out.iter().product::<usize>(), 62));
-            let run = || {
-                let y = c.forward(&x);
-                let (dx, gr) = c.backward(&x, &g, true);
-                (y, dx.unwrap(), gr)
+        // Every shape on its bf16 kernel, also where fp32 would be chosen for speed.
+        route::by_capability(|| {
+            use nst3d_core::precision::{fp32, scoped, Precision};
+            let rel = |a: &[f32], b: &[f32]| {
+                let m = b.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+                a.iter().zip(b).fold(0.0f32, |e, (x, y)| e.max((x - y).abs())) / m
             };
-            let (y32, dx32, g32) = fp32(run);
-            let (y16, dx16, g16) = scoped(Precision::Bf16, run);
-            assert_ne!(y16.data, y32.data, "the bf16 call did not take the bf16 path");
-            for (name, a, b) in [
-                ("forward", &y16.data, &y32.data),
-                ("input gradient", &dx16.data, &dx32.data),
-                ("weight gradient", &g16.weight, &g32.weight),
-                ("bias gradient", &g16.bias, &g32.bias),
-            ] {
-                assert!(rel(a, b) < 1e-2, "{cin}->{cout} k{k} s{s} {name}: {}", rel(a, b));
+            for (cin, cout, k, s, p, dims) in
+                [(16, 16, 3, 1, 1, [9, 8, 10]), (16, 32, 3, 2, 1, [12, 9, 8]), (1, 16, 5, 2, 2, [11, 10, 9])]
+            {
+                let c = layer(cin, cout, k, s, p, 60);
+                let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 61));
+                let out = c.out_dims(dims);
+                let g = Volume::from_vec(cout, out, pseudo_random(cout * out.iter().product::<usize>(), 62));
+                let run = || {
+                    let y = c.forward(&x);
+                    let (dx, gr) = c.backward(&x, &g, true);
+                    (y, dx.unwrap(), gr)
+                };
+                let (y32, dx32, g32) = fp32(run);
+                let (y16, dx16, g16) = scoped(Precision::Bf16, run);
+                assert_ne!(y16.data, y32.data, "the bf16 call did not take the bf16 path");
+                for (name, a, b) in [
+                    ("forward", &y16.data, &y32.data),
+                    ("input gradient", &dx16.data, &dx32.data),
+                    ("weight gradient", &g16.weight, &g32.weight),
+                    ("bias gradient", &g16.bias, &g32.bias),
+                ] {
+                    assert!(rel(a, b) < 1e-2, "{cin}->{cout} k{k} s{s} {name}: {}", rel(a, b));
+                }
             }
-        }
+        })
     }
 
     /// The AMX tiles (where this CPU has them; elsewhere the same calls take
@@ -608,41 +611,44 @@ mod tests {
     /// strides, 3³ and 5³, rows that are not a multiple of 16.
     #[test]
     fn tiles_match_im2col() {
-        let rel = |a: &[f32], b: &[f32]| {
-            let m = b.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
-            a.iter().zip(b).fold(0.0f32, |e, (x, y)| e.max((x - y).abs())) / m
-        };
-        let shapes = [
-            (16, 16, 3, 1, 1, [19, 7, 5]),
-            (32, 32, 3, 1, 1, [9, 6, 7]),
-            (32, 16, 3, 1, 1, [17, 5, 4]),
-            (16, 8, 3, 1, 1, [6, 9, 5]),
-            (16, 32, 3, 2, 1, [17, 6, 7]),
-            (1, 16, 5, 2, 2, [23, 9, 8]),
-            (16, 1, 3, 1, 1, [21, 6, 4]),
-            (3, 5, 3, 1, 1, [7, 6, 5]),
-        ];
-        let amx = nst3d_core::bf16::amx::available();
-        for (i, &(cin, cout, k, s, p, dims)) in shapes.iter().enumerate() {
-            let c = layer(cin, cout, k, s, p, 80 + i as u64);
-            assert_eq!(tiles::takes_forward(&c), amx, "shape {i}");
-            assert_eq!(tiles::takes_weight_grad(&c), amx && s == 1 && cin % 16 == 0, "shape {i}");
-            let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 81));
-            let out = c.out_dims(dims);
-            let g = Volume::from_vec(cout, out, pseudo_random(cout * out.iter().product::<usize>(), 82));
-            let run = |path, direct| {
-                let y = c.forward_with(path, direct, &x);
-                let (dx, gr) = c.backward_with(path, direct, &x, &g, true);
-                (y.data, dx.unwrap().data, gr.weight)
+        route::by_capability(|| {
+            let rel = |a: &[f32], b: &[f32]| {
+                let m = b.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
+                a.iter().zip(b).fold(0.0f32, |e, (x, y)| e.max((x - y).abs())) / m
             };
-            let hw = if amx { Path::Bf16Amx } else { Path::Bf16Portable };
-            let (want, got) = (run(Path::Bf16Portable, None), run(hw, direct_arith(hw)));
-            for (name, a, b) in [("forward", &got.0, &want.0), ("input", &got.1, &want.1), ("weight", &got.2, &want.2)]
-            {
-                let e = rel(a, b);
-                assert!(e < 1e-4, "shape {i} {name}: {e}");
+            let shapes = [
+                (16, 16, 3, 1, 1, [19, 7, 5]),
+                (32, 32, 3, 1, 1, [9, 6, 7]),
+                (32, 16, 3, 1, 1, [17, 5, 4]),
+                (16, 8, 3, 1, 1, [6, 9, 5]),
+                (16, 32, 3, 2, 1, [17, 6, 7]),
+                (1, 16, 5, 2, 2, [23, 9, 8]),
+                (16, 1, 3, 1, 1, [21, 6, 4]),
+                (3, 5, 3, 1, 1, [7, 6, 5]),
+            ];
+            let amx = nst3d_core::bf16::amx::available();
+            for (i, &(cin, cout, k, s, p, dims)) in shapes.iter().enumerate() {
+                let c = layer(cin, cout, k, s, p, 80 + i as u64);
+                assert_eq!(tiles::takes_forward(&c), amx, "shape {i}");
+                assert_eq!(tiles::takes_weight_grad(&c), amx && s == 1 && cin % 16 == 0, "shape {i}");
+                let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 81));
+                let out = c.out_dims(dims);
+                let g = Volume::from_vec(cout, out, pseudo_random(cout * out.iter().product::<usize>(), 82));
+                let run = |path, direct| {
+                    let y = c.forward_with(path, direct, &x);
+                    let (dx, gr) = c.backward_with(path, direct, &x, &g, true);
+                    (y.data, dx.unwrap().data, gr.weight)
+                };
+                let hw = if amx { Path::Bf16Amx } else { Path::Bf16Portable };
+                let (want, got) = (run(Path::Bf16Portable, None), run(hw, direct_arith(hw)));
+                for (name, a, b) in
+                    [("forward", &got.0, &want.0), ("input", &got.1, &want.1), ("weight", &got.2, &want.2)]
+                {
+                    let e = rel(a, b);
+                    assert!(e < 1e-4, "shape {i} {name}: {e}");
+                }
             }
-        }
+        })
     }
 
     /// The direct kernels (AVX-512 where this machine has them, then the
@@ -653,42 +659,44 @@ mod tests {
     /// against im2col's emulated bf16 (the same rounded operands) within 1e-4.
     #[test]
     fn direct_matches_im2col() {
-        use std::sync::atomic::Ordering;
-        let rel = |a: &[f32], b: &[f32]| {
-            let m = b.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
-            a.iter().zip(b).fold(0.0f32, |e, (x, y)| e.max((x - y).abs())) / m
-        };
-        let shapes = [
-            (3, 16, 3, 1, 1, [19, 7, 5]),
-            (16, 4, 3, 1, 1, [21, 6, 4]),
-            (5, 1, 3, 1, 1, [33, 5, 3]),
-            (1, 16, 5, 2, 2, [23, 9, 8]),
-            (16, 32, 3, 2, 1, [17, 6, 7]),
-        ];
-        for scalar in [false, true] {
-            kernels::SCALAR_ONLY.store(scalar, Ordering::Relaxed);
-            for (arith, path, tol) in [(Arith::F32, Path::Fp32, 1e-5), (Arith::Bf16, Path::Bf16Portable, 1e-4)] {
-                for (i, &(cin, cout, k, s, p, dims)) in shapes.iter().enumerate() {
-                    let c = layer(cin, cout, k, s, p, 70 + i as u64);
-                    let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 71));
-                    let out = c.out_dims(dims);
-                    let g = Volume::from_vec(cout, out, pseudo_random(cout * out.iter().product::<usize>(), 72));
-                    let run = |direct| {
-                        let y = c.forward_with(path, direct, &x);
-                        let (dx, gr) = c.backward_with(path, direct, &x, &g, true);
-                        (y.data, dx.unwrap().data, gr.weight)
-                    };
-                    let (want, got) = (run(None), run(Some(arith)));
-                    for (name, a, b) in
-                        [("forward", &got.0, &want.0), ("input", &got.1, &want.1), ("weight", &got.2, &want.2)]
-                    {
-                        let e = rel(a, b);
-                        assert!(e < tol, "scalar {scalar} {arith:?} shape {i} {name}: {e}");
+        route::by_capability(|| {
+            use std::sync::atomic::Ordering;
+            let rel = |a: &[f32], b: &[f32]| {
+                let m = b.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
+                a.iter().zip(b).fold(0.0f32, |e, (x, y)| e.max((x - y).abs())) / m
+            };
+            let shapes = [
+                (3, 16, 3, 1, 1, [19, 7, 5]),
+                (16, 4, 3, 1, 1, [21, 6, 4]),
+                (5, 1, 3, 1, 1, [33, 5, 3]),
+                (1, 16, 5, 2, 2, [23, 9, 8]),
+                (16, 32, 3, 2, 1, [17, 6, 7]),
+            ];
+            for scalar in [false, true] {
+                kernels::SCALAR_ONLY.store(scalar, Ordering::Relaxed);
+                for (arith, path, tol) in [(Arith::F32, Path::Fp32, 1e-5), (Arith::Bf16, Path::Bf16Portable, 1e-4)] {
+                    for (i, &(cin, cout, k, s, p, dims)) in shapes.iter().enumerate() {
+                        let c = layer(cin, cout, k, s, p, 70 + i as u64);
+                        let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 71));
+                        let out = c.out_dims(dims);
+                        let g = Volume::from_vec(cout, out, pseudo_random(cout * out.iter().product::<usize>(), 72));
+                        let run = |direct| {
+                            let y = c.forward_with(path, direct, &x);
+                            let (dx, gr) = c.backward_with(path, direct, &x, &g, true);
+                            (y.data, dx.unwrap().data, gr.weight)
+                        };
+                        let (want, got) = (run(None), run(Some(arith)));
+                        for (name, a, b) in
+                            [("forward", &got.0, &want.0), ("input", &got.1, &want.1), ("weight", &got.2, &want.2)]
+                        {
+                            let e = rel(a, b);
+                            assert!(e < tol, "scalar {scalar} {arith:?} shape {i} {name}: {e}");
+                        }
                     }
                 }
             }
-        }
-        kernels::SCALAR_ONLY.store(false, Ordering::Relaxed);
+            kernels::SCALAR_ONLY.store(false, Ordering::Relaxed);
+        })
     }
 
     /// The AVX-512 kernels this machine has agree with their scalar references.

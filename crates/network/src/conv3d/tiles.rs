@@ -122,9 +122,10 @@ pub fn forward(l: &Conv3d, x: &Volume) -> Volume {
     };
     let max_read = input(count - ROWS) + (ROWS - 1) * g.s * cp + offs.iter().max().unwrap_or(&0) + KS;
     let xin = channels_last(&g, x, max_read.div_ceil(2));
-    let mut y = Volume::zeros(l.cout, g.o);
-    let n_out = y.voxels();
-    let out = Out(y.data.as_mut_ptr());
+    let n_out = oz * oy * ox;
+    // Not zeroed first: the blocks below write every value once.
+    let mut y: Vec<f32> = Vec::with_capacity(l.cout * n_out);
+    let out = Out(y.as_mut_ptr());
     let nblk = l.cout.div_ceil(16);
     let blocks = count / TALL_MB;
     (0..blocks.div_ceil(BLOCKS_PER_TASK)).into_par_iter().for_each(|task| {
@@ -146,19 +147,72 @@ pub fn forward(l: &Conv3d, x: &Volume) -> Volume {
                             continue;
                         }
                         let (v0, n) = ((z * oy + yy) * ox + x0, ROWS.min(ox - x0));
-                        for j in 0..16.min(l.cout - nb * 16) {
-                            let (co, tile) = (nb * 16 + j, &c[t * ROWS * 16..]);
-                            for r in 0..n {
-                                // SAFETY: position v0 + r of channel co, written by this block only.
-                                unsafe { out.write(co * n_out + v0 + r, tile[r * 16 + j] + l.bias[co]) };
-                            }
-                        }
+                        let channels = nb * 16..l.cout.min(nb * 16 + 16);
+                        let tile: &[f32; ROWS * 16] =
+                            c[t * ROWS * 16..][..ROWS * 16].try_into().expect("a 16 x 16 tile");
+                        // SAFETY: positions v0 .. v0 + n of these channels, written by this block only.
+                        unsafe {
+                            store_transposed(
+                                tile,
+                                &l.bias[channels.clone()],
+                                out,
+                                channels.start * n_out + v0,
+                                n_out,
+                                n,
+                            )
+                        };
                     }
                 }
             }
         })
     });
-    y
+    // SAFETY: the blocks cover every (z, y, x < ox) of every channel, each written above.
+    unsafe { y.set_len(l.cout * n_out) };
+    Volume::from_vec(l.cout, g.o, y)
+}
+
+/// Writes a 16 × 16 result tile (`tile[r · 16 + j]`: position `r`, channel
+/// `j`) plus the bias into channels-first output: channel `j`'s first `n`
+/// positions at `at + j · stride`, for the `bias.len()` channels there are.
+/// On AVX-512 the tile is transposed in registers, so each channel's row
+/// is one (masked) store.
+///
+/// # Safety
+/// Every written element is inside the output and written by this caller only.
+unsafe fn store_transposed(tile: &[f32; ROWS * 16], bias: &[f32], out: Out, at: usize, stride: usize, n: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if nst3d_core::bf16::has_avx512f() {
+        return store_transposed_avx512(tile, bias, out, at, stride, n);
+    }
+    for (j, b) in bias.iter().enumerate() {
+        for r in 0..n {
+            out.write(at + j * stride + r, tile[r * 16 + j] + b);
+        }
+    }
+}
+
+/// [`store_transposed`] on AVX-512: four stages of swapping the off-diagonal
+/// `b x b` blocks (b = 8, 4, 2, 1) of row pairs `(i, i + b)` transpose the tile.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn store_transposed_avx512(tile: &[f32; ROWS * 16], bias: &[f32], out: Out, at: usize, stride: usize, n: usize) {
+    use std::arch::x86_64::*;
+    let mut m: [__m512; 16] = std::array::from_fn(|r| _mm512_loadu_ps(tile.as_ptr().add(r * 16)));
+    for b in [8usize, 4, 2, 1] {
+        let lo: [i32; 16] = std::array::from_fn(|c| if c & b == 0 { c as i32 } else { (16 + c - b) as i32 });
+        let hi: [i32; 16] = std::array::from_fn(|c| if c & b == 0 { (c + b) as i32 } else { (16 + c) as i32 });
+        let (lo, hi) = (_mm512_loadu_si512(lo.as_ptr().cast()), _mm512_loadu_si512(hi.as_ptr().cast()));
+        for i in (0..16).filter(|i| i & b == 0) {
+            let (a, c) = (m[i], m[i + b]);
+            m[i] = _mm512_permutex2var_ps(a, lo, c);
+            m[i + b] = _mm512_permutex2var_ps(a, hi, c);
+        }
+    }
+    let mask: __mmask16 = if n >= 16 { 0xffff } else { (1u16 << n) - 1 };
+    for (j, &b) in bias.iter().enumerate() {
+        let v = _mm512_add_ps(m[j], _mm512_set1_ps(b));
+        _mm512_mask_storeu_ps(out.0.add(at + j * stride), mask, v);
+    }
 }
 
 /// The weights as `[16 output channels][step][k / 2][2 · channel + k % 2]`,
