@@ -65,12 +65,29 @@ pub fn upsample2(x: &Volume) -> Volume {
     Volume::from_vec(x.channels, dims, data)
 }
 
+/// The transpose of one ×2 axis at coarse sample `i` of `n`: the two fine
+/// samples that read it at 3/4 (`2i`, `2i + 1`) and the two that read it
+/// at 1/4 (`2i − 1`, `2i + 2`; at a border the clamped neighbour is the
+/// sample itself, so the outer fine sample counts there once more).
+fn down_taps(i: usize, n: usize) -> [usize; 4] {
+    let lo = if i > 0 { 2 * i - 1 } else { 0 };
+    let hi = if i + 1 < n { 2 * i + 2 } else { 2 * n - 1 };
+    [2 * i, 2 * i + 1, lo, hi]
+}
+
+/// `dst[j] = 3/4 (a[j] + b[j]) + 1/4 (lo[j] + hi[j])`, each value written once.
+fn gather(dst: &mut [MaybeUninit<f32>], [a, b, lo, hi]: [&[f32]; 4]) {
+    for (j, d) in dst.iter_mut().enumerate() {
+        d.write(0.75 * (a[j] + b[j]) + 0.25 * (lo[j] + hi[j]));
+    }
+}
+
 /// Backward of [`upsample2`]: the gradient w.r.t. its input (of `dims`)
 /// from the gradient w.r.t. its output.
 ///
-/// Two passes: each fine plane reduced along x and y to a coarse-sized
-/// plane (the transposes of the row and column steps), then each coarse
-/// plane summed from the four reduced planes that read it, in a fixed order.
+/// Each coarse value gathers the four fine values that read it, axis by
+/// axis (x, then y, one fine plane a task; then z), so every value is
+/// written once and nothing is zeroed or accumulated.
 ///
 /// # Panics
 /// If `grad` is not twice `dims` along every axis.
@@ -78,35 +95,32 @@ pub fn upsample2_backward(grad: &Volume, dims: [usize; 3]) -> Volume {
     assert_eq!(grad.dims, dims.map(|n| 2 * n), "upsample2_backward: gradient size");
     let [nx, ny, nz] = dims;
     let (plane, fine_plane) = (nx * ny, 4 * nx * ny);
-    let mut reduced = vec![0.0f32; grad.channels * 2 * nz * plane];
-    reduced.par_chunks_mut(plane).zip(grad.data.par_chunks(fine_plane)).for_each_init(
-        || vec![0.0f32; nx],
-        |row, (dst, src)| {
-            for (y, fine) in src.chunks_exact(2 * nx).enumerate() {
-                row.fill(0.0);
-                for (i, pair) in fine.chunks_exact(2).enumerate() {
-                    row[i] += 0.75 * (pair[0] + pair[1]);
-                    row[i.saturating_sub(1)] += 0.25 * pair[0];
-                    row[(i + 1).min(nx - 1)] += 0.25 * pair[1];
+    let mut reduced: Vec<f32> = Vec::with_capacity(grad.channels * 2 * nz * plane);
+    reduced.spare_capacity_mut().par_chunks_mut(plane).zip(grad.data.par_chunks(fine_plane)).for_each_init(
+        || vec![0.0f32; 2 * ny * nx],
+        |rows, (dst, fine)| {
+            // x: each fine row of 2nx values to nx.
+            for (row, f) in rows.chunks_exact_mut(nx).zip(fine.chunks_exact(2 * nx)) {
+                for (i, r) in row.iter_mut().enumerate() {
+                    let [a, b, lo, hi] = down_taps(i, nx);
+                    *r = 0.75 * (f[a] + f[b]) + 0.25 * (f[lo] + f[hi]);
                 }
-                let (a, b) = taps(y, ny);
-                dst[a * nx..][..nx].iter_mut().zip(row.iter()).for_each(|(d, r)| *d += 0.75 * r);
-                dst[b * nx..][..nx].iter_mut().zip(row.iter()).for_each(|(d, r)| *d += 0.25 * r);
+            }
+            // y: each coarse row from four of those rows.
+            for (y, d) in dst.chunks_exact_mut(nx).enumerate() {
+                gather(d, down_taps(y, ny).map(|r| &rows[r * nx..][..nx]));
             }
         },
     );
-    let mut data = vec![0.0f32; grad.channels * nz * plane];
-    data.par_chunks_mut(plane).enumerate().for_each(|(cz, dst)| {
+    // SAFETY: every fine plane's task wrote its whole coarse-sized plane.
+    unsafe { reduced.set_len(reduced.capacity()) };
+    let mut data: Vec<f32> = Vec::with_capacity(grad.channels * nz * plane);
+    data.spare_capacity_mut().par_chunks_mut(plane).enumerate().for_each(|(cz, dst)| {
         let (c, z) = (cz / nz, cz % nz);
-        for f in (2 * z).saturating_sub(1)..(2 * z + 3).min(2 * nz) {
-            let (a, b) = taps(f, nz);
-            let w = if a == z { 0.75 } else { 0.0 } + if b == z { 0.25 } else { 0.0 };
-            if w != 0.0 {
-                let src = &reduced[(c * 2 * nz + f) * plane..][..plane];
-                dst.iter_mut().zip(src).for_each(|(d, s)| *d += w * s);
-            }
-        }
+        gather(dst, down_taps(z, nz).map(|f| &reduced[(c * 2 * nz + f) * plane..][..plane]));
     });
+    // SAFETY: every coarse plane was written above.
+    unsafe { data.set_len(data.capacity()) };
     Volume::from_vec(grad.channels, dims, data)
 }
 
@@ -179,6 +193,19 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// The backward is the forward's adjoint, `<w, up(x)> = <up*(w), x>`,
+    /// on sides of 1, 2 and more.
+    #[test]
+    fn the_backward_is_the_adjoint() {
+        for dims in [[1, 3, 2], [4, 1, 1], [2, 5, 3]] {
+            let n: usize = dims.iter().product();
+            let x = Volume::from_vec(2, dims, pseudo_random(2 * n, 6));
+            let w = Volume::from_vec(2, dims.map(|v| 2 * v), pseudo_random(16 * n, 7));
+            let (lhs, rhs) = (dot(&w.data, &upsample2(&x).data), dot(&upsample2_backward(&w, dims).data, &x.data));
+            assert!((lhs - rhs).abs() < 1e-4 * (1.0 + lhs.abs()), "{dims:?}: {lhs} vs {rhs}");
         }
     }
 

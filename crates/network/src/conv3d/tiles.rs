@@ -350,31 +350,53 @@ fn channel_major(g: &Grid, x: &Volume, len: usize) -> Vec<u16> {
 
 /// The output gradient on the padded positions `f = (z · py + y) · px + x`
 /// (zero where no output is), packed as the tall block's B (`u32` pairs):
-/// `[16 output channels][step][k / 2][2 · channel + k % 2]`. Each channel
-/// is first spread over the positions in bf16, so a pair of positions is
-/// one `u32` and a step's tile is a 16 × 16 transpose of them.
+/// `[16 output channels][step][k / 2][2 · channel + k % 2]`. One task a
+/// plane of 16 channels: their rows are converted to bf16, then each
+/// position's 16 values go to their 64 bytes of the step's tile.
 fn pack_gradient(l: &Conv3d, g: &Grid, grad_out: &Volume, steps: usize) -> Vec<u32> {
     let [ox, oy, oz] = g.o;
-    let half = steps * KS / 2;
     let nblk = l.cout.div_ceil(16);
-    let mut spread = vec![0u32; l.cout * half];
-    spread.par_chunks_mut(half).enumerate().for_each(|(co, dst)| {
-        // SAFETY: u32 storage viewed as twice as many u16 (alignment and size fit).
-        let dst = unsafe { std::slice::from_raw_parts_mut(dst.as_mut_ptr() as *mut u16, 2 * half) };
-        for z in 0..oz {
-            for y in 0..oy {
-                let src = &grad_out.channel(co)[(z * oy + y) * ox..][..ox];
-                nst3d_core::bf16::convert(src, &mut dst[(z * g.py + y) * g.px..][..ox]);
-            }
-        }
-    });
     let mut out = vec![0u32; nblk * steps * TALL_STEP / 2];
-    out.par_chunks_mut(TALL_STEP / 2).enumerate().for_each(|(i, tile)| {
-        let (nb, s) = (i / steps, i % steps);
-        for j in 0..16.min(l.cout - nb * 16) {
-            let src = &spread[(nb * 16 + j) * half + s * KS / 2..][..KS / 2];
-            src.iter().enumerate().for_each(|(p, v)| tile[p * 16 + j] = *v);
-        }
-    });
+    let dst = Packed(out.as_mut_ptr() as *mut u16);
+    (0..nblk * oz).into_par_iter().for_each_init(
+        || vec![0u16; 16 * ox],
+        |rows, bz| {
+            let (nb, z) = (bz / oz, bz % oz);
+            let channels = 16.min(l.cout - nb * 16);
+            for y in 0..oy {
+                for j in 0..channels {
+                    let src = &grad_out.channel(nb * 16 + j)[(z * oy + y) * ox..][..ox];
+                    nst3d_core::bf16::convert(src, &mut rows[j * ox..][..ox]);
+                }
+                let f0 = (z * g.py + y) * g.px;
+                for x in 0..ox {
+                    let f = f0 + x;
+                    let at = (nb * steps + f / KS) * TALL_STEP + f % KS / 2 * KS + f % 2;
+                    for j in 0..channels {
+                        // SAFETY: position f of channel nb · 16 + j, inside the
+                        // buffer (f < steps · KS) and written by this task only.
+                        unsafe { dst.write(at + 2 * j, rows[j * ox + x]) };
+                    }
+                }
+            }
+        },
+    );
     out
+}
+
+/// The packed output gradient, which the plane tasks write element by element.
+#[derive(Clone, Copy)]
+struct Packed(*mut u16);
+// SAFETY: tasks write disjoint elements (each position of each channel once).
+unsafe impl Send for Packed {}
+unsafe impl Sync for Packed {}
+
+impl Packed {
+    /// Writes `v` at element `i`.
+    ///
+    /// # Safety
+    /// `i` is inside the buffer and no other task writes it.
+    unsafe fn write(&self, i: usize, v: u16) {
+        *self.0.add(i) = v;
+    }
 }
