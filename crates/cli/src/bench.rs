@@ -54,6 +54,11 @@ enum Which {
     /// One training step of the feed-forward network on a --patch^3 patch,
     /// as `torch_ff_ref.py --patch P --mode M` times it.
     TrainStep,
+    /// Each layer of the network at a --patch^3 patch, each product
+    /// (forward, weight and input gradient) on each 3D-convolution kernel
+    /// this CPU has, and the kernel --precision picks: the measurements the
+    /// kernel choice was read from.
+    Conv3d,
 }
 
 /// Runs the benchmark; the last line is `ms_per_iter <median>`.
@@ -63,6 +68,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         Which::StrandsIter => strands_iter(&args),
         Which::Infer => infer(&args),
         Which::TrainStep => train_step(&args),
+        Which::Conv3d => conv3d(&args),
     }
 }
 
@@ -130,6 +136,35 @@ fn infer(args: &BenchArgs) -> Result<()> {
         nst3d_core::precision::path_for(nst3d_core::precision::Product::Conv3d).describe()
     );
     print_times(&nst3d_network::bench::infer(args.n, args.channels, args.iters.max(1)), "ms_infer");
+    Ok(())
+}
+
+/// `conv3d`: the kernel table, a line per layer and product, median ms per
+/// kernel (`-` where it does not run), the picked kernel marked `*`.
+fn conv3d(args: &BenchArgs) -> Result<()> {
+    use nst3d_network::conv3d::Kernel3d;
+    check("patch", args.patch, 16, 256, 4)?;
+    check("channels", args.channels, 1, 256, 1)?;
+    eprintln!(
+        "conv3d: patch={} channels={} threads={} precision={}",
+        args.patch,
+        args.channels,
+        rayon::current_num_threads(),
+        nst3d_core::precision::path_for(nst3d_core::precision::Product::Conv3d).describe()
+    );
+    let names: Vec<&str> = Kernel3d::ALL.iter().map(|k| k.name()).collect();
+    println!("{:<34} {:<12} {}", "layer", "product", names.join(" | "));
+    for row in nst3d_network::bench::conv3d_table(args.patch, args.channels, args.iters.max(1)) {
+        let cells: Vec<String> = Kernel3d::ALL
+            .iter()
+            .zip(row.ms)
+            .map(|(k, ms)| {
+                let mark = if row.chosen == Some(*k) { "*" } else { " " };
+                ms.map_or(format!("{:>10}{mark}", "-"), |t| format!("{t:>10.2}{mark}"))
+            })
+            .collect();
+        println!("{:<34} {:<12} {}", row.layer, format!("{:?}", row.product), cells.join(" | "));
+    }
     Ok(())
 }
 

@@ -252,6 +252,27 @@ fn bench_prints_the_median_last() {
     }
 }
 
+/// The kernel table: a header naming the three kernels, then one line per
+/// layer and product, every timed cell a positive number, one `*` (the
+/// kernel used) on each line where the precision in force runs a named kernel.
+#[test]
+fn bench_conv3d_prints_the_kernel_table() {
+    let o = nst3d(&["--threads", "2", "bench", "conv3d", "--patch", "16", "--iters", "1"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8(o.stdout).unwrap();
+    let mut lines = stdout.lines();
+    assert!(lines.next().unwrap().contains("tiles | bf16 direct | fp32 direct"), "{stdout}");
+    for line in lines {
+        let cells: Vec<&str> = line.split('|').collect();
+        assert_eq!(cells.len(), 3, "{line}");
+        assert!(line.matches('*').count() <= 1, "{line}");
+        for cell in cells {
+            let v = cell.split_whitespace().last().unwrap().trim_end_matches('*');
+            assert!(v == "-" || v.parse::<f64>().unwrap() > 0.0, "{line}");
+        }
+    }
+}
+
 /// A short stretch of the Blender plume as a sequence: every frame is
 /// written, keeps all of the input's grids, and OpenVDB opens it.
 #[test]

@@ -18,7 +18,7 @@ use std::mem::MaybeUninit;
 /// blends, 3/4 and 1/4: `f / 2`, and its neighbour on `f`'s side, clamped.
 fn taps(f: usize, n: usize) -> (usize, usize) {
     let i = f / 2;
-    (i, if f % 2 == 0 { i.saturating_sub(1) } else { (i + 1).min(n - 1) })
+    (i, if f.is_multiple_of(2) { i.saturating_sub(1) } else { (i + 1).min(n - 1) })
 }
 
 /// `dst[j] = 3/4 a[j] + 1/4 b[j]`.

@@ -26,8 +26,11 @@ use crate::volume::Volume;
 
 mod direct;
 pub mod kernels;
+mod measure;
 mod route;
 mod tiles;
+
+pub use measure::{Conv3dProduct, Kernel3d};
 
 use direct::Arith;
 use route::Route;

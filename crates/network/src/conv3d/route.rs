@@ -1,11 +1,10 @@
 //! Which kernel runs each product of a layer. The precision path says
 //! which arithmetic the user asked for; within a bf16 path the layer's shape
 //! decides, by measurement (docs/design/performance.md, "Which kernel runs
-//! a layer"): AMX tiles waste most of each tile where a layer has one
-//! output channel (a 16-wide N) or only a few input channels (a 32-deep K
-//! slice holds `k · cin` values), and there the direct AVX-512 kernels
-//! are two to three times faster; with three input channels or fewer half
-//! of every bf16 pair is padding, and fp32 is faster still.
+//! a layer"; `nst3d bench conv3d` takes the table again on any CPU): AMX
+//! tiles fill one column of 16 where a layer has one output channel, and
+//! there the direct AVX512-BF16 kernel is faster; with one input channel
+//! half of every bf16 pair is padding, and fp32 is faster still.
 
 use std::cell::Cell;
 
@@ -26,7 +25,7 @@ pub enum Route {
 }
 
 /// Fewest input channels a bf16 forward keeps in bf16 (fewer: fp32).
-const BF16_MIN_CIN: usize = 4;
+const BF16_MIN_CIN: usize = 2;
 
 thread_local! {
     /// Set by tests that check a kernel on every shape it can run: the
@@ -82,7 +81,7 @@ mod tests {
         let f = |cin, cout, s| forward(&Conv3d::zeros(cin, cout, 3, s, 1), Path::Bf16Amx, amx);
         let w = |cin, cout, s| weight_grad(&Conv3d::zeros(cin, cout, 3, s, 1), Path::Bf16Amx, amx);
         assert_eq!(f(1, 16, 2), Route::Direct(Arith::F32));
-        assert_eq!(f(3, 16, 1), Route::Direct(Arith::F32));
+        assert_eq!(f(3, 16, 1), Route::Tiles);
         assert_eq!(f(16, 1, 1), Route::Direct(Arith::Bf16));
         assert_eq!(f(16, 3, 1), Route::Tiles);
         assert_eq!(f(16, 32, 2), Route::Tiles);
