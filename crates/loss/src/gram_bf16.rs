@@ -68,11 +68,16 @@ pub(crate) fn gram(kernel: Kernel, f: FeatureView<'_>, scale: f32) -> Vec<f32> {
         for blk in &partial[pi * chunks..(pi + 1) * chunks] {
             sum.iter_mut().zip(blk).for_each(|(s, v)| *s += v);
         }
-        for r in 0..MB.min(c - bi * MB) {
-            for j in 0..NB.min(c - bj * NB) {
-                let v = scale * sum[r * NB + j];
-                g[(bi * MB + r) * c + bj * NB + j] = v;
-                g[(bj * NB + j) * c + bi * MB + r] = v;
+        let (rows, cols) = (MB.min(c - bi * MB), NB.min(c - bj * NB));
+        // The block, then its mirror, each written along rows of g.
+        for r in 0..rows {
+            for j in 0..cols {
+                g[(bi * MB + r) * c + bj * NB + j] = scale * sum[r * NB + j];
+            }
+        }
+        for j in 0..cols {
+            for r in 0..rows {
+                g[(bj * NB + j) * c + bi * MB + r] = scale * sum[r * NB + j];
             }
         }
     }

@@ -181,8 +181,9 @@ pub fn gram_backward(f: FeatureView<'_>, grad_g: &[f32]) -> Vec<f32> {
 /// `mean((a - b)²)`, PyTorch's `F.mse_loss` with the default mean reduction
 /// (0 for empty inputs).
 ///
-/// The sum is accumulated in `f64` so the result is the correctly rounded
-/// mean; PyTorch's vectorised `f32` reduction agrees to float rounding.
+/// The sum is accumulated in `f64`, over 8 interleaved lanes added in a
+/// fixed order (8 independent chains, the same bits on every run); PyTorch's
+/// vectorised `f32` reduction agrees to float rounding.
 ///
 /// # Panics
 /// If the lengths differ (a programming error).
@@ -191,8 +192,16 @@ pub fn mse(a: &[f32], b: &[f32]) -> f32 {
     if a.is_empty() {
         return 0.0;
     }
-    let sum: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();
-    (sum / a.len() as f64) as f32
+    let sq = |x: f32, y: f32| ((x - y) as f64).powi(2);
+    let mut lanes = [0.0f64; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let rest: f64 = ca.remainder().iter().zip(cb.remainder()).map(|(&x, &y)| sq(x, y)).sum();
+    for (x, y) in ca.zip(cb) {
+        for l in 0..8 {
+            lanes[l] += sq(x[l], y[l]);
+        }
+    }
+    ((lanes.iter().sum::<f64>() + rest) / a.len() as f64) as f32
 }
 
 /// Gradient of [`mse`] with respect to `a`: `2 (a - b) / n`.
