@@ -124,17 +124,24 @@ fn volume_iter(args: &BenchArgs) -> Result<()> {
     Ok(())
 }
 
-/// `infer`: the feed-forward network's forward pass; the last line is `ms_infer`.
-fn infer(args: &BenchArgs) -> Result<()> {
-    check("n", args.n, 16, 512, 4)?;
+/// Checks the network's width and prints the first line of a network
+/// benchmark: its name, its size, the width, threads and the convolutions'
+/// precision.
+fn network_header(name: &str, size: &str, args: &BenchArgs) -> Result<()> {
     check("channels", args.channels, 1, 256, 1)?;
     eprintln!(
-        "infer: N={} channels={} threads={} precision={}",
-        args.n,
+        "{name}: {size} channels={} threads={} precision={}",
         args.channels,
         rayon::current_num_threads(),
         nst3d_core::precision::path_for(nst3d_core::precision::Product::Conv3d).describe()
     );
+    Ok(())
+}
+
+/// `infer`: the feed-forward network's forward pass; the last line is `ms_infer`.
+fn infer(args: &BenchArgs) -> Result<()> {
+    check("n", args.n, 16, 512, 4)?;
+    network_header("infer", &format!("N={}", args.n), args)?;
     print_times(&nst3d_network::bench::infer(args.n, args.channels, args.iters.max(1)), "ms_infer");
     Ok(())
 }
@@ -144,14 +151,7 @@ fn infer(args: &BenchArgs) -> Result<()> {
 fn conv3d(args: &BenchArgs) -> Result<()> {
     use nst3d_network::conv3d::Kernel3d;
     check("patch", args.patch, 16, 256, 4)?;
-    check("channels", args.channels, 1, 256, 1)?;
-    eprintln!(
-        "conv3d: patch={} channels={} threads={} precision={}",
-        args.patch,
-        args.channels,
-        rayon::current_num_threads(),
-        nst3d_core::precision::path_for(nst3d_core::precision::Product::Conv3d).describe()
-    );
+    network_header("conv3d", &format!("patch={}", args.patch), args)?;
     let names: Vec<&str> = Kernel3d::ALL.iter().map(|k| k.name()).collect();
     println!("{:<34} {:<12} {}", "layer", "product", names.join(" | "));
     for row in nst3d_network::bench::conv3d_table(args.patch, args.channels, args.iters.max(1)) {

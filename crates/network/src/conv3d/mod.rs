@@ -616,6 +616,29 @@ mod tests {
         })
     }
 
+    /// What [`products`] returns, in order.
+    const PRODUCTS: [&str; 3] = ["forward", "input", "weight"];
+
+    /// The forward, input gradient and weight gradient of `c` on `path` /
+    /// `direct`, at a pseudo-random input of `dims` and output gradient
+    /// (seeds `seed`, `seed + 1`).
+    fn products(c: &Conv3d, dims: [usize; 3], seed: u64, path: Path, direct: Option<Arith>) -> [Vec<f32>; 3] {
+        let x = Volume::from_vec(c.cin, dims, pseudo_random(c.cin * dims.iter().product::<usize>(), seed));
+        let out = c.out_dims(dims);
+        let g = Volume::from_vec(c.cout, out, pseudo_random(c.cout * out.iter().product::<usize>(), seed + 1));
+        let y = c.forward_with(path, direct, &x);
+        let (dx, gr) = c.backward_with(path, direct, &x, &g, true);
+        [y.data, dx.expect("asked for").data, gr.weight]
+    }
+
+    /// Each product's largest difference over the largest reference value.
+    fn rel_errors(got: &[Vec<f32>; 3], want: &[Vec<f32>; 3]) -> [f32; 3] {
+        std::array::from_fn(|i| {
+            let m = want[i].iter().fold(1e-6f32, |m, v| m.max(v.abs()));
+            got[i].iter().zip(&want[i]).fold(0.0f32, |e, (x, y)| e.max((x - y).abs())) / m
+        })
+    }
+
     /// The AMX tiles (where this CPU has them; elsewhere the same calls take
     /// the AVX512-BF16 or emulated kernels) against im2col's emulated bf16
     /// (the same rounded operands, another summation order) within 1e-4 of
@@ -625,10 +648,6 @@ mod tests {
     #[test]
     fn tiles_match_im2col() {
         route::by_capability(|| {
-            let rel = |a: &[f32], b: &[f32]| {
-                let m = b.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
-                a.iter().zip(b).fold(0.0f32, |e, (x, y)| e.max((x - y).abs())) / m
-            };
             let shapes = [
                 (16, 16, 3, 1, 1, [19, 7, 5]),
                 (32, 32, 3, 1, 1, [9, 6, 7]),
@@ -644,20 +663,10 @@ mod tests {
                 let c = layer(cin, cout, k, s, p, 80 + i as u64);
                 assert_eq!(tiles::takes_forward(&c), amx, "shape {i}");
                 assert_eq!(tiles::takes_weight_grad(&c), amx && s == 1 && cin % 16 == 0, "shape {i}");
-                let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 81));
-                let out = c.out_dims(dims);
-                let g = Volume::from_vec(cout, out, pseudo_random(cout * out.iter().product::<usize>(), 82));
-                let run = |path, direct| {
-                    let y = c.forward_with(path, direct, &x);
-                    let (dx, gr) = c.backward_with(path, direct, &x, &g, true);
-                    (y.data, dx.unwrap().data, gr.weight)
-                };
                 let hw = if amx { Path::Bf16Amx } else { Path::Bf16Portable };
-                let (want, got) = (run(Path::Bf16Portable, None), run(hw, direct_arith(hw)));
-                for (name, a, b) in
-                    [("forward", &got.0, &want.0), ("input", &got.1, &want.1), ("weight", &got.2, &want.2)]
-                {
-                    let e = rel(a, b);
+                let want = products(&c, dims, 81, Path::Bf16Portable, None);
+                let got = products(&c, dims, 81, hw, direct_arith(hw));
+                for (name, e) in PRODUCTS.iter().zip(rel_errors(&got, &want)) {
                     assert!(e < 1e-4, "shape {i} {name}: {e}");
                 }
             }
@@ -674,10 +683,6 @@ mod tests {
     fn direct_matches_im2col() {
         route::by_capability(|| {
             use std::sync::atomic::Ordering;
-            let rel = |a: &[f32], b: &[f32]| {
-                let m = b.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
-                a.iter().zip(b).fold(0.0f32, |e, (x, y)| e.max((x - y).abs())) / m
-            };
             let shapes = [
                 (3, 16, 3, 1, 1, [19, 7, 5]),
                 (16, 4, 3, 1, 1, [21, 6, 4]),
@@ -690,19 +695,9 @@ mod tests {
                 for (arith, path, tol) in [(Arith::F32, Path::Fp32, 1e-5), (Arith::Bf16, Path::Bf16Portable, 1e-4)] {
                     for (i, &(cin, cout, k, s, p, dims)) in shapes.iter().enumerate() {
                         let c = layer(cin, cout, k, s, p, 70 + i as u64);
-                        let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 71));
-                        let out = c.out_dims(dims);
-                        let g = Volume::from_vec(cout, out, pseudo_random(cout * out.iter().product::<usize>(), 72));
-                        let run = |direct| {
-                            let y = c.forward_with(path, direct, &x);
-                            let (dx, gr) = c.backward_with(path, direct, &x, &g, true);
-                            (y.data, dx.unwrap().data, gr.weight)
-                        };
-                        let (want, got) = (run(None), run(Some(arith)));
-                        for (name, a, b) in
-                            [("forward", &got.0, &want.0), ("input", &got.1, &want.1), ("weight", &got.2, &want.2)]
-                        {
-                            let e = rel(a, b);
+                        let want = products(&c, dims, 71, path, None);
+                        let got = products(&c, dims, 71, path, Some(arith));
+                        for (name, e) in PRODUCTS.iter().zip(rel_errors(&got, &want)) {
                             assert!(e < tol, "scalar {scalar} {arith:?} shape {i} {name}: {e}");
                         }
                     }

@@ -50,19 +50,21 @@ pub fn takes_weight_grad(l: &Conv3d) -> bool {
     amx::available() && l.stride == 1 && l.cin.is_multiple_of(ROWS)
 }
 
-/// A raw pointer the forward's tasks write disjoint outputs through.
+/// A raw pointer parallel tasks write disjoint elements through: the
+/// forward's output (each position in one block) and the packed output
+/// gradient (each position of each channel in one plane's task).
 #[derive(Clone, Copy)]
-struct Out(*mut f32);
-// SAFETY: tasks write disjoint elements (each output position is in one block).
-unsafe impl Send for Out {}
-unsafe impl Sync for Out {}
+struct Out<T>(*mut T);
+// SAFETY: tasks write disjoint elements, as the callers of `write` promise.
+unsafe impl<T> Send for Out<T> {}
+unsafe impl<T> Sync for Out<T> {}
 
-impl Out {
+impl<T: Copy> Out<T> {
     /// Writes `v` at element `i`.
     ///
     /// # Safety
-    /// `i` is inside the volume and no other task writes it.
-    unsafe fn write(&self, i: usize, v: f32) {
+    /// `i` is inside the buffer and no other task writes it.
+    unsafe fn write(&self, i: usize, v: T) {
         *self.0.add(i) = v;
     }
 }
@@ -179,7 +181,7 @@ pub fn forward(l: &Conv3d, x: &Volume) -> Volume {
 ///
 /// # Safety
 /// Every written element is inside the output and written by this caller only.
-unsafe fn store_transposed(tile: &[f32; ROWS * 16], bias: &[f32], out: Out, at: usize, stride: usize, n: usize) {
+unsafe fn store_transposed(tile: &[f32; ROWS * 16], bias: &[f32], out: Out<f32>, at: usize, stride: usize, n: usize) {
     #[cfg(target_arch = "x86_64")]
     if nst3d_core::bf16::has_avx512f() {
         return store_transposed_avx512(tile, bias, out, at, stride, n);
@@ -195,7 +197,14 @@ unsafe fn store_transposed(tile: &[f32; ROWS * 16], bias: &[f32], out: Out, at: 
 /// `b x b` blocks (b = 8, 4, 2, 1) of row pairs `(i, i + b)` transpose the tile.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn store_transposed_avx512(tile: &[f32; ROWS * 16], bias: &[f32], out: Out, at: usize, stride: usize, n: usize) {
+unsafe fn store_transposed_avx512(
+    tile: &[f32; ROWS * 16],
+    bias: &[f32],
+    out: Out<f32>,
+    at: usize,
+    stride: usize,
+    n: usize,
+) {
     use std::arch::x86_64::*;
     let mut m: [__m512; 16] = std::array::from_fn(|r| _mm512_loadu_ps(tile.as_ptr().add(r * 16)));
     for b in [8usize, 4, 2, 1] {
@@ -357,7 +366,7 @@ fn pack_gradient(l: &Conv3d, g: &Grid, grad_out: &Volume, steps: usize) -> Vec<u
     let [ox, oy, oz] = g.o;
     let nblk = l.cout.div_ceil(16);
     let mut out = vec![0u32; nblk * steps * TALL_STEP / 2];
-    let dst = Packed(out.as_mut_ptr() as *mut u16);
+    let dst = Out(out.as_mut_ptr() as *mut u16);
     (0..nblk * oz).into_par_iter().for_each_init(
         || vec![0u16; 16 * ox],
         |rows, bz| {
@@ -382,21 +391,4 @@ fn pack_gradient(l: &Conv3d, g: &Grid, grad_out: &Volume, steps: usize) -> Vec<u
         },
     );
     out
-}
-
-/// The packed output gradient, which the plane tasks write element by element.
-#[derive(Clone, Copy)]
-struct Packed(*mut u16);
-// SAFETY: tasks write disjoint elements (each position of each channel once).
-unsafe impl Send for Packed {}
-unsafe impl Sync for Packed {}
-
-impl Packed {
-    /// Writes `v` at element `i`.
-    ///
-    /// # Safety
-    /// `i` is inside the buffer and no other task writes it.
-    unsafe fn write(&self, i: usize, v: u16) {
-        *self.0.add(i) = v;
-    }
 }
