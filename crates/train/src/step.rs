@@ -4,7 +4,7 @@
 //! Adam under OneCycle.
 
 use crate::axes::{turn_to_z, turn_to_z_backward, Axis};
-use nst3d_core::Grid3;
+use nst3d_core::{math::lane_sum, Grid3};
 use nst3d_network::{FeedForward, Volume};
 // The inference half lives with the network (the volume job applies a
 // trained model without the training crate); re-exported for the trainer.
@@ -13,15 +13,20 @@ use nst3d_optim::{clip_grad_norm, Adam, OneCycle};
 use nst3d_stylize::frame::view_at;
 use nst3d_stylize::{ViewError, ViewLoss, ViewSpec};
 use nst3d_transport::{advect_linear_backward, downsample2, downsample2_backward};
+use rayon::prelude::*;
+
+/// Voxels an elementwise task takes at least (a 64³ patch is 262,144).
+const CHUNK: usize = 1 << 14;
 
 /// Backward of [`apply`]: `∂L/∂o` from `∂L/∂d*`.
 pub fn apply_backward(d: &Grid3, o: &Volume, s: Stylization, grad: &[f32]) -> Volume {
     match s {
         Stylization::Density => {
-            let g = d.data.iter().zip(&o.data).zip(grad).map(|((d, o), g)| {
-                let t = o.tanh();
-                g * d * (1.0 - t * t)
-            });
+            let g =
+                d.data.par_iter().zip(o.data.par_iter()).zip(grad.par_iter()).with_min_len(CHUNK).map(|((d, o), g)| {
+                    let t = o.tanh();
+                    g * d * (1.0 - t * t)
+                });
             Volume::from_vec(1, o.dims, g.collect())
         }
         Stylization::Velocity { vmax } => {
@@ -29,12 +34,14 @@ pub fn apply_backward(d: &Grid3, o: &Volume, s: Stylization, grad: &[f32]) -> Vo
             let mut gv = vec![[0.0f32; 3]; n];
             advect_linear_backward(d, &velocity_field(o, vmax), grad, &mut gv);
             let mut out = Volume::zeros(3, o.dims);
-            for a in 0..3 {
-                for i in 0..n {
-                    let t = o.data[a * n + i].tanh();
-                    out.data[a * n + i] = gv[i][a] * vmax * (1.0 - t * t);
+            out.data.par_chunks_mut(CHUNK).enumerate().for_each(|(c, dst)| {
+                let i0 = c * CHUNK;
+                for (j, v) in dst.iter_mut().enumerate() {
+                    let (a, i) = ((i0 + j) / n, (i0 + j) % n);
+                    let t = o.data[i0 + j].tanh();
+                    *v = gv[i][a] * vmax * (1.0 - t * t);
                 }
-            }
+            });
             out
         }
     }
@@ -50,21 +57,21 @@ pub fn apply_backward(d: &Grid3, o: &Volume, s: Stylization, grad: &[f32]) -> Vo
 /// space around it (docs/design/feedforward.md). Fixing the
 /// total takes that route away and leaves the look to the pattern.
 pub fn conserve_mass(d: &Grid3, dstar: &Grid3) -> (Grid3, f32) {
-    let k = mass_ratio(d.data.iter().map(|v| *v as f64).sum(), dstar.data.iter().map(|v| *v as f64).sum());
-    (Grid3::from_vec(dstar.dims, dstar.data.iter().map(|v| v * k).collect()), k)
+    let k = mass_ratio(lane_sum(&d.data, None), lane_sum(&dstar.data, None));
+    (Grid3::from_vec(dstar.dims, dstar.data.par_iter().with_min_len(CHUNK).map(|v| v * k).collect()), k)
 }
 
 /// Backward of [`conserve_mass`] w.r.t. the unscaled `dstar`, given
 /// `grad = ∂L/∂(k d*)`: `k g_m − (k / Σ d*) Σ_i g_i d*_i` (`k` depends on
 /// every voxel through `Σ d*`).
 pub fn conserve_mass_backward(dstar: &Grid3, k: f32, grad: &[f32]) -> Vec<f32> {
-    let total: f64 = dstar.data.iter().map(|v| *v as f64).sum();
+    let total = lane_sum(&dstar.data, None);
     if total <= 0.0 {
         return grad.iter().map(|g| g * k).collect();
     }
-    let dot: f64 = grad.iter().zip(&dstar.data).map(|(g, d)| *g as f64 * *d as f64).sum();
+    let dot = lane_sum(grad, Some(&dstar.data));
     let shift = (k as f64 * dot / total) as f32;
-    grad.iter().map(|g| k * g - shift).collect()
+    grad.par_iter().with_min_len(CHUNK).map(|g| k * g - shift).collect()
 }
 
 /// Weight `λ` of the density-mode scale pin ([`scale_pin`]).
@@ -85,7 +92,7 @@ pub const SCALE_PIN: f32 = 100.0;
 /// more than about twofold; the conservation still closes the "less smoke"
 /// route.
 pub fn scale_pin(dstar: &Grid3, k: f32, weight: f32) -> (f32, f32) {
-    let total: f64 = dstar.data.iter().map(|v| *v as f64).sum();
+    let total = lane_sum(&dstar.data, None);
     if total <= 0.0 || k <= 0.0 {
         return (0.0, 0.0);
     }

@@ -305,7 +305,10 @@ impl Conv3d {
             Route::Im2col => self.weight_grad_im2col(path, x, grad_out),
         };
         // One channel a task, each summed in a fixed order: the same bits on any thread count.
-        let bias = (0..self.cout).into_par_iter().map(|co| lane_sum(grad_out.channel(co)) as f32).collect();
+        let bias = (0..self.cout)
+            .into_par_iter()
+            .map(|co| nst3d_core::math::lane_sum(grad_out.channel(co), None) as f32)
+            .collect();
         let grads = Conv3dGrads { weight, bias };
         let dx = want_input.then(|| match self.stride {
             1 => self.transposed().forward_with(path, direct, grad_out),
@@ -417,19 +420,6 @@ impl Conv3d {
         }
         dx
     }
-}
-
-/// `Σ v` in f64 over 8 interleaved partial sums (lane `i % 8`), added in
-/// lane order at the end: a fixed order, so the same bits on any thread
-/// count, and 8 independent chains where one in order waited on each add.
-fn lane_sum(v: &[f32]) -> f64 {
-    let mut lanes = [0.0f64; 8];
-    let chunks = v.chunks_exact(8);
-    let rest: f64 = chunks.remainder().iter().map(|&x| x as f64).sum();
-    for c in chunks {
-        lanes.iter_mut().zip(c).for_each(|(l, &x)| *l += x as f64);
-    }
-    lanes.iter().sum::<f64>() + rest
 }
 
 /// The direct kernels' arithmetic for `path`, where this machine has them
