@@ -51,8 +51,9 @@ pub fn apply_with_strength(d: &Grid3, o: &Volume, s: Stylization, strength: f32)
     }
 }
 
-/// Voxels an elementwise task takes at least (a 64³ patch is 262,144).
-const CHUNK: usize = 1 << 14;
+/// Voxels an elementwise task over a patch or frame takes at least (a 64³
+/// patch is 262,144): the training step's elementwise backward uses it too.
+pub const CHUNK: usize = 1 << 14;
 
 /// `vmax · tanh(o)` as one `[x, y, z]` vector per voxel.
 pub fn velocity_field(o: &Volume, vmax: f32) -> Vec<[f32; 3]> {

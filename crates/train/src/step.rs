@@ -8,15 +8,13 @@ use nst3d_core::{math::lane_sum, Grid3};
 use nst3d_network::{FeedForward, Volume};
 // The inference half lives with the network (the volume job applies a
 // trained model without the training crate); re-exported for the trainer.
+use nst3d_network::apply::CHUNK;
 pub use nst3d_network::apply::{apply, apply_with_strength, mass_ratio, velocity_field, Stylization, MASS_PINNED};
 use nst3d_optim::{clip_grad_norm, Adam, OneCycle};
 use nst3d_stylize::frame::view_at;
 use nst3d_stylize::{ViewError, ViewLoss, ViewSpec};
 use nst3d_transport::{advect_linear_backward, downsample2, downsample2_backward};
 use rayon::prelude::*;
-
-/// Voxels an elementwise task takes at least (a 64³ patch is 262,144).
-const CHUNK: usize = 1 << 14;
 
 /// Backward of [`apply`]: `∂L/∂o` from `∂L/∂d*`.
 pub fn apply_backward(d: &Grid3, o: &Volume, s: Stylization, grad: &[f32]) -> Volume {
