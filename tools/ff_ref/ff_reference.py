@@ -22,8 +22,15 @@ two octaves (the patch box-filtered 2x, gamma and exposure doubled).
 --conserve adds nst3d's choice (the patch's total density kept, ln(k)^2
 pinned), off by default: the paper has neither.
 
-Writes OUT.npy: the stylized frame (same shape as the input), and
-OUT.log.csv: step, loss.
+--train-frames draws each step's patch from a frame picked at random among
+FRAME and these (each normalised to [0, 1] by its own peak, as nst3d's
+training); the stylized output is FRAME's. --minutes replaces --steps: the
+first 20 steps are timed at the schedule's starting rate and the OneCycle
+schedule is sized to what fits in the rest. --device cuda runs it on a GPU.
+
+Writes OUT.npy: the stylized frame (same shape as the input), OUT.pt (net:
+the state dict, also every --save-every seconds while training) and
+OUT.log.csv: step, loss, seconds.
 
   ff_reference.py FRAME.npz STYLE.jpg OUT --arm net --steps 1500 --patch 48
 """
@@ -35,6 +42,7 @@ import torch.nn.functional as F
 from PIL import Image
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "strand_ref"))
+import common  # noqa: E402
 from common import vgg_feats, gram  # noqa: E402  (the normalised VGG-19 loader)
 
 
@@ -59,6 +67,7 @@ class FeedForward(nn.Module):
 
 
 def rotation(theta, phi, mirror):
+    # Built on the CPU; patch_grid moves it to the frame's device.
     cx, sx, cy, sy = math.cos(theta), math.sin(theta), math.cos(phi), math.sin(phi)
     rx = torch.tensor([[1, 0, 0], [0, cx, -sx], [0, sx, cx]], dtype=torch.float32)
     ry = torch.tensor([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]], dtype=torch.float32)
@@ -68,11 +77,12 @@ def rotation(theta, phi, mirror):
 
 def patch_grid(shape_zyx, centre_xyz, r, p):
     """grid_sample coordinates of a p^3 patch centred at centre (voxels, x y z), rotated by r."""
-    u = torch.arange(p, dtype=torch.float32) - (p - 1) / 2
+    dev = centre_xyz.device
+    u = torch.arange(p, dtype=torch.float32, device=dev) - (p - 1) / 2
     zz, yy, xx = torch.meshgrid(u, u, u, indexing="ij")
     local = torch.stack([xx, yy, zz], -1)  # (p, p, p, 3) as x y z
-    world = local @ r.t() + centre_xyz
-    size = torch.tensor([shape_zyx[2], shape_zyx[1], shape_zyx[0]], dtype=torch.float32)
+    world = local @ r.t().to(dev) + centre_xyz
+    size = torch.tensor([shape_zyx[2], shape_zyx[1], shape_zyx[0]], dtype=torch.float32, device=dev)
     return (2 * world / (size - 1) - 1)[None]
 
 
@@ -97,11 +107,19 @@ def patch_loss(d, axis, gamma, targets, octaves=2):
     return total
 
 
+def load_frame(path):
+    """An npz of vdb_npz.py as (z, y, x) in [0, 1], and its peak."""
+    dens = np.load(path)["density"]  # [x, y, z]
+    scale = float(dens.max())
+    return torch.from_numpy(np.ascontiguousarray(dens.transpose(2, 1, 0)) / scale).float(), scale
+
+
 def style_targets(path, scale):
     im = Image.open(path).convert("RGB")
     im = im.resize((max(1, round(im.width * scale)), max(1, round(im.height * scale))), Image.BICUBIC)
     a = np.asarray(im, np.float32) / 255.0
     grey = torch.from_numpy(0.299 * a[..., 0] + 0.587 * a[..., 1] + 0.114 * a[..., 2])
+    grey = grey.to(next(common.vgg().parameters()).device)
     with torch.no_grad():
         return [gram(f) for f in vgg_feats(grey)]
 
@@ -125,47 +143,66 @@ def main():
     ap.add_argument("--channels", type=int, default=16)
     ap.add_argument("--conserve", action="store_true")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--train-frames", nargs="*", default=[])
+    ap.add_argument("--minutes", type=float, default=None)
+    ap.add_argument("--save-every", type=float, default=60.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--gamma", default="patch",
-                    help="absorption of the training pictures: patch (8/P, nst3d's), frame (the frame's "
-                         "automatic one: its densest axis ray gets optical depth 3) or a number")
+                    help="absorption of the training pictures: patch (8/P, nst3d's), frame (each drawn "
+                         "frame's automatic one: its densest axis ray gets optical depth 3) or a number")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     torch.manual_seed(a.seed)
-    z = np.load(a.frame)
-    dens = z["density"]  # [x, y, z]
-    scale = float(dens.max())
-    d = torch.from_numpy(np.ascontiguousarray(dens.transpose(2, 1, 0)) / scale)  # (z, y, x) in [0, 1]
-    targets = style_targets(a.style, a.style_scale)
+    if a.arm == "opt" and a.train_frames:
+        sys.exit("--arm opt optimises FRAME's own voxels: it takes no --train-frames")
+    dev = torch.device(a.device)
+    common.vgg().to(dev)
+    d, scale = load_frame(a.frame)
+    pool = [d.to(dev)] + [load_frame(f)[0].to(dev) for f in a.train_frames]
+    targets = [t.to(dev) for t in style_targets(a.style, a.style_scale)]
     p = a.patch
     if a.gamma == "patch":
-        gamma = 8.0 / p
-    elif a.gamma == "frame":
-        gamma = 3.0 / max(d.sum(i).max().item() for i in range(3))
+        gammas = [8.0 / p] * len(pool)
+    elif a.gamma == "frame":  # each frame's own, as the judge and the optimisation draw it
+        gammas = [3.0 / max(f.sum(i).max().item() for i in range(3)) for f in pool]
     else:
-        gamma = float(a.gamma)
+        gammas = [float(a.gamma)] * len(pool)
+    gamma = gammas[0]
     print(f"gamma {gamma:.4f}", flush=True)
     g = torch.Generator().manual_seed(a.seed + 1)
     rnd = lambda: torch.rand(1, generator=g).item()
+    schedule = lambda total: torch.optim.lr_scheduler.OneCycleLR(
+        opt, max_lr=a.lr or 1e-4, total_steps=max(total, 2), div_factor=20.0)
+    timed = 20 if a.minutes else 0  # steps at the starting rate, timed to size the schedule
     if a.arm == "net":
-        net = FeedForward(a.channels)
+        net = FeedForward(a.channels).to(dev)
         params = list(net.parameters())
-        opt = torch.optim.Adam(params, lr=5e-6)
-        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=a.lr or 1e-4, total_steps=a.steps, div_factor=20.0)
+        opt = torch.optim.Adam(params, lr=(a.lr or 1e-4) / 20.0)
+        sched = None if timed else schedule(a.steps)
     else:
-        s = torch.ones_like(d, requires_grad=True)
+        s = torch.ones_like(pool[0], requires_grad=True)
         params = [s]
         opt = torch.optim.Adam(params, lr=a.lr or 0.02)
         sched = None
-    lo = torch.tensor([0.0, 0.0, 0.0])
-    hi = torch.tensor([d.shape[2] - 1.0, d.shape[1] - 1.0, d.shape[0] - 1.0])
     log = open(a.out + ".log.csv", "w")
-    t0 = time.time()
-    for step in range(a.steps):
-        centre = lo + (hi - lo) * torch.tensor([rnd(), rnd(), rnd()])
+    t0 = saved = time.time()
+    steps = a.steps if not a.minutes else 1 << 62
+    step = 0
+    while step < steps:
+        if timed and step == timed and a.arm == "net":
+            per = (time.time() - t0) / timed
+            steps = timed + int(0.97 * (a.minutes * 60 - (time.time() - t0)) / per)
+            sched = schedule(steps - timed)
+            print(f"{per * 1e3:.1f} ms a step: {steps} steps", flush=True)
+        which = int(rnd() * len(pool)) % len(pool)
+        d, gamma = pool[which], gammas[which]
+        hi = torch.tensor([d.shape[2] - 1.0, d.shape[1] - 1.0, d.shape[0] - 1.0])
+        centre = (hi * torch.tensor([rnd(), rnd(), rnd()])).to(dev)
         r = rotation((2 * rnd() - 1) * math.pi, (rnd() - 0.5) * math.pi, rnd() < 0.5)
         axis = int(rnd() * 3) % 3
         grid = patch_grid(d.shape, centre, r, p)
+        step += 1
         opt.zero_grad()
         if a.arm == "net":
             patch = F.grid_sample(d[None, None], grid, align_corners=True)[0, 0]
@@ -179,7 +216,7 @@ def main():
             styl = F.grid_sample((d * s)[None, None], grid, align_corners=True)[0, 0]
             pin = 0.0
         if styl.sum() <= 1e-6:
-            continue
+            continue  # an empty patch: no picture to score
         loss = patch_loss(styl, axis, gamma, targets) + pin
         loss.backward()
         if a.arm == "net":
@@ -187,22 +224,32 @@ def main():
         opt.step()
         if sched:
             sched.step()
-        else:
+        elif a.arm == "opt":
             with torch.no_grad():
                 s.clamp_(0.0, 2.0)
-        log.write(f"{step},{loss.item():.6g}\n")
+        log.write(f"{step},{loss.item():.6g},{time.time() - t0:.2f}\n")
         if step % 50 == 0:
             log.flush()
             print(f"step {step} loss {loss.item():.4g} {time.time() - t0:.0f}s", flush=True)
+        if a.arm == "net" and time.time() - saved > a.save_every:
+            save_net(net, a.out + ".pt")
+            saved = time.time()
+    d = pool[0]
     with torch.no_grad():
         if a.arm == "net":
             x = pad4(d)
             out = (x * (1 + torch.tanh(net(x[None, None])[0, 0])))[: d.shape[0], : d.shape[1], : d.shape[2]]
             out = out * (d.sum() / out.sum())  # each frame keeps its total, as nst3d's inference
-            torch.save(net.state_dict(), a.out + ".pt")
+            save_net(net, a.out + ".pt")
         else:
             out = d * s
-    np.save(a.out + ".npy", (out.numpy() * scale).transpose(2, 1, 0).astype(np.float32))
+    np.save(a.out + ".npy", (out.cpu().numpy() * scale).transpose(2, 1, 0).astype(np.float32))
+
+
+def save_net(net, path):
+    """The state dict on the CPU, written to a temporary name and renamed."""
+    torch.save({k: v.detach().cpu() for k, v in net.state_dict().items()}, path + ".tmp")
+    os.replace(path + ".tmp", path)
 
 
 if __name__ == "__main__":

@@ -24,10 +24,10 @@ def build_vgg(upto=31):
         else:
             layers += [nn.ReflectionPad2d(1), nn.Conv2d(cin, c, 3), nn.ReLU()]
             cin = c
-    seq = nn.Sequential(*layers)
+    seq = nn.Sequential(*layers)[:upto]
     sd = torch.load(VGG_PATH, map_location='cpu')
-    seq.load_state_dict(sd)
-    seq = seq[:upto]
+    # Only the layers kept are loaded, so a file cut after them loads too.
+    seq.load_state_dict({k: v for k, v in sd.items() if int(k.split('.')[0]) < upto})
     for p in seq.parameters():
         p.requires_grad_(False)
     return seq.eval()
