@@ -8,6 +8,7 @@
 
 pub mod axis;
 pub mod bf16;
+pub mod fill;
 pub mod fixture;
 pub mod gradcheck;
 pub mod grid;

@@ -31,8 +31,8 @@ impl FeatureMap {
 
     /// An all-zero map in a pooled buffer (see [`take_buffer`]).
     pub(crate) fn pooled_zeros(height: usize, width: usize, channels: usize) -> Self {
-        let mut data = take_buffer(height * width * channels);
-        data.resize(height * width * channels, 0.0);
+        let data =
+            nst3d_core::fill::filled_into(take_buffer(height * width * channels), height * width * channels, 0.0);
         Self { height, width, channels, data }
     }
 

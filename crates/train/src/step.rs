@@ -29,18 +29,16 @@ pub fn apply_backward(d: &Grid3, o: &Volume, s: Stylization, grad: &[f32]) -> Vo
         }
         Stylization::Velocity { vmax } => {
             let n = o.voxels();
-            let mut gv = vec![[0.0f32; 3]; n];
-            advect_linear_backward(d, &velocity_field(o, vmax), grad, &mut gv);
-            let mut out = Volume::zeros(3, o.dims);
-            out.data.par_chunks_mut(CHUNK).enumerate().for_each(|(c, dst)| {
-                let i0 = c * CHUNK;
-                for (j, v) in dst.iter_mut().enumerate() {
-                    let (a, i) = ((i0 + j) / n, (i0 + j) % n);
-                    let t = o.data[i0 + j].tanh();
-                    *v = gv[i][a] * vmax * (1.0 - t * t);
-                }
+            let v = velocity_field(o, vmax);
+            let mut gv = nst3d_core::fill::filled(n, [0.0f32; 3]);
+            advect_linear_backward(d, &v, grad, &mut gv);
+            // d(vmax tanh o)/do = vmax (1 - tanh²) = vmax - v² / vmax: from the field
+            // already made, not a second tanh per value.
+            let g = (0..3 * n).into_par_iter().with_min_len(CHUNK).map(|j| {
+                let (a, i) = (j / n, j % n);
+                gv[i][a] * (vmax - v[i][a] * v[i][a] / vmax)
             });
-            out
+            Volume::from_vec(3, o.dims, g.collect())
         }
     }
 }

@@ -214,16 +214,23 @@ struct Vector {
 /// `conv3d(x, W) + b` on the direct kernels.
 pub fn forward(l: &Conv3d, arith: Arith, x: &Volume) -> Volume {
     let g = Geom::new(l, x.dims, VL);
-    let mut y = Volume::zeros(l.cout, g.o);
+    let n_out = g.o.iter().product::<usize>();
+    // Not zeroed first: every output is stored once (a serial memset was a
+    // few per cent of a training step).
+    let mut y = Vec::<f32>::with_capacity(l.cout * n_out);
+    let out = Out(y.as_mut_ptr());
     match (arith, l.cout) {
-        (Arith::F32, c) if c >= 8 => run_fwd::<f32, 3, 8>(l, &g, x, &mut y),
-        (Arith::F32, c) if c >= 4 => run_fwd::<f32, 6, 4>(l, &g, x, &mut y),
-        (Arith::F32, _) => run_fwd::<f32, 12, 1>(l, &g, x, &mut y),
-        (Arith::Bf16, c) if c >= 8 => run_fwd::<u32, 3, 8>(l, &g, x, &mut y),
-        (Arith::Bf16, c) if c >= 4 => run_fwd::<u32, 6, 4>(l, &g, x, &mut y),
-        (Arith::Bf16, _) => run_fwd::<u32, 12, 1>(l, &g, x, &mut y),
+        (Arith::F32, c) if c >= 8 => run_fwd::<f32, 3, 8>(l, &g, x, out),
+        (Arith::F32, c) if c >= 4 => run_fwd::<f32, 6, 4>(l, &g, x, out),
+        (Arith::F32, _) => run_fwd::<f32, 12, 1>(l, &g, x, out),
+        (Arith::Bf16, c) if c >= 8 => run_fwd::<u32, 3, 8>(l, &g, x, out),
+        (Arith::Bf16, c) if c >= 4 => run_fwd::<u32, 6, 4>(l, &g, x, out),
+        (Arith::Bf16, _) => run_fwd::<u32, 12, 1>(l, &g, x, out),
     }
-    y
+    // SAFETY: the tasks store every (z, y, x) of every channel (each row's
+    // vectors cover it; `store` writes each vector's lanes inside the volume).
+    unsafe { y.set_len(l.cout * n_out) };
+    Volume::from_vec(l.cout, g.o, y)
 }
 
 /// An element type of the forward: its packing and its tile kernel.
@@ -312,13 +319,12 @@ fn row_vectors(g: &Geom, z: usize, z0: usize, y: usize) -> impl Iterator<Item = 
 /// The forward, a few output planes a task (each task copying the input
 /// planes they read: up to four planes, fewer where that leaves the threads
 /// too few tasks; the result does not depend on the split).
-fn run_fwd<T: Lane, const NV: usize, const NC: usize>(l: &Conv3d, g: &Geom, x: &Volume, y: &mut Volume) {
+fn run_fwd<T: Lane, const NV: usize, const NC: usize>(l: &Conv3d, g: &Geom, x: &Volume, out: Out) {
     let w = pack_weights::<T, NC>(l);
     let offs = g.offs();
     let chans = l.cin.div_ceil(T::PER);
     let [_, oy, oz] = g.o;
-    let n_out = y.voxels();
-    let out = Out(y.data.as_mut_ptr());
+    let n_out = g.o.iter().product::<usize>();
     let per = (oz / (4 * rayon::current_num_threads())).clamp(1, 4);
     let init = || (Vec::new(), vec![0.0f32; NV * NC * VL]);
     (0..oz.div_ceil(per)).into_par_iter().for_each_init(init, |(inp, acc), task| {

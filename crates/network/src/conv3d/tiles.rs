@@ -19,6 +19,8 @@
 //! The weight gradient of a strided layer, or of one whose input channels
 //! are not whole tiles, stays on the AVX-512 kernels ([`takes_weight_grad`]).
 
+use std::mem::MaybeUninit;
+
 use nst3d_core::bf16::{amx, from_f32, Kernel, KS, TALL_MB, TALL_STEP};
 use rayon::prelude::*;
 
@@ -248,29 +250,39 @@ fn pack_forward_weights(l: &Conv3d, cp: usize, slices: usize) -> Vec<u16> {
 }
 
 /// `x` as bf16 in the padded grid, channels last in pairs (a `u32` holds
-/// channels `2i`, `2i + 1`), zero-padded to `len` pairs at least.
+/// channels `2i`, `2i + 1`), zero-padded to `len` pairs at least. Only the
+/// padding is zeroed, each plane by its own task (see [`nst3d_core::fill`]).
 fn channels_last(g: &Grid, x: &Volume, len: usize) -> Vec<u32> {
     let (pairs, [nx, ny, _]) = (x.channels.div_ceil(2), g.n);
-    let plane = g.py * g.px * pairs;
-    let mut buf = vec![0u32; len.max(g.voxels() * pairs)];
-    buf.par_chunks_mut(plane).enumerate().for_each_init(Vec::new, |tmp, (zz, dst)| {
+    let (row, plane) = (g.px * pairs, g.py * g.px * pairs);
+    let total = len.max(g.voxels() * pairs);
+    let zero = MaybeUninit::new(0u32);
+    let mut buf = Vec::with_capacity(total);
+    buf.spare_capacity_mut()[..total].par_chunks_mut(plane).enumerate().for_each_init(Vec::new, |tmp, (zz, dst)| {
         if zz < g.p || zz >= g.p + g.n[2] || dst.len() < plane {
-            return;
+            return dst.fill(zero);
         }
         let z = zz - g.p;
         tmp.resize(pairs * nx, 0);
+        dst[..g.p * row].fill(zero);
+        dst[(g.p + ny) * row..].fill(zero);
         for yy in 0..ny {
             let at = (z * ny + yy) * nx;
             for (i, t) in tmp.chunks_mut(nx).enumerate() {
                 let b = (2 * i + 1 < x.channels).then(|| &x.channel(2 * i + 1)[at..][..nx]);
                 super::direct::pairs_row(&x.channel(2 * i)[at..][..nx], b, t);
             }
-            let row = &mut dst[((yy + g.p) * g.px + g.p) * pairs..][..nx * pairs];
-            for (xx, d) in row.chunks_exact_mut(pairs).enumerate() {
-                d.iter_mut().enumerate().for_each(|(i, d)| *d = tmp[i * nx + xx]);
+            let (left, rest) = dst[(yy + g.p) * row..][..row].split_at_mut(g.p * pairs);
+            let (body, right) = rest.split_at_mut(nx * pairs);
+            left.fill(zero);
+            right.fill(zero);
+            for (xx, d) in body.chunks_exact_mut(pairs).enumerate() {
+                d.iter_mut().enumerate().for_each(|(i, d)| *d = MaybeUninit::new(tmp[i * nx + xx]));
             }
         }
     });
+    // SAFETY: every plane above wrote all its values: padding zeros, the rest `x`.
+    unsafe { buf.set_len(total) };
     buf
 }
 
@@ -342,18 +354,31 @@ pub fn weight_grad(l: &Conv3d, x: &Volume, grad_out: &Volume) -> Vec<f32> {
 /// (`g.voxels()` apart), zero-padded to `len` values at least.
 fn channel_major(g: &Grid, x: &Volume, len: usize) -> Vec<u16> {
     let [nx, ny, nz] = g.n;
-    let mut buf = vec![0u16; len.max(x.channels * g.voxels())];
-    buf.par_chunks_mut(g.voxels()).enumerate().for_each(|(ci, dst)| {
-        if ci >= x.channels {
-            return;
-        }
-        for z in 0..nz {
-            for y in 0..ny {
-                let src = &x.channel(ci)[(z * ny + y) * nx..][..nx];
-                nst3d_core::bf16::convert(src, &mut dst[g.at(0, y, z)..][..nx]);
+    let total = len.max(x.channels * g.voxels());
+    let zero = MaybeUninit::new(0u16);
+    let mut buf = Vec::with_capacity(total);
+    buf.spare_capacity_mut()[..total].par_chunks_mut(g.voxels()).enumerate().for_each_init(
+        || vec![0u16; nx],
+        |row, (ci, dst)| {
+            if ci >= x.channels {
+                return dst.fill(zero);
             }
-        }
-    });
+            // The padding between the rows (and before the first, after the last) zeroed as it goes.
+            let mut done = 0;
+            for z in 0..nz {
+                for y in 0..ny {
+                    let at = g.at(0, y, z);
+                    dst[done..at].fill(zero);
+                    nst3d_core::bf16::convert(&x.channel(ci)[(z * ny + y) * nx..][..nx], row);
+                    dst[at..at + nx].iter_mut().zip(row.iter()).for_each(|(d, &v)| *d = MaybeUninit::new(v));
+                    done = at + nx;
+                }
+            }
+            dst[done..].fill(zero);
+        },
+    );
+    // SAFETY: each channel's chunk was written whole: its rows and the zeros around them.
+    unsafe { buf.set_len(total) };
     buf
 }
 
@@ -365,7 +390,7 @@ fn channel_major(g: &Grid, x: &Volume, len: usize) -> Vec<u16> {
 fn pack_gradient(l: &Conv3d, g: &Grid, grad_out: &Volume, steps: usize) -> Vec<u32> {
     let [ox, oy, oz] = g.o;
     let nblk = l.cout.div_ceil(16);
-    let mut out = vec![0u32; nblk * steps * TALL_STEP / 2];
+    let mut out = nst3d_core::fill::filled(nblk * steps * TALL_STEP / 2, 0u32);
     let dst = Out(out.as_mut_ptr() as *mut u16);
     (0..nblk * oz).into_par_iter().for_each_init(
         || vec![0u16; 16 * ox],
