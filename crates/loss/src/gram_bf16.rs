@@ -92,17 +92,32 @@ pub(crate) fn gram(kernel: Kernel, f: FeatureView<'_>, scale: f32) -> Vec<f32> {
 fn channel_blocks(f: FeatureView<'_>, cp: usize, steps: usize) -> Vec<u16> {
     let (c, p) = (f.channels, f.pixels());
     let (row, col) = f.strides();
-    let mut a = vec![0u16; cp * steps * KS];
-    a.par_chunks_mut(MB * KS).enumerate().for_each(|(t, slice)| {
-        let (i0, s) = (t / steps * MB, t % steps);
-        let n = MB.min(c.saturating_sub(i0));
-        for kk in 0..KS.min(p.saturating_sub(s * KS)) {
-            let q = s * KS + kk;
-            for r in 0..n {
-                slice[r * KS + kk] = bf16::from_f32(f.data[(i0 + r) * row + q * col]);
+    let len = cp * steps * KS;
+    let mut a = Vec::with_capacity(len);
+    a.spare_capacity_mut()[..len].par_chunks_mut(MB * KS).enumerate().for_each_init(
+        || vec![0u16; KS * MB],
+        |pixels, (t, slice)| {
+            let (i0, s) = (t / steps * MB, t % steps);
+            let (n, nk) = (MB.min(c.saturating_sub(i0)), KS.min(p.saturating_sub(s * KS)));
+            // The slice pixel by pixel first (`pixels[kk][r]`, zero past the
+            // pixels and channels), then transposed into place: a
+            // channels-last map converts 32 contiguous channels at a time.
+            pixels.fill(0);
+            for kk in 0..nk {
+                let (q, dst) = (s * KS + kk, &mut pixels[kk * MB..][..n]);
+                if row == 1 {
+                    bf16::convert(&f.data[q * col + i0..][..n], dst);
+                } else {
+                    dst.iter_mut().enumerate().for_each(|(r, d)| *d = bf16::from_f32(f.data[(i0 + r) * row + q * col]));
+                }
             }
-        }
-    });
+            for (r, out) in slice.chunks_exact_mut(KS).enumerate() {
+                out.iter_mut().enumerate().for_each(|(kk, o)| *o = std::mem::MaybeUninit::new(pixels[kk * MB + r]));
+            }
+        },
+    );
+    // SAFETY: every slice was written whole just above.
+    unsafe { a.set_len(len) };
     a
 }
 

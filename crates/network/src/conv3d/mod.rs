@@ -409,15 +409,17 @@ impl Conv3d {
                 (z_lo, planes, local)
             })
             .collect();
-        let mut dx = Volume::zeros(self.cin, dims);
+        // One input channel a task, the slabs' parts added in slab order (the
+        // same bits on any thread count).
         let chan = nz * ny * nx;
-        for (z_lo, planes, local) in parts {
-            let len = planes * ny * nx;
-            for ci in 0..self.cin {
-                let dst = &mut dx.data[ci * chan + z_lo * ny * nx..][..len];
+        let mut dx = Volume::from_vec(self.cin, dims, nst3d_core::fill::filled(self.cin * chan, 0.0));
+        dx.data.par_chunks_mut(chan).enumerate().for_each(|(ci, dst)| {
+            for (z_lo, planes, local) in &parts {
+                let len = planes * ny * nx;
+                let dst = &mut dst[z_lo * ny * nx..][..len];
                 dst.iter_mut().zip(&local[ci * len..][..len]).for_each(|(a, b)| *a += b);
             }
-        }
+        });
         dx
     }
 }
