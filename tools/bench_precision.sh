@@ -18,6 +18,8 @@ WHICH=("$@")
 [ ${#WHICH[@]} -gt 0 ] || WHICH=(volume-velocity volume-density train-density train-velocity infer)
 . tools/bench_common.sh
 echo "cpu bf16 units: $(grep -m1 -o -w -E 'amx_bf16|avx512_bf16' /proc/cpuinfo | sort -u | tr '\n' ' ' || true)(none listed = emulated)"
+# The peer's time depends on its PyTorch build as much as on the CPU: both named with every run.
+echo "cpu: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | xargs) (family $(grep -m1 'cpu family' /proc/cpuinfo | cut -d: -f2 | xargs), model $(grep -m1 '^model' /proc/cpuinfo | cut -d: -f2 | xargs)); $("$PY" -c 'import torch; print("torch", torch.__version__)' 2>/dev/null || echo 'torch missing')"
 NST=./target/release/nst3d
 run_nst() { # precision, bench args... -> last number
   "$NST" --threads 2 --precision "$1" bench "${@:2}" 2>/dev/null | tail -1 | awk '{print $2}'
