@@ -10,9 +10,37 @@ pub const LEAKY_SLOPE: f32 = 0.01;
 /// millions of values, a pass over them worth splitting over threads.
 const CHUNK: usize = 1 << 16;
 
-/// `max(x, 0) + slope · min(x, 0)`, in place.
+/// `max(x, 0) + slope · min(x, 0)` of one value.
+#[inline(always)]
+pub fn leaky(x: f32) -> f32 {
+    x * if x < 0.0 { LEAKY_SLOPE } else { 1.0 }
+}
+
+/// [`leaky`], in place.
 pub fn leaky_relu(x: &mut [f32]) {
-    x.par_chunks_mut(CHUNK).for_each(|c| c.iter_mut().for_each(|v| *v *= if *v < 0.0 { LEAKY_SLOPE } else { 1.0 }));
+    x.par_chunks_mut(CHUNK).for_each(|c| c.iter_mut().for_each(|v| *v = leaky(*v)));
+}
+
+/// What a convolution applies to each output as it stores it, so an
+/// activation costs no second pass over a layer's output (16 MB for the
+/// decoder's last layers at 64³).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Act {
+    /// The output as computed (the network's last layer, input gradients).
+    Identity,
+    /// [`leaky`] (every layer but the last, Fig. 9).
+    LeakyRelu,
+}
+
+impl Act {
+    /// `v` through the activation.
+    #[inline(always)]
+    pub fn apply(self, v: f32) -> f32 {
+        match self {
+            Act::Identity => v,
+            Act::LeakyRelu => leaky(v),
+        }
+    }
 }
 
 /// Backward of [`leaky_relu`]: scales `grad` in place where the activation's

@@ -11,7 +11,7 @@
 
 use nst3d_core::math::SplitMix64;
 
-use crate::activation::{leaky_relu, leaky_relu_backward};
+use crate::activation::{leaky_relu_backward, Act};
 use crate::conv3d::{Conv3d, Conv3dGrads};
 use crate::upsample::{upsample2, upsample2_backward};
 use crate::volume::Volume;
@@ -139,10 +139,8 @@ impl FeedForward {
                 }
                 h = upsample2(&h);
             }
-            let mut y = layer.forward(&h);
-            if i + 1 < LAYERS {
-                leaky_relu(&mut y.data);
-            }
+            // LeakyReLU after every layer but the last, applied in the layer's store.
+            let y = layer.forward_then(&h, if i + 1 < LAYERS { Act::LeakyRelu } else { Act::Identity });
             if let Some(t) = tape.as_deref_mut() {
                 t.inputs.push(h);
                 t.outputs.push((i == 5 || i == 6).then(|| y.clone()));

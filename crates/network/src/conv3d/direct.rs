@@ -17,6 +17,7 @@ use rayon::prelude::*;
 
 use super::kernels::{self, DwArgs, FwdArgs, VL};
 use super::Conv3d;
+use crate::activation::Act;
 use crate::volume::Volume;
 
 /// The weight gradient's positions are split into this many fixed groups,
@@ -212,7 +213,7 @@ struct Vector {
 }
 
 /// `conv3d(x, W) + b` on the direct kernels.
-pub fn forward(l: &Conv3d, arith: Arith, x: &Volume) -> Volume {
+pub fn forward(l: &Conv3d, arith: Arith, x: &Volume, act: Act) -> Volume {
     let g = Geom::new(l, x.dims, VL);
     let n_out = g.o.iter().product::<usize>();
     // Not zeroed first: every output is stored once (a serial memset was a
@@ -220,12 +221,12 @@ pub fn forward(l: &Conv3d, arith: Arith, x: &Volume) -> Volume {
     let mut y = Vec::<f32>::with_capacity(l.cout * n_out);
     let out = Out(y.as_mut_ptr());
     match (arith, l.cout) {
-        (Arith::F32, c) if c >= 8 => run_fwd::<f32, 3, 8>(l, &g, x, out),
-        (Arith::F32, c) if c >= 4 => run_fwd::<f32, 6, 4>(l, &g, x, out),
-        (Arith::F32, _) => run_fwd::<f32, 12, 1>(l, &g, x, out),
-        (Arith::Bf16, c) if c >= 8 => run_fwd::<u32, 3, 8>(l, &g, x, out),
-        (Arith::Bf16, c) if c >= 4 => run_fwd::<u32, 6, 4>(l, &g, x, out),
-        (Arith::Bf16, _) => run_fwd::<u32, 12, 1>(l, &g, x, out),
+        (Arith::F32, c) if c >= 8 => run_fwd::<f32, 3, 8>(l, &g, x, (out, act)),
+        (Arith::F32, c) if c >= 4 => run_fwd::<f32, 6, 4>(l, &g, x, (out, act)),
+        (Arith::F32, _) => run_fwd::<f32, 12, 1>(l, &g, x, (out, act)),
+        (Arith::Bf16, c) if c >= 8 => run_fwd::<u32, 3, 8>(l, &g, x, (out, act)),
+        (Arith::Bf16, c) if c >= 4 => run_fwd::<u32, 6, 4>(l, &g, x, (out, act)),
+        (Arith::Bf16, _) => run_fwd::<u32, 12, 1>(l, &g, x, (out, act)),
     }
     // SAFETY: the tasks store every (z, y, x) of every channel (each row's
     // vectors cover it; `store` writes each vector's lanes inside the volume).
@@ -319,7 +320,7 @@ fn row_vectors(g: &Geom, z: usize, z0: usize, y: usize) -> impl Iterator<Item = 
 /// The forward, a few output planes a task (each task copying the input
 /// planes they read: up to four planes, fewer where that leaves the threads
 /// too few tasks; the result does not depend on the split).
-fn run_fwd<T: Lane, const NV: usize, const NC: usize>(l: &Conv3d, g: &Geom, x: &Volume, out: Out) {
+fn run_fwd<T: Lane, const NV: usize, const NC: usize>(l: &Conv3d, g: &Geom, x: &Volume, (out, act): (Out, Act)) {
     let w = pack_weights::<T, NC>(l);
     let offs = g.offs();
     let chans = l.cin.div_ceil(T::PER);
@@ -337,22 +338,22 @@ fn run_fwd<T: Lane, const NV: usize, const NC: usize>(l: &Conv3d, g: &Geom, x: &
             for b in 0..l.cout.div_ceil(NC) {
                 let a = FwdArgs { inp, cs, chans, offs: &offs, bases, w: &w[b * chans * offs.len() * NC..] };
                 T::tile::<NV, NC>(&a, acc);
-                store(l, out, n_out, tile, b * NC, NC, acc);
+                store(l, (out, act), n_out, tile, (b * NC, NC), acc);
             }
         }
     });
 }
 
-/// Writes a tile's accumulators (`[v][c][lane]`) plus the bias into the
-/// output channels `c0..c0 + nc` that exist.
-fn store(l: &Conv3d, out: Out, n_out: usize, tile: &[Vector], c0: usize, nc: usize, acc: &[f32]) {
+/// Writes a tile's accumulators (`[v][c][lane]`) plus the bias, through
+/// `act`, into the output channels `c0..c0 + nc` that exist.
+fn store(l: &Conv3d, (out, act): (Out, Act), n_out: usize, tile: &[Vector], (c0, nc): (usize, usize), acc: &[f32]) {
     for (v, vec) in tile.iter().enumerate() {
         for c in 0..nc.min(l.cout - c0) {
             let b = l.bias[c0 + c];
             let src = &acc[(v * nc + c) * VL..][..vec.len];
             // SAFETY: this vector's outputs are written by this task only, inside the volume.
             let dst = unsafe { std::slice::from_raw_parts_mut(out.0.add((c0 + c) * n_out + vec.out), vec.len) };
-            dst.iter_mut().zip(src).for_each(|(d, s)| *d = s + b);
+            dst.iter_mut().zip(src).for_each(|(d, s)| *d = act.apply(s + b));
         }
     }
 }

@@ -7,6 +7,7 @@ use nst3d_core::precision::{self, Product};
 use super::direct::{self, Arith};
 use super::route::{self, Route};
 use super::{kernels, tiles, Conv3d};
+use crate::activation::Act;
 use crate::volume::Volume;
 
 /// A kernel a layer's products can run on.
@@ -80,11 +81,11 @@ impl Conv3d {
         }
         match (kernel.route(), product) {
             (Route::Tiles, Conv3dProduct::WeightGrad) => drop(tiles::weight_grad(&layer, x, grad_out)),
-            (Route::Tiles, Conv3dProduct::Forward) => drop(tiles::forward(&layer, x)),
-            (Route::Tiles, Conv3dProduct::InputGrad) => drop(tiles::forward(&layer, grad_out)),
+            (Route::Tiles, Conv3dProduct::Forward) => drop(tiles::forward(&layer, x, Act::Identity)),
+            (Route::Tiles, Conv3dProduct::InputGrad) => drop(tiles::forward(&layer, grad_out, Act::Identity)),
             (Route::Direct(a), Conv3dProduct::WeightGrad) => drop(direct::weight_grad(&layer, a, x, grad_out)),
-            (Route::Direct(a), Conv3dProduct::Forward) => drop(direct::forward(&layer, a, x)),
-            (Route::Direct(a), Conv3dProduct::InputGrad) => drop(direct::forward(&layer, a, grad_out)),
+            (Route::Direct(a), Conv3dProduct::Forward) => drop(direct::forward(&layer, a, x, Act::Identity)),
+            (Route::Direct(a), Conv3dProduct::InputGrad) => drop(direct::forward(&layer, a, grad_out, Act::Identity)),
             (Route::Im2col, _) => unreachable!("no named kernel is im2col"),
         }
         true

@@ -22,6 +22,7 @@ use nst3d_core::linalg::{matmul_into_precision, matmul_precision as matmul, Para
 use nst3d_core::precision::{self, Path, Product};
 use rayon::prelude::*;
 
+use crate::activation::Act;
 use crate::volume::Volume;
 
 mod direct;
@@ -200,29 +201,38 @@ impl Conv3d {
     /// # Panics
     /// If `x` does not have `cin` channels or is smaller than the kernel.
     pub fn forward(&self, x: &Volume) -> Volume {
-        self.forward_on(precision::path_for(Product::Conv3d), x)
+        self.forward_then(x, Act::Identity)
     }
 
-    /// [`Conv3d::forward`] in the arithmetic of `path` (resolved once on the
-    /// calling thread: the products run in parallel tasks).
-    fn forward_on(&self, path: Path, x: &Volume) -> Volume {
-        self.forward_with(path, direct_arith(path), x)
+    /// `act(conv3d(x, W) + b)`, the activation applied as each output is
+    /// stored: the same values as [`Conv3d::forward`] then the activation.
+    ///
+    /// # Panics
+    /// As [`Conv3d::forward`].
+    pub fn forward_then(&self, x: &Volume, act: Act) -> Volume {
+        self.forward_on(precision::path_for(Product::Conv3d), x, act)
+    }
+
+    /// [`Conv3d::forward_then`] in the arithmetic of `path` (resolved once on
+    /// the calling thread: the products run in parallel tasks).
+    fn forward_on(&self, path: Path, x: &Volume, act: Act) -> Volume {
+        self.forward_with(path, direct_arith(path), x, act)
     }
 
     /// The forward on the direct kernels in `direct`'s arithmetic, or on
     /// im2col products in `path`'s.
-    fn forward_with(&self, path: Path, direct: Option<Arith>, x: &Volume) -> Volume {
+    fn forward_with(&self, path: Path, direct: Option<Arith>, x: &Volume, act: Act) -> Volume {
         self.check_input(x);
         match route::forward(self, path, direct) {
-            Route::Tiles => tiles::forward(self, x),
-            Route::Direct(arith) => direct::forward(self, arith, x),
-            Route::Im2col => self.forward_im2col(path, x),
+            Route::Tiles => tiles::forward(self, x, act),
+            Route::Direct(arith) => direct::forward(self, arith, x, act),
+            Route::Im2col => self.forward_im2col(path, x, act),
         }
     }
 
     /// The forward on im2col products (the fallback without AVX-512, and
     /// bf16 emulated).
-    fn forward_im2col(&self, path: Path, x: &Volume) -> Volume {
+    fn forward_im2col(&self, path: Path, x: &Volume, act: Act) -> Volume {
         let out = self.out_dims(x.dims);
         let n_out: usize = out.iter().product();
         let taps = self.taps();
@@ -255,7 +265,7 @@ impl Conv3d {
             for co in 0..self.cout {
                 let dst = &mut y.data[co * n_out + slab.r0 * out[0]..][..cols];
                 let b = self.bias[co];
-                dst.iter_mut().zip(&o[co * cols..][..cols]).for_each(|(d, v)| *d = v + b);
+                dst.iter_mut().zip(&o[co * cols..][..cols]).for_each(|(d, v)| *d = act.apply(v + b));
             }
         }
         y
@@ -311,7 +321,7 @@ impl Conv3d {
             .collect();
         let grads = Conv3dGrads { weight, bias };
         let dx = want_input.then(|| match self.stride {
-            1 => self.transposed().forward_with(path, direct, grad_out),
+            1 => self.transposed().forward_with(path, direct, grad_out, Act::Identity),
             _ => self.input_grad_scatter(path, x.dims, out, grad_out),
         });
         (dx, grads)
@@ -608,6 +618,30 @@ mod tests {
         })
     }
 
+    /// The activation applied in the store gives the values of the
+    /// activation applied after the forward, on every kernel this machine
+    /// has (tiles, both direct arithmetics, im2col fp32 and bf16), whole
+    /// tiles and partial ones.
+    #[test]
+    fn leaky_relu_in_the_store_equals_it_after() {
+        route::by_capability(|| {
+            for (i, &(cin, cout)) in [(16, 16), (16, 1), (1, 16), (3, 5), (32, 8)].iter().enumerate() {
+                let c = layer(cin, cout, 3, 1, 1, 90 + i as u64);
+                let dims = [19, 6, 5];
+                let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 91));
+                for path in [Path::Fp32, Path::Bf16Amx, Path::Bf16Avx512, Path::Bf16Portable] {
+                    for direct in [direct_arith(path), None] {
+                        let mut want = c.forward_with(path, direct, &x, Act::Identity);
+                        crate::activation::leaky_relu(&mut want.data);
+                        let got = c.forward_with(path, direct, &x, Act::LeakyRelu);
+                        assert_eq!(got.data, want.data, "{cin}->{cout} {path:?} {direct:?}");
+                        assert!(got.data.iter().any(|v| *v < 0.0) && got.data.iter().any(|v| *v > 0.0));
+                    }
+                }
+            }
+        })
+    }
+
     /// What [`products`] returns, in order.
     const PRODUCTS: [&str; 3] = ["forward", "input", "weight"];
 
@@ -618,7 +652,7 @@ mod tests {
         let x = Volume::from_vec(c.cin, dims, pseudo_random(c.cin * dims.iter().product::<usize>(), seed));
         let out = c.out_dims(dims);
         let g = Volume::from_vec(c.cout, out, pseudo_random(c.cout * out.iter().product::<usize>(), seed + 1));
-        let y = c.forward_with(path, direct, &x);
+        let y = c.forward_with(path, direct, &x, Act::Identity);
         let (dx, gr) = c.backward_with(path, direct, &x, &g, true);
         [y.data, dx.expect("asked for").data, gr.weight]
     }

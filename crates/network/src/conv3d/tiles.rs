@@ -25,6 +25,7 @@ use nst3d_core::bf16::{amx, from_f32, Kernel, KS, TALL_MB, TALL_STEP};
 use rayon::prelude::*;
 
 use super::Conv3d;
+use crate::activation::Act;
 use crate::volume::Volume;
 
 /// Positions of an A tile (rows of a tile).
@@ -106,7 +107,7 @@ impl Grid {
 }
 
 /// `conv3d(x, W) + b` on tiles; the caller checked [`takes_forward`].
-pub fn forward(l: &Conv3d, x: &Volume) -> Volume {
+pub fn forward(l: &Conv3d, x: &Volume, act: Act) -> Volume {
     let g = Grid::new(l, x.dims);
     let [ox, oy, oz] = g.o;
     // Channels in pairs (one u32 of the copy), an odd count padded with a zero channel.
@@ -158,7 +159,7 @@ pub fn forward(l: &Conv3d, x: &Volume) -> Volume {
                         unsafe {
                             store_transposed(
                                 tile,
-                                &l.bias[channels.clone()],
+                                (&l.bias[channels.clone()], act),
                                 out,
                                 channels.start * n_out + v0,
                                 n_out,
@@ -183,14 +184,21 @@ pub fn forward(l: &Conv3d, x: &Volume) -> Volume {
 ///
 /// # Safety
 /// Every written element is inside the output and written by this caller only.
-unsafe fn store_transposed(tile: &[f32; ROWS * 16], bias: &[f32], out: Out<f32>, at: usize, stride: usize, n: usize) {
+unsafe fn store_transposed(
+    tile: &[f32; ROWS * 16],
+    (bias, act): (&[f32], Act),
+    out: Out<f32>,
+    at: usize,
+    stride: usize,
+    n: usize,
+) {
     #[cfg(target_arch = "x86_64")]
     if nst3d_core::bf16::has_avx512f() {
-        return store_transposed_avx512(tile, bias, out, at, stride, n);
+        return store_transposed_avx512(tile, (bias, act), out, at, stride, n);
     }
     for (j, b) in bias.iter().enumerate() {
         for r in 0..n {
-            out.write(at + j * stride + r, tile[r * 16 + j] + b);
+            out.write(at + j * stride + r, act.apply(tile[r * 16 + j] + b));
         }
     }
 }
@@ -201,7 +209,7 @@ unsafe fn store_transposed(tile: &[f32; ROWS * 16], bias: &[f32], out: Out<f32>,
 #[target_feature(enable = "avx512f")]
 unsafe fn store_transposed_avx512(
     tile: &[f32; ROWS * 16],
-    bias: &[f32],
+    (bias, act): (&[f32], Act),
     out: Out<f32>,
     at: usize,
     stride: usize,
@@ -220,8 +228,13 @@ unsafe fn store_transposed_avx512(
         }
     }
     let mask: __mmask16 = if n >= 16 { 0xffff } else { (1u16 << n) - 1 };
+    let slope = _mm512_set1_ps(crate::activation::LEAKY_SLOPE);
     for (j, &b) in bias.iter().enumerate() {
-        let v = _mm512_add_ps(m[j], _mm512_set1_ps(b));
+        let mut v = _mm512_add_ps(m[j], _mm512_set1_ps(b));
+        if act == Act::LeakyRelu {
+            // The negative lanes times the slope: `leaky`'s own product, so the same bits.
+            v = _mm512_mask_mul_ps(v, _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, _mm512_setzero_ps()), v, slope);
+        }
         _mm512_mask_storeu_ps(out.0.add(at + j * stride), mask, v);
     }
 }
