@@ -62,6 +62,16 @@ struct Out<T>(*mut T);
 unsafe impl<T> Send for Out<T> {}
 unsafe impl<T> Sync for Out<T> {}
 
+/// Where [`store_transposed`] writes: channel `j`'s first `n` positions at
+/// `at + j · stride` of `out`.
+#[derive(Clone, Copy)]
+struct Rows {
+    out: Out<f32>,
+    at: usize,
+    stride: usize,
+    n: usize,
+}
+
 impl<T: Copy> Out<T> {
     /// Writes `v` at element `i`.
     ///
@@ -160,10 +170,7 @@ pub fn forward(l: &Conv3d, x: &Volume, act: Act) -> Volume {
                             store_transposed(
                                 tile,
                                 (&l.bias[channels.clone()], act),
-                                out,
-                                channels.start * n_out + v0,
-                                n_out,
-                                n,
+                                Rows { out, at: channels.start * n_out + v0, stride: n_out, n },
                             )
                         };
                     }
@@ -177,25 +184,18 @@ pub fn forward(l: &Conv3d, x: &Volume, act: Act) -> Volume {
 }
 
 /// Writes a 16 × 16 result tile (`tile[r · 16 + j]`: position `r`, channel
-/// `j`) plus the bias into channels-first output: channel `j`'s first `n`
-/// positions at `at + j · stride`, for the `bias.len()` channels there are.
-/// On AVX-512 the tile is transposed in registers, so each channel's row
-/// is one (masked) store.
+/// `j`) plus the bias, through `act`, into channels-first output ([`Rows`]),
+/// for the `bias.len()` channels there are. On AVX-512 the tile is
+/// transposed in registers, so each channel's row is one (masked) store.
 ///
 /// # Safety
 /// Every written element is inside the output and written by this caller only.
-unsafe fn store_transposed(
-    tile: &[f32; ROWS * 16],
-    (bias, act): (&[f32], Act),
-    out: Out<f32>,
-    at: usize,
-    stride: usize,
-    n: usize,
-) {
+unsafe fn store_transposed(tile: &[f32; ROWS * 16], (bias, act): (&[f32], Act), to: Rows) {
     #[cfg(target_arch = "x86_64")]
     if nst3d_core::bf16::has_avx512f() {
-        return store_transposed_avx512(tile, (bias, act), out, at, stride, n);
+        return store_transposed_avx512(tile, (bias, act), to);
     }
+    let Rows { out, at, stride, n } = to;
     for (j, b) in bias.iter().enumerate() {
         for r in 0..n {
             out.write(at + j * stride + r, act.apply(tile[r * 16 + j] + b));
@@ -207,15 +207,9 @@ unsafe fn store_transposed(
 /// `b x b` blocks (b = 8, 4, 2, 1) of row pairs `(i, i + b)` transpose the tile.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn store_transposed_avx512(
-    tile: &[f32; ROWS * 16],
-    (bias, act): (&[f32], Act),
-    out: Out<f32>,
-    at: usize,
-    stride: usize,
-    n: usize,
-) {
+unsafe fn store_transposed_avx512(tile: &[f32; ROWS * 16], (bias, act): (&[f32], Act), to: Rows) {
     use std::arch::x86_64::*;
+    let Rows { out, at, stride, n } = to;
     let mut m: [__m512; 16] = std::array::from_fn(|r| _mm512_loadu_ps(tile.as_ptr().add(r * 16)));
     for b in [8usize, 4, 2, 1] {
         let lo: [i32; 16] = std::array::from_fn(|c| if c & b == 0 { c as i32 } else { (16 + c - b) as i32 });
