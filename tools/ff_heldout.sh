@@ -23,11 +23,8 @@ bin=${NST3D_BIN:-./target/release/nst3d}
 py=${NST3D_PYTHON:-.venv-torch/bin/python}
 threads=${NST3D_THREADS:-2}
 if [ $# -eq 0 ]; then
-  plumes=${NST3D_PLUMES:-$HOME/.cache/nst3d/plumes}
-  [ -f "$plumes/plumeA/data/fluid_data_0030.vdb" ] ||
-    bash tools/bake_plume.sh "$plumes/plumeA" 64 48 --offset 0.4 0.25 --vorticity 0.3 >/dev/null
-  set -- ../shared/data/volumes/smoke_000002.vdb ../shared/data/volumes/smoke_000003.vdb \
-    "$plumes/plumeA/data/fluid_data_0030.vdb"
+  mapfile -t held_out < <(bash tools/ff_heldout_frames.sh)
+  set -- "${held_out[@]}"
 fi
 mkdir -p "$out"
 style=$(basename "${painting%.*}")

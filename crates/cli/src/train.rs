@@ -54,10 +54,12 @@ pub struct TrainArgs {
     /// Random rotation about y, ± degrees (the paper narrows it to 20 for some styles).
     #[arg(long, default_value_t = 90.0)]
     phi: f32,
-    /// Axes of the patch each step renders along: random (one of x, y, z per
-    /// step), all (three pictures per step, 3x the rendering work) or z (the
-    /// paper's peer and models before 2026-11-29, which learn to stretch
-    /// their strokes along z; docs/design/feedforward.md).
+    /// How each step sees its patch: random (along one of its x, y, z per
+    /// step), all (along all three, 3x the rendering work), sphere (a
+    /// perspective camera from a random direction, as the omniview
+    /// cameras are placed) or z (the paper's peer and the first models,
+    /// which learn to stretch their strokes along z;
+    /// docs/design/feedforward.md).
     #[arg(long, default_value = "random")]
     view_axes: ViewAxes,
     /// Style image scale factor (smaller = larger patterns).

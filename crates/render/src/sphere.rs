@@ -111,19 +111,22 @@ fn sphere_camera(grid_dims: [usize; 3], projection: Projection, dir: [f64; 3], u
 /// within ~25° of vertical; then it is the world axis least aligned with the
 /// view, so it is never parallel to it. Deterministic for a seed.
 pub fn omniview(count: usize, seed: u64, grid_dims: [usize; 3], projection: Projection) -> Vec<Camera> {
-    poisson_disk_sphere(count, seed)
-        .into_iter()
-        .map(|dir| {
-            let up = if dir[1].abs() < 0.9 {
-                [0.0, 1.0, 0.0]
-            } else if dir[0].abs() <= dir[2].abs() {
-                [1.0, 0.0, 0.0]
-            } else {
-                [0.0, 0.0, 1.0]
-            };
-            sphere_camera(grid_dims, projection, dir, up)
-        })
-        .collect()
+    poisson_disk_sphere(count, seed).into_iter().map(|dir| camera_towards(dir, grid_dims, projection)).collect()
+}
+
+/// The camera of an omniview set in direction `dir` (unit, index space):
+/// on [`Camera::orbit`]'s sphere, looking at the grid centre, up +y unless
+/// the view is within ~25° of vertical (then the world axis least aligned
+/// with it).
+pub fn camera_towards(dir: [f64; 3], grid_dims: [usize; 3], projection: Projection) -> Camera {
+    let up = if dir[1].abs() < 0.9 {
+        [0.0, 1.0, 0.0]
+    } else if dir[0].abs() <= dir[2].abs() {
+        [1.0, 0.0, 0.0]
+    } else {
+        [0.0, 0.0, 1.0]
+    };
+    sphere_camera(grid_dims, projection, dir, up)
 }
 
 /// A turntable: `count` cameras at evenly spaced azimuths (starting at the

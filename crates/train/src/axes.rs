@@ -12,10 +12,18 @@
 //! Turning an axis to z is a cyclic permutation of the grid's axes (it
 //! keeps the handedness, so no picture is mirrored); its backward is the
 //! inverse permutation, checked below as an exact adjoint.
+//!
+//! Seen only along its axes, a network still learns its grid: strokes that
+//! read along x, y and z need not read from between them, where the
+//! optimisation's cameras and every judge's ring look. `sphere` shows each
+//! patch through a perspective camera from a direction drawn uniformly on
+//! the sphere, as the omniview cameras of Sec. 4 are placed, so the
+//! network's output is seen from every direction relative to its grid.
 
 use std::str::FromStr;
 
 use nst3d_core::Grid3;
+use nst3d_render::{camera_towards, Camera, Projection};
 
 /// A grid axis a patch is rendered along.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -45,23 +53,53 @@ impl Axis {
 /// The axes each training step renders its patch along (`nst3d train --view-axes`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ViewAxes {
-    /// Always z, as the paper's peer (`torch_ff_ref.py`) and the models
-    /// trained before 2026-11-29.
+    /// Always z, as the paper's peer (`torch_ff_ref.py`) and the first
+    /// models trained.
     Z,
     /// One of x, y and z per step, drawn at random: the same work as `Z`.
     Random,
     /// All three per step, the loss their mean: three renders and VGG-19
     /// passes per network pass.
     All,
+    /// One perspective camera per step from a uniformly drawn direction
+    /// (module docs).
+    Sphere,
+}
+
+/// How one picture of a step sees its patch.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Sight {
+    /// Marched along a grid axis (turned to z, no camera).
+    Along(Axis),
+    /// Through [`camera_towards`] the unit direction, perspective.
+    From([f64; 3]),
+}
+
+impl Sight {
+    /// The camera of a [`Sight::From`] for a patch of `dims`.
+    pub fn camera(self, dims: [usize; 3]) -> Option<Camera> {
+        match self {
+            Sight::Along(_) => None,
+            Sight::From(dir) => Some(camera_towards(dir, dims, Projection::Perspective)),
+        }
+    }
 }
 
 impl ViewAxes {
-    /// The axes of one step; `draw` gives a number in `[0, 1)` for `Random`.
-    pub fn pick(self, draw: impl FnOnce() -> f32) -> Vec<Axis> {
+    /// The sights of one step; `draw` gives numbers in `[0, 1)` (one for
+    /// `Random`, two for `Sphere`).
+    pub fn pick(self, mut draw: impl FnMut() -> f32) -> Vec<Sight> {
         match self {
-            ViewAxes::Z => vec![Axis::Z],
-            ViewAxes::Random => vec![Axis::ALL[((draw() * 3.0) as usize).min(2)]],
-            ViewAxes::All => Axis::ALL.to_vec(),
+            ViewAxes::Z => vec![Sight::Along(Axis::Z)],
+            ViewAxes::Random => vec![Sight::Along(Axis::ALL[((draw() * 3.0) as usize).min(2)])],
+            ViewAxes::All => Axis::ALL.map(Sight::Along).to_vec(),
+            ViewAxes::Sphere => {
+                // Archimedes: uniform height and azimuth are uniform on the sphere.
+                let z = 1.0 - 2.0 * draw() as f64;
+                let phi = std::f64::consts::TAU * draw() as f64;
+                let r = (1.0 - z * z).max(0.0).sqrt();
+                vec![Sight::From([r * phi.cos(), r * phi.sin(), z])]
+            }
         }
     }
 
@@ -71,6 +109,7 @@ impl ViewAxes {
             ViewAxes::Z => "z",
             ViewAxes::Random => "random",
             ViewAxes::All => "all",
+            ViewAxes::Sphere => "sphere",
         }
     }
 }
@@ -82,11 +121,11 @@ impl FromStr for ViewAxes {
             "z" => Ok(ViewAxes::Z),
             "random" => Ok(ViewAxes::Random),
             "all" => Ok(ViewAxes::All),
-            _ => Err(format!("view axes must be z, random or all, got '{s}'")),
+            "sphere" => Ok(ViewAxes::Sphere),
+            _ => Err(format!("view axes must be z, random, all or sphere, got '{s}'")),
         }
     }
 }
-
 /// `d` with `axis` turned to z, so the renderer marches along it.
 pub fn turn_to_z(d: &Grid3, axis: Axis) -> Grid3 {
     let src = axis.source();
@@ -171,11 +210,31 @@ mod tests {
 
     #[test]
     fn random_picks_each_axis() {
-        assert_eq!(ViewAxes::Random.pick(|| 0.0), vec![Axis::X]);
-        assert_eq!(ViewAxes::Random.pick(|| 0.5), vec![Axis::Y]);
-        assert_eq!(ViewAxes::Random.pick(|| 0.999_999_9), vec![Axis::Z]);
+        assert_eq!(ViewAxes::Random.pick(|| 0.0), vec![Sight::Along(Axis::X)]);
+        assert_eq!(ViewAxes::Random.pick(|| 0.5), vec![Sight::Along(Axis::Y)]);
+        assert_eq!(ViewAxes::Random.pick(|| 0.999_999_9), vec![Sight::Along(Axis::Z)]);
         assert_eq!(ViewAxes::All.pick(|| unreachable!()).len(), 3);
         assert_eq!("all".parse::<ViewAxes>(), Ok(ViewAxes::All));
+        assert_eq!("sphere".parse::<ViewAxes>(), Ok(ViewAxes::Sphere));
         assert!("xy".parse::<ViewAxes>().is_err());
+    }
+
+    /// Sphere sights are unit directions spread over the whole sphere: the
+    /// mean of many is near the centre and every octant is drawn.
+    #[test]
+    fn sphere_sights_cover_the_sphere() {
+        let mut rng = nst3d_core::math::SplitMix64::new(3);
+        let mut mean = [0.0f64; 3];
+        let mut octants = [0usize; 8];
+        for _ in 0..4000 {
+            let [Sight::From(d)] = ViewAxes::Sphere.pick(|| rng.uniform_f32())[..] else { panic!("one camera") };
+            assert!((d.iter().map(|x| x * x).sum::<f64>() - 1.0).abs() < 1e-6);
+            (0..3).for_each(|a| mean[a] += d[a] / 4000.0);
+            octants[(d[0] > 0.0) as usize + 2 * (d[1] > 0.0) as usize + 4 * (d[2] > 0.0) as usize] += 1;
+        }
+        assert!(mean.iter().all(|m| m.abs() < 0.05), "{mean:?}");
+        assert!(octants.iter().all(|&n| n > 350), "{octants:?}");
+        let cam = Sight::From([0.0, 0.0, 1.0]).camera([8; 3]).unwrap();
+        assert_eq!(cam.target, [3.5; 3]);
     }
 }

@@ -36,7 +36,7 @@ use anyhow::{bail, Result};
 use nst3d_core::{math::SplitMix64, Grid3};
 use nst3d_stylize::{ViewLoss, ViewSpec};
 
-use crate::axes::{Axis, ViewAxes};
+use crate::axes::{Sight, ViewAxes};
 use crate::patch::PatchDraw;
 use crate::step::{PatchGradient, TrainStep};
 
@@ -205,13 +205,13 @@ pub struct Batch {
     pub theta_deg: f32,
     /// Rotation range about y, degrees (±).
     pub phi_deg: f32,
-    /// The axes each patch is rendered along.
+    /// How each patch is seen.
     pub view_axes: ViewAxes,
 }
 
 impl Batch {
     /// One patch's numbers from `rng`: where it is cut, then its view axes.
-    fn draw(&self, rng: &mut SplitMix64, frames: &[Grid3]) -> (PatchDraw, Vec<Axis>) {
+    fn draw(&self, rng: &mut SplitMix64, frames: &[Grid3]) -> (PatchDraw, Vec<Sight>) {
         let d = PatchDraw::draw(rng, frames, self.patch, self.theta_deg, self.phi_deg);
         (d, self.view_axes.pick(|| rng.uniform_f32()))
     }

@@ -17,7 +17,7 @@ pub mod job;
 pub mod patch;
 pub mod step;
 
-pub use axes::{Axis, ViewAxes};
+pub use axes::{Axis, Sight, ViewAxes};
 pub use job::{train, train_on, TrainReport, TrainSettings};
 pub use patch::{rotated_patch, Rotation};
 pub use step::{Stylization, TrainStep};

@@ -3,7 +3,7 @@
 //! render + VGG-19 Gram loss, backward to the weights, gradient clipping,
 //! Adam under OneCycle.
 
-use crate::axes::{turn_to_z, turn_to_z_backward, Axis};
+use crate::axes::{turn_to_z, turn_to_z_backward, Sight};
 use nst3d_core::{math::lane_sum, Grid3};
 use nst3d_network::{FeedForward, Volume};
 // The inference half lives with the network (the volume job applies a
@@ -118,6 +118,24 @@ pub fn octave_loss(d: &Grid3, loss: &ViewLoss, view: &ViewSpec, octaves: usize) 
     Ok((total + l2, grad))
 }
 
+/// [`octave_loss`] of `d` from one sight: turned so the axis is the
+/// renderer's z, or through the sight's camera; the gradient is w.r.t. `d`.
+fn sight_loss(
+    d: &Grid3,
+    loss: &ViewLoss,
+    view: &ViewSpec,
+    sight: Sight,
+    octaves: usize,
+) -> Result<(f32, Grid3), ViewError> {
+    match sight {
+        Sight::Along(axis) => {
+            let (l, g) = octave_loss(&turn_to_z(d, axis), loss, view, octaves)?;
+            Ok((l, turn_to_z_backward(&g, axis)))
+        }
+        Sight::From(_) => octave_loss(d, loss, &ViewSpec { camera: sight.camera(d.dims), ..view.clone() }, octaves),
+    }
+}
+
 /// The network and its optimiser between steps.
 pub struct TrainStep {
     /// The network being trained.
@@ -212,11 +230,17 @@ impl TrainStep {
     }
 
     /// One step on `patch` (densities in `[0, 1]`, sides a multiple of 4)
-    /// seen from `view` along each of `axes` ([`crate::axes`]); returns the
-    /// style loss (summed over the octaves, the mean over the axes) before
-    /// the update.
-    pub fn step(&mut self, patch: &Grid3, loss: &ViewLoss, view: &ViewSpec, axes: &[Axis]) -> Result<f32, ViewError> {
-        let g = self.gradient(patch, loss, view, axes)?;
+    /// seen with `view`'s absorption from each of `sights`
+    /// ([`crate::axes`]); returns the style loss (summed over the octaves,
+    /// the mean over the sights) before the update.
+    pub fn step(
+        &mut self,
+        patch: &Grid3,
+        loss: &ViewLoss,
+        view: &ViewSpec,
+        sights: &[Sight],
+    ) -> Result<f32, ViewError> {
+        let g = self.gradient(patch, loss, view, sights)?;
         self.update(g.grads, g.mass_ratio);
         Ok(g.loss)
     }
@@ -229,19 +253,19 @@ impl TrainStep {
         patch: &Grid3,
         loss: &ViewLoss,
         view: &ViewSpec,
-        axes: &[Axis],
+        sights: &[Sight],
     ) -> Result<PatchGradient, ViewError> {
-        assert!(!axes.is_empty(), "a step renders its patch along at least one axis");
+        assert!(!sights.is_empty(), "a step renders its patch at least once");
         let x = Volume::from_grid(patch);
         let (o, tape) = self.net.forward(&x);
         let raw = apply(patch, &o, self.stylization);
         let (dstar, k) = conserve_mass(patch, &raw);
         let (mut l, mut grad_dstar) = (0.0f32, vec![0.0f32; dstar.len()]);
-        let share = 1.0 / axes.len() as f32;
-        for &axis in axes {
-            let (la, ga) = octave_loss(&turn_to_z(&dstar, axis), loss, view, self.octaves)?;
-            l += share * la;
-            for (g, a) in grad_dstar.iter_mut().zip(&turn_to_z_backward(&ga, axis).data) {
+        let share = 1.0 / sights.len() as f32;
+        for &sight in sights {
+            let (ls, gs) = sight_loss(&dstar, loss, view, sight, self.octaves)?;
+            l += share * ls;
+            for (g, a) in grad_dstar.iter_mut().zip(&gs.data) {
                 *g += share * a;
             }
         }
@@ -287,6 +311,7 @@ pub struct PatchGradient {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::axes::Axis;
     use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
 
     #[test]
@@ -397,9 +422,10 @@ mod tests {
 
     /// The whole chain a training step descends, from the network's weights
     /// through the density scale, the kept total, the scale pin, a turned
-    /// patch and the two-octave render and Gram loss, against finite
-    /// differences: near the input's level and with the last bias thinning
-    /// the patch about sixfold (so the pin pulls hard).
+    /// patch (or one seen through an oblique perspective camera) and the
+    /// two-octave render and Gram loss, against finite differences: near the
+    /// input's level and with the last bias thinning the patch about sixfold
+    /// (so the pin pulls hard).
     #[test]
     fn a_training_step_gradient_matches_finite_differences() {
         nst3d_core::precision::fp32(training_step_check)
@@ -418,22 +444,31 @@ mod tests {
         let loss = ViewLoss::new(&vgg, &style, &StyleSpec::default()).unwrap();
         let view = ViewSpec { camera: None, gamma: 0.5, exposure: 0.5, equalize: false };
         let patch = Grid3::from_vec([12; 3], pseudo_random(1728, 11).iter().map(|v| 0.5 + 0.5 * v).collect());
-        let schedule = OneCycle::new(1e-4, 10, 20.0);
         // What the step descends: the style loss it reports plus the pin.
+        let oblique = Sight::From([0.48, 0.6, -0.64]);
+        for (sight, bias) in
+            [(Sight::Along(Axis::Y), 0.0f32), (Sight::Along(Axis::Y), -1.2), (oblique, 0.0), (oblique, -1.2)]
+        {
+            training_step_check_from(&patch, &loss, &view, sight, bias);
+        }
+    }
+
+    fn training_step_check_from(patch: &Grid3, loss: &ViewLoss, view: &ViewSpec, sight: Sight, bias: f32) {
+        let schedule = OneCycle::new(1e-4, 10, 20.0);
         let total = |net: &FeedForward| -> f64 {
             let t = TrainStep::new(net.clone(), Stylization::Density, schedule.clone());
-            let l = t.gradient(&patch, &loss, &view, &[Axis::Y]).unwrap().loss;
-            let raw = apply(&patch, &net.forward(&Volume::from_grid(&patch)).0, Stylization::Density);
-            let (_, k) = conserve_mass(&patch, &raw);
+            let l = t.gradient(patch, loss, view, &[sight]).unwrap().loss;
+            let raw = apply(patch, &net.forward(&Volume::from_grid(patch)).0, Stylization::Density);
+            let (_, k) = conserve_mass(patch, &raw);
             l as f64 + scale_pin(&raw, k, SCALE_PIN).0 as f64
         };
-        for bias in [0.0f32, -1.2] {
+        {
             let mut net = FeedForward::new(2, 1, 5);
             let mut w = net.flat();
             *w.last_mut().unwrap() = bias;
             net.set_flat(&w);
             let t = TrainStep::new(net.clone(), Stylization::Density, schedule.clone());
-            let g = t.gradient(&patch, &loss, &view, &[Axis::Y]).unwrap().grads;
+            let g = t.gradient(patch, loss, view, &[sight]).unwrap().grads;
             let big = g.iter().fold(0f32, |m, v| m.max(v.abs())) as f64;
             let r = check_gradient(
                 &w,
@@ -450,7 +485,7 @@ mod tests {
                 120,
                 3e-2 * big,
             );
-            assert!(r.max_rel_err < 3e-2, "bias {bias}: {r:?}");
+            assert!(r.max_rel_err < 3e-2, "{sight:?}, bias {bias}: {r:?}");
         }
     }
 
