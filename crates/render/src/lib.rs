@@ -23,7 +23,9 @@ pub use render::{
     march_color, march_color_backward, march_color_on, render, render_backward, render_color_backward,
     render_color_view, render_view, ColorRenderCache, RenderCache,
 };
-pub use sphere::{camera_towards, min_angular_distance_deg, omniview, poisson_disk_sphere, ring, sphere_uniform};
+pub use sphere::{
+    camera_towards, min_angular_distance_deg, omniview, poisson_disk_sphere, ring, sphere_point, sphere_uniform,
+};
 pub use upsample::{upsample2x, upsample2x_backward};
 
 /// Why a render or equalisation could not be set up.

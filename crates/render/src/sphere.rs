@@ -13,12 +13,19 @@ pub fn sphere_uniform(count: usize, seed: u64) -> Vec<[f64; 3]> {
     let mut rng = SplitMix64::new(seed);
     (0..count)
         .map(|_| {
-            let z = 1.0 - 2.0 * rng.uniform_f64();
-            let phi = std::f64::consts::TAU * rng.uniform_f64();
-            let s = (1.0 - z * z).max(0.0).sqrt();
-            [s * phi.cos(), s * phi.sin(), z]
+            let u = rng.uniform_f64();
+            sphere_point(u, rng.uniform_f64())
         })
         .collect()
+}
+
+/// The unit direction at height `1 − 2u` and azimuth `2πv`: uniform on the
+/// sphere for `u`, `v` uniform in `[0, 1)` (Archimedes).
+pub fn sphere_point(u: f64, v: f64) -> [f64; 3] {
+    let z = 1.0 - 2.0 * u;
+    let phi = std::f64::consts::TAU * v;
+    let s = (1.0 - z * z).max(0.0).sqrt();
+    [s * phi.cos(), s * phi.sin(), z]
 }
 
 /// Relaxation iterations; enough for a few hundred cameras to settle.

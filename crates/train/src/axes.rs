@@ -23,7 +23,7 @@
 use std::str::FromStr;
 
 use nst3d_core::Grid3;
-use nst3d_render::{camera_towards, Camera, Projection};
+use nst3d_render::{camera_towards, sphere_point, Camera, Projection};
 
 /// A grid axis a patch is rendered along.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -94,11 +94,8 @@ impl ViewAxes {
             ViewAxes::Random => vec![Sight::Along(Axis::ALL[((draw() * 3.0) as usize).min(2)])],
             ViewAxes::All => Axis::ALL.map(Sight::Along).to_vec(),
             ViewAxes::Sphere => {
-                // Archimedes: uniform height and azimuth are uniform on the sphere.
-                let z = 1.0 - 2.0 * draw() as f64;
-                let phi = std::f64::consts::TAU * draw() as f64;
-                let r = (1.0 - z * z).max(0.0).sqrt();
-                vec![Sight::From([r * phi.cos(), r * phi.sin(), z])]
+                let u = draw() as f64;
+                vec![Sight::From(sphere_point(u, draw() as f64))]
             }
         }
     }
@@ -126,6 +123,7 @@ impl FromStr for ViewAxes {
         }
     }
 }
+
 /// `d` with `axis` turned to z, so the renderer marches along it.
 pub fn turn_to_z(d: &Grid3, axis: Axis) -> Grid3 {
     let src = axis.source();
