@@ -66,6 +66,19 @@ pub fn dot(w: &[f32], y: &[f32]) -> f64 {
     w.iter().zip(y).map(|(a, b)| *a as f64 * *b as f64).sum()
 }
 
+/// The relative error of one directional derivative: the analytic `g · v`
+/// against the central difference of `loss_along(t) = L(x + t v)` at `±step`.
+/// One quotient checks a whole block of entries at once, well above the
+/// loss's rounding even where each entry's own gradient is tiny (the first
+/// layers of a deep chain), which a per-entry check with a floor passes
+/// whatever their values.
+pub fn directional(analytic: &[f32], v: &[f32], step: f32, mut loss_along: impl FnMut(f32) -> f64) -> f64 {
+    assert_eq!(analytic.len(), v.len());
+    let numeric = (loss_along(step) - loss_along(-step)) / (2.0 * step as f64);
+    let a = dot(v, analytic);
+    (a - numeric).abs() / a.abs().max(numeric.abs())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -78,5 +91,16 @@ mod tests {
         let f = |p: &[f32]| p.iter().map(|v| (*v as f64).powi(2)).sum::<f64>();
         assert!(check_gradient(&x, &good, f, 1e-3, 50, 1e-3).max_rel_err < 1e-3);
         assert!(check_gradient(&x, &bad, f, 1e-3, 50, 1e-3).max_rel_err > 0.1);
+    }
+
+    #[test]
+    fn directional_passes_and_wrong_gradient_fails() {
+        let x = pseudo_random(50, 2);
+        let v = pseudo_random(50, 3);
+        let along = |t: f32| x.iter().zip(&v).map(|(a, b)| ((a + t * b) as f64).powi(2)).sum::<f64>();
+        let good: Vec<f32> = x.iter().map(|v| 2.0 * v).collect();
+        let bad: Vec<f32> = x.iter().map(|v| 2.4 * v).collect();
+        assert!(directional(&good, &v, 1e-2, along) < 1e-4);
+        assert!(directional(&bad, &v, 1e-2, along) > 0.1);
     }
 }

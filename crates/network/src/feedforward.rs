@@ -174,7 +174,7 @@ impl FeedForward {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nst3d_core::gradcheck::{dot, pseudo_random};
+    use nst3d_core::gradcheck::{directional, dot, pseudo_random};
 
     #[test]
     fn output_has_the_input_size() {
@@ -228,18 +228,15 @@ mod tests {
         }
     }
 
-    /// `|g · v − D_v L| / max(|g · v|, |D_v L|)` for the loss `⟨w, net(x)⟩`
-    /// moved along `v` in layer `l`'s weights by 0.1 % of their size.
+    /// [`directional`]'s error for the loss `⟨w, net(x)⟩` moved along `v` in
+    /// layer `l`'s weights by 0.1 % of their size.
     fn directional_error(net: &FeedForward, x: &Volume, w: &[f32], (l, v): (usize, &[f32]), g: &[f32]) -> f64 {
         let weights = &net.layers[l].weight;
         let step = 1e-3 * weights.iter().map(|w| w.abs()).sum::<f32>() / weights.len() as f32;
-        let loss_at = |t: f32| {
+        directional(g, v, step, |t| {
             let mut probe = net.clone();
             probe.layers[l].weight.iter_mut().zip(v).for_each(|(p, v)| *p += t * v);
             dot(w, &probe.infer(x).data)
-        };
-        let numeric = (loss_at(step) - loss_at(-step)) / (2.0 * step as f64);
-        let analytic = dot(v, g);
-        (analytic - numeric).abs() / analytic.abs().max(numeric.abs())
+        })
     }
 }
