@@ -322,6 +322,30 @@ impl Vgg19 {
         self.convs[..=deepest.conv_index()].par_iter().for_each(|c| c.prepare());
     }
 
+    /// The fewest pixels a side of the input may have for every convolution
+    /// up to the deepest of `taps` to get a valid map: two pixels a side
+    /// under reflection padding (reflecting a single pixel is undefined, as
+    /// in PyTorch), one under zero padding, after this flavour's pooling.
+    pub fn min_input(&self, taps: &[VggLayer]) -> usize {
+        let deepest = taps.iter().map(|t| t.conv_index()).max().unwrap_or(0);
+        let need = match padding_of(self.flavor) {
+            Padding::Reflect => 2,
+            Padding::Zero => 1,
+        };
+        let reaches = |mut side: usize| {
+            for i in 0..=deepest {
+                if side < need {
+                    return false;
+                }
+                if POOL_AFTER.contains(&i) && i < deepest {
+                    side = if self.pool.ceil_mode { side.div_ceil(2) } else { side / 2 };
+                }
+            }
+            true
+        };
+        (2..).find(|&s| reaches(s)).expect("some side reaches every layer")
+    }
+
     /// Runs up to the deepest requested tap on `rgb` (3 x H x W, RGB in
     /// [0, 1], H, W >= 16). With `keep`, stores what [`Vgg19::backward`] needs.
     pub fn forward(&self, rgb: &Image, taps: &[VggLayer], keep: bool) -> VggForward {
@@ -446,6 +470,22 @@ mod tests {
     use super::*;
     use nst3d_core::gradcheck::{check_gradient, dot, pseudo_random};
     use nst3d_weights::TensorData;
+
+    /// Reflection needs two pixels a side at every convolution (ceil
+    /// pooling), zero padding one (floor pooling): 9 and 8 pixels reach
+    /// relu4_1, and a network fed exactly that many runs to its deepest tap.
+    #[test]
+    fn min_input_reaches_the_deepest_tap() {
+        let taps = [VggLayer::Relu1_1, VggLayer::Relu4_1];
+        for (flavor, least) in [(VggFlavor::Gatys, 9), (VggFlavor::Torchvision, 8)] {
+            let vgg = Vgg19::random(flavor, 1);
+            assert_eq!(vgg.min_input(&taps), least, "{flavor:?}");
+            assert_eq!(vgg.min_input(&[VggLayer::Relu1_1]), 2);
+            let rgb = Image::from_vec(3, least, least + 3, pseudo_random(3 * least * (least + 3), 2));
+            let fwd = vgg.forward(&rgb, &taps, false);
+            assert!(fwd.taps()[1].data.iter().all(|v| v.is_finite()));
+        }
+    }
 
     #[test]
     fn layer_names_round_trip() {

@@ -24,6 +24,30 @@ pub enum ViewError {
     /// The caller asked the job to stop ([`nst3d_core::stop`]).
     #[error(transparent)]
     Interrupted(#[from] nst3d_core::stop::Interrupted),
+    /// The rendered picture has too few pixels for the style features.
+    #[error(
+        "a view renders {width}x{height} pixels, fewer than the {least} a side VGG-19 needs to reach its style \
+         layers: the frame is too small at this octave (use fewer --octaves or a larger --upsample)"
+    )]
+    TooSmall {
+        /// Picture width.
+        width: usize,
+        /// Picture height.
+        height: usize,
+        /// The fewest pixels a side.
+        least: usize,
+    },
+}
+
+/// The picture VGG-19 sees: `picture` upsampled 2x (Sec. 5.1), or
+/// [`ViewError::TooSmall`] when that is too small to reach the deepest of
+/// `layers`.
+fn vgg_input(vgg: &Vgg19, layers: &[VggLayer], picture: &Image) -> Result<Image, ViewError> {
+    let least = vgg.min_input(layers).div_ceil(2);
+    if picture.width < least || picture.height < least {
+        return Err(ViewError::TooSmall { width: picture.width, height: picture.height, least });
+    }
+    Ok(render::upsample2x(picture))
 }
 
 /// Which VGG layers carry the style and how much each counts.
@@ -93,7 +117,7 @@ impl<'a> ViewLoss<'a> {
     /// Style loss of one view, without gradient.
     pub fn loss(&self, d: &Grid3, view: &ViewSpec) -> Result<f32, ViewError> {
         let (grey, _) = grey(d, view)?;
-        let rgb = grey_to_rgb(&render::upsample2x(&grey));
+        let rgb = grey_to_rgb(&vgg_input(self.vgg, &self.layers, &grey)?);
         let fwd = self.vgg.forward(&rgb, &self.layers, false);
         Ok(nst3d_loss::style_loss(&fwd.features(), &self.target)?.0)
     }
@@ -119,7 +143,7 @@ pub(crate) fn grey_loss_and_grad(
     gram: &dyn Fn(&[FeatureView], Option<&render::RenderCache>) -> Result<(f32, Vec<Vec<f32>>), ViewError>,
 ) -> Result<(f32, Grid3), ViewError> {
     let (grey, trace) = grey(d, view)?;
-    let rgb = grey_to_rgb(&render::upsample2x(&grey));
+    let rgb = grey_to_rgb(&vgg_input(vgg, layers, &grey)?);
     let fwd = vgg.forward(&rgb, layers, true);
     let feats = fwd.features();
     let (loss, tap_grads) = gram(&feats, trace.render_cache.as_ref())?;
@@ -178,7 +202,7 @@ impl ViewLoss<'_> {
     /// gets), without gradient, over the cells `smoke` marks or the whole
     /// picture.
     fn picture_loss(&self, picture: &Image, smoke: Option<&[bool]>) -> Result<f32, ViewError> {
-        let up = render::upsample2x(picture);
+        let up = vgg_input(self.vgg, &self.layers, picture)?;
         let fwd = self.vgg.forward(&up, &self.layers, false);
         Ok(self.gram_loss(&fwd.features(), smoke, (up.height, up.width))?.0)
     }
@@ -243,7 +267,7 @@ impl ViewLoss<'_> {
     /// render upsampled 2x), both from one VGG-19 forward and one backward;
     /// an empty mask (or one with no smoke) adds nothing.
     fn loss_and_grad_image_with_smoke(&self, rgb: &Image, smoke: &[bool], w: f32) -> Result<(f32, Image), ViewError> {
-        let up = render::upsample2x(rgb);
+        let up = vgg_input(self.vgg, &self.layers, rgb)?;
         let fwd = self.vgg.forward(&up, &self.layers, true);
         let feats = fwd.features();
         let (mut loss, mut tap_grads) = self.gram_loss(&feats, None, (up.height, up.width))?;

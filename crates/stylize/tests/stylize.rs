@@ -428,3 +428,17 @@ fn color_view_gradient_matches_finite_differences() {
         }
     })
 }
+
+/// A frame too small for VGG-19 to reach its style layers is refused with
+/// an error naming the size, not a crash deep in a convolution.
+#[test]
+fn a_picture_too_small_for_the_style_layers_is_an_error() {
+    let vgg = Vgg19::random(VggFlavor::Gatys, 4);
+    let loss = ViewLoss::new(&vgg, &style(24), &StyleSpec::default()).unwrap();
+    let view = ViewSpec { camera: None, gamma: 0.3, exposure: 0.3, equalize: false };
+    let tiny = synthetic_smoke(4, 1);
+    let err = loss.loss_and_grad(&tiny, &view).unwrap_err().to_string();
+    assert!(err.contains("4x4 pixels") && err.contains("--octaves"), "{err}");
+    assert!(loss.loss(&tiny, &view).is_err());
+    assert!(loss.loss_and_grad(&synthetic_smoke(5, 1), &view).is_ok());
+}
