@@ -347,7 +347,8 @@ impl Vgg19 {
     }
 
     /// Runs up to the deepest requested tap on `rgb` (3 x H x W, RGB in
-    /// [0, 1], H, W >= 16). With `keep`, stores what [`Vgg19::backward`] needs.
+    /// [0, 1], H and W at least [`Vgg19::min_input`] of `taps`). With `keep`,
+    /// stores what [`Vgg19::backward`] needs.
     pub fn forward(&self, rgb: &Image, taps: &[VggLayer], keep: bool) -> VggForward {
         assert_eq!(rgb.channels, 3, "VGG-19 input must have 3 channels");
         assert!(rgb.height >= 2 && rgb.width >= 2, "VGG-19 input must be at least 2x2");
