@@ -128,14 +128,16 @@ fn load_source(map: &FeatureMap, mask: Option<&FeatureMap>, y: Option<usize>, x:
 }
 
 /// Calls a transform, through its AVX-512-compiled copy when the machine
-/// has it. A plain function, not a closure, is inlined into the
-/// `#[target_feature]` wrapper: the closure version stayed an SSE function
-/// (~20% of a pass in profiles).
+/// has it, else its AVX2 one. A plain function, not a closure, is inlined
+/// into the `#[target_feature]` wrapper: the closure version stayed an SSE
+/// function (~20% of a pass in profiles).
 macro_rules! dispatch_transform {
-    ($plain:ident, $fast:ident, ($($arg:expr),* $(,)?)) => {{
+    ($plain:ident, $fast:ident, $avx2:ident, ($($arg:expr),* $(,)?)) => {{
         #[cfg(target_arch = "x86_64")]
         if crate::gemm::has_avx512() {
             unsafe { $fast($($arg),*) }
+        } else if crate::gemm::has_avx2() {
+            unsafe { $avx2($($arg),*) }
         } else {
             unsafe { $plain($($arg),*) }
         }
@@ -165,6 +167,38 @@ unsafe fn input_tile_avx512(
 #[target_feature(enable = "avx512f,avx2,fma")]
 #[allow(clippy::too_many_arguments)]
 unsafe fn output_tile_avx512(
+    m: *const f32,
+    pos_stride: usize,
+    cout: usize,
+    bias: Option<&[f32]>,
+    relu: bool,
+    out: *mut f32,
+    out_stride: usize,
+    ny: usize,
+    nx: usize,
+) {
+    output_tile(m, pos_stride, cout, bias, relu, out, out_stride, ny, nx)
+}
+
+/// [`input_tile`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn input_tile_avx2(
+    map: &FeatureMap,
+    mask: Option<&FeatureMap>,
+    ty6: &[Option<usize>],
+    tx6: &[Option<usize>],
+    u: *mut f32,
+    pos_stride: usize,
+) {
+    input_tile(map, mask, ty6, tx6, u, pos_stride)
+}
+
+/// [`output_tile`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn output_tile_avx2(
     m: *const f32,
     pos_stride: usize,
     cout: usize,
@@ -325,7 +359,12 @@ pub(crate) fn conv(
             let (ty, tx) = ((t0 + t) / tw, (t0 + t) % tw);
             let (ty6, tx6) = (&ys[ty * 4..ty * 4 + 6], &xs[tx * 4..tx * 4 + 6]);
             // SAFETY: (p, t) rows of u are owned by this task.
-            dispatch_transform!(input_tile, input_tile_avx512, (map, mask, ty6, tx6, up.get().add(t * cin), tb * cin));
+            dispatch_transform!(
+                input_tile,
+                input_tile_avx512,
+                input_tile_avx2,
+                (map, mask, ty6, tx6, up.get().add(t * cin), tb * cin)
+            );
         });
         // 36 independent products, one task per position.
         let rows = nt.div_ceil(bl.mr) * bl.mr;
@@ -357,6 +396,7 @@ pub(crate) fn conv(
             dispatch_transform!(
                 output_tile,
                 output_tile_avx512,
+                output_tile_avx2,
                 (
                     mp.get().add(t * cout),
                     tb * cout,

@@ -4,7 +4,8 @@
 //! consecutive and every tap is one offset into the copy: no im2col. Vector
 //! lanes run along x ([`super::kernels`]), so any channel count fits.
 //!
-//! - fp32: forward and the weight gradient on AVX-512 FMAs;
+//! - fp32: forward and the weight gradient on AVX-512 FMAs, or AVX2 ones
+//!   in register tiles a third the size (16 registers, not 32);
 //! - bf16: the forward reads channel pairs (`u32` lanes) against packed
 //!   weight pairs (`vdpbf16ps`), the weight gradient pairs of x positions.
 //!
@@ -15,7 +16,7 @@
 use nst3d_core::bf16::from_f32;
 use rayon::prelude::*;
 
-use super::kernels::{self, DwArgs, FwdArgs, VL};
+use super::kernels::{self, DwArgs, FwdArgs, Isa, VL};
 use super::Conv3d;
 use crate::activation::Act;
 use crate::volume::Volume;
@@ -189,8 +190,8 @@ pub(super) fn pairs_row(a: &[f32], b: Option<&[f32]>, dst: &mut [u32]) {
         plain(a, b, dst)
     }
     #[cfg(target_arch = "x86_64")]
-    if kernels::unit().f32 {
-        // SAFETY: the CPU has the enabled features (checked by `unit`).
+    if nst3d_core::bf16::has_avx512f() {
+        // SAFETY: the CPU has the enabled features.
         return unsafe { wide(a, b, dst) };
     }
     plain(a, b, dst)
@@ -220,7 +221,12 @@ pub fn forward(l: &Conv3d, arith: Arith, x: &Volume, act: Act) -> Volume {
     // few per cent of a training step).
     let mut y = Vec::<f32>::with_capacity(l.cout * n_out);
     let out = Out(y.as_mut_ptr());
+    let avx2 = kernels::unit().f32 == Some(Isa::Avx2);
     match (arith, l.cout) {
+        // AVX2 tiles: 2 · NV · NC ≤ 12 accumulators; 4 output channels a
+        // block divide the network's 16 and 32.
+        (Arith::F32, c) if avx2 && c >= 4 => run_fwd::<f32, 1, 4>(l, &g, x, (out, act)),
+        (Arith::F32, _) if avx2 => run_fwd::<f32, 6, 1>(l, &g, x, (out, act)),
         (Arith::F32, c) if c >= 8 => run_fwd::<f32, 3, 8>(l, &g, x, (out, act)),
         (Arith::F32, c) if c >= 4 => run_fwd::<f32, 6, 4>(l, &g, x, (out, act)),
         (Arith::F32, _) => run_fwd::<f32, 12, 1>(l, &g, x, (out, act)),
@@ -252,10 +258,12 @@ impl Lane for f32 {
         a
     }
     fn tile<const NV: usize, const NC: usize>(a: &FwdArgs<f32, NV>, out: &mut [f32]) {
+        // SAFETY: the unit is present and checked; the driver keeps every read in bounds.
         #[cfg(target_arch = "x86_64")]
-        if kernels::unit().f32 {
-            // SAFETY: the unit is present and checked; the driver keeps every read in bounds.
-            return unsafe { kernels::fwd_f32_avx512::<NV, NC>(a, out) };
+        match kernels::unit().f32 {
+            Some(Isa::Avx512) => return unsafe { kernels::fwd_f32_avx512::<NV, NC>(a, out) },
+            Some(Isa::Avx2) => return unsafe { kernels::fwd_f32_avx2::<NV, NC>(a, out) },
+            None => {}
         }
         kernels::fwd_f32_scalar::<NV, NC>(a, out)
     }
@@ -362,7 +370,11 @@ fn store(l: &Conv3d, (out, act): (Out, Act), n_out: usize, tile: &[Vector], (c0,
 /// on the direct kernels.
 pub fn weight_grad(l: &Conv3d, arith: Arith, x: &Volume, grad_out: &Volume) -> Vec<f32> {
     let ops = |g: Geom| DwOps { l, g, x, grad_out };
+    let avx2 = kernels::unit().f32 == Some(Isa::Avx2);
     match (arith, l.cout >= 4) {
+        // AVX2 tiles: NCO · NT ≤ 12 accumulators.
+        (Arith::F32, true) if avx2 => run_dw::<f32, 2, 6>(&ops(Geom::new(l, x.dims, VL)), VL),
+        (Arith::F32, false) if avx2 => run_dw::<f32, 1, 12>(&ops(Geom::new(l, x.dims, VL)), VL),
         (Arith::F32, true) => run_dw::<f32, 4, 6>(&ops(Geom::new(l, x.dims, VL)), VL),
         (Arith::F32, false) => run_dw::<f32, 1, 12>(&ops(Geom::new(l, x.dims, VL)), VL),
         (Arith::Bf16, true) => run_dw::<u16, 4, 6>(&ops(Geom::new(l, x.dims, 2 * VL)), 2 * VL),
@@ -395,10 +407,12 @@ impl DwLane for f32 {
         dst.copy_from_slice(src)
     }
     fn tile<const NCO: usize, const NT: usize>(a: &DwArgs<f32, NCO, NT>, acc: &mut [f32], lda: usize) {
+        // SAFETY: the unit is present and checked; the driver keeps every read in bounds.
         #[cfg(target_arch = "x86_64")]
-        if kernels::unit().f32 {
-            // SAFETY: the unit is present and checked; the driver keeps every read in bounds.
-            return unsafe { kernels::dw_f32_avx512(a, acc, lda) };
+        match kernels::unit().f32 {
+            Some(Isa::Avx512) => return unsafe { kernels::dw_f32_avx512(a, acc, lda) },
+            Some(Isa::Avx2) => return unsafe { kernels::dw_f32_avx2(a, acc, lda) },
+            None => {}
         }
         kernels::dw_f32_scalar(a, acc, lda)
     }

@@ -1,14 +1,18 @@
 //! The micro-kernels of the direct convolution ([`super::direct`]), each in
-//! an AVX-512 version and a scalar reference with the same contract. The
-//! vector lanes run along x (16 output voxels of one row), so a tap is an
-//! offset into the padded input and every output channel count fits.
+//! an AVX-512 version and a scalar reference with the same contract, the
+//! fp32 ones in an AVX2 + FMA version too (a 16-lane vector as two 8-lane
+//! halves, for CPUs without AVX-512). The vector lanes run along x (16
+//! output voxels of one row), so a tap is an offset into the padded input
+//! and every output channel count fits.
 //!
 //! - forward: `acc[v][c][l] = Σ_{i, t} in[i · cs + offs[t] + bases[v] + l] · w[(i · taps + t) · NC + c]`,
 //!   in fp32 (`i` a channel) or bf16 (`i` a channel pair, each lane a
 //!   `u32` holding the pair, `vdpbf16ps` summing both products);
 //! - weight gradient: `acc[c][j][l] += Σ_p g[c · gs + p.0 + l] · in[ioffs[j] + p.1 + l]`
 //!   over the vector positions `p`, in fp32 (16 values a vector) or bf16
-//!   (32 values a vector, lane `l` summing positions `2l` and `2l + 1`).
+//!   (32 values a vector, lane `l` summing positions `2l` and `2l + 1`);
+//!   the driver reads only the sum of each `acc[c][j]`'s lanes, so a
+//!   kernel may gather its lanes' sums into fewer lanes (AVX2 does).
 //!
 //! Every kernel writes (forward) or adds (weight gradient) full 16-lane
 //! vectors; the driver keeps what is inside the volume.
@@ -246,32 +250,149 @@ pub unsafe fn dw_bf16_avx512<const NCO: usize, const NT: usize>(a: &DwArgs<u16, 
     }
 }
 
-/// Which kernels this machine runs: AVX-512 ones where the CPU has them and
-/// they agree with the scalar references on a fixed problem ([`self_check`]).
+/// AVX2 forward tile (fp32): each 16-lane vector as two 8-lane halves, so
+/// `2 · NV · NC` accumulators (at most 12 of AVX2's 16 registers).
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA; otherwise as [`fwd_f32_avx512`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+pub unsafe fn fwd_f32_avx2<const NV: usize, const NC: usize>(a: &FwdArgs<f32, NV>, out: &mut [f32]) {
+    use std::arch::x86_64::*;
+    let taps = a.offs.len();
+    let mut acc = [[[_mm256_setzero_ps(); 2]; NC]; NV];
+    let (inp, w) = (a.inp.as_ptr(), a.w.as_ptr());
+    for i in 0..a.chans {
+        for (t, &o) in a.offs.iter().enumerate() {
+            let src = inp.add(i * a.cs + o);
+            let wt = w.add((i * taps + t) * NC);
+            let x: [[__m256; 2]; NV] = std::array::from_fn(|v| {
+                let p = src.add(a.bases[v]);
+                [_mm256_loadu_ps(p), _mm256_loadu_ps(p.add(8))]
+            });
+            for c in 0..NC {
+                let wc = _mm256_broadcast_ss(&*wt.add(c));
+                for v in 0..NV {
+                    acc[v][c][0] = _mm256_fmadd_ps(x[v][0], wc, acc[v][c][0]);
+                    acc[v][c][1] = _mm256_fmadd_ps(x[v][1], wc, acc[v][c][1]);
+                }
+            }
+        }
+    }
+    for v in 0..NV {
+        for c in 0..NC {
+            let d = out.as_mut_ptr().add((v * NC + c) * VL);
+            _mm256_storeu_ps(d, acc[v][c][0]);
+            _mm256_storeu_ps(d.add(8), acc[v][c][1]);
+        }
+    }
+}
+
+/// AVX2 weight-gradient tile (fp32). The driver sums a vector's 16 lanes,
+/// so both halves of a position add into one 8-lane accumulator (lanes
+/// 8..16 of each `acc` vector are left as they were): `NCO · NT`
+/// accumulators, at most 12.
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA; otherwise as [`dw_f32_avx512`].
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+pub unsafe fn dw_f32_avx2<const NCO: usize, const NT: usize>(a: &DwArgs<f32, NCO, NT>, acc: &mut [f32], lda: usize) {
+    use std::arch::x86_64::*;
+    let mut s = [[_mm256_setzero_ps(); NT]; NCO];
+    let (g, inp) = (a.g.as_ptr(), a.inp.as_ptr());
+    for &(pg, pi) in a.pos {
+        for h in [0, 8] {
+            let gv: [__m256; NCO] = std::array::from_fn(|c| _mm256_loadu_ps(g.add(c * a.gs + pg + h)));
+            for j in 0..NT {
+                let x = _mm256_loadu_ps(inp.add(a.ioffs[j] + pi + h));
+                for c in 0..NCO {
+                    s[c][j] = _mm256_fmadd_ps(gv[c], x, s[c][j]);
+                }
+            }
+        }
+    }
+    let dst = acc.as_mut_ptr();
+    for c in 0..NCO {
+        for j in 0..NT {
+            let d = dst.add(c * lda + j * VL);
+            _mm256_storeu_ps(d, _mm256_add_ps(_mm256_loadu_ps(d), s[c][j]));
+        }
+    }
+}
+
+/// The vector instruction set of the fp32 kernels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Isa {
+    /// AVX-512F.
+    Avx512,
+    /// AVX2 + FMA.
+    Avx2,
+}
+
+/// Which kernels this machine runs: the widest ones the CPU has that agree
+/// with the scalar references on a fixed problem ([`self_check`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Unit {
-    /// The fp32 AVX-512 kernels.
-    pub f32: bool,
+    /// The fp32 kernels, if any (`None`: the scalar references).
+    pub f32: Option<Isa>,
     /// The AVX512-BF16 kernels.
     pub bf16: bool,
+}
+
+impl Unit {
+    /// Whether fp32 runs on vector kernels.
+    pub fn has_f32(self) -> bool {
+        self.f32.is_some()
+    }
 }
 
 /// Tests set this to run the scalar references through the same drivers.
 #[cfg(test)]
 pub static SCALAR_ONLY: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+/// Tests set this to run the AVX2 kernels (where the CPU has AVX2) on an
+/// AVX-512 machine too.
+#[cfg(test)]
+pub static AVX2_ONLY: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
 /// The kernels this process may use (probed and checked once).
 pub fn unit() -> Unit {
     #[cfg(test)]
-    if SCALAR_ONLY.load(std::sync::atomic::Ordering::Relaxed) {
-        return Unit { f32: false, bf16: false };
+    {
+        use std::sync::atomic::Ordering::Relaxed;
+        if SCALAR_ONLY.load(Relaxed) {
+            return Unit { f32: None, bf16: false };
+        }
+        if AVX2_ONLY.load(Relaxed) && has_avx2() {
+            return Unit { f32: Some(Isa::Avx2), bf16: false };
+        }
     }
     static UNIT: std::sync::OnceLock<Unit> = std::sync::OnceLock::new();
     *UNIT.get_or_init(|| {
-        let f32 = nst3d_core::bf16::has_avx512f() && self_check(false);
-        let bf16 = f32 && nst3d_core::bf16::avx512_bf16_available() && self_check(true);
+        let f32 = if nst3d_core::bf16::has_avx512f() && self_check(Isa::Avx512, false) {
+            Some(Isa::Avx512)
+        } else if nst3d_core::microkernel::has_avx2() && self_check(Isa::Avx2, false) {
+            Some(Isa::Avx2)
+        } else {
+            None
+        };
+        let bf16 =
+            f32 == Some(Isa::Avx512) && nst3d_core::bf16::avx512_bf16_available() && self_check(Isa::Avx512, true);
         Unit { f32, bf16 }
     })
+}
+
+/// Whether the CPU has AVX2 and FMA (whatever hides them from the jobs).
+#[cfg(test)]
+fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
 }
 
 /// Fixed pseudo-random values in `[-0.5, 0.5)`.
@@ -285,10 +406,10 @@ fn close(a: &[f32], b: &[f32]) -> bool {
     a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-4 * (1.0 + y.abs()))
 }
 
-/// Runs the AVX-512 kernels (`bf16`: the AVX512-BF16 ones) on fixed
-/// operands with odd offsets and compares them with the scalar references.
-/// Cost: microseconds, once per process.
-pub fn self_check(bf16: bool) -> bool {
+/// Runs the `isa` kernels (`bf16`: the AVX512-BF16 ones) on fixed operands
+/// with odd offsets and compares them with the scalar references. Cost:
+/// microseconds, once per process.
+pub fn self_check(isa: Isa, bf16: bool) -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         let offs = [0usize, 7, 33];
@@ -318,18 +439,29 @@ pub fn self_check(bf16: bool) -> bool {
         } else {
             let a = FwdArgs { inp: &inp, cs, chans, offs: &offs, bases: [0, 3, 9], w: &w };
             fwd_f32_scalar::<3, 8>(&a, &mut want);
-            // SAFETY: fp32 is only checked where the CPU has AVX-512F; the operands are in bounds.
-            unsafe { fwd_f32_avx512::<3, 8>(&a, &mut got) };
             let d = DwArgs { g: &inp, gs: 50, inp: &inp, ioffs: [1, 30, 64], pos: &pos };
             dw_f32_scalar::<2, 3>(&d, &mut dwant, 3 * VL);
-            // SAFETY: as above.
-            unsafe { dw_f32_avx512::<2, 3>(&d, &mut dgot, 3 * VL) };
+            // SAFETY: each isa is only checked where the CPU has it; the operands are in bounds.
+            unsafe {
+                match isa {
+                    Isa::Avx512 => {
+                        fwd_f32_avx512::<3, 8>(&a, &mut got);
+                        dw_f32_avx512::<2, 3>(&d, &mut dgot, 3 * VL);
+                    }
+                    Isa::Avx2 => {
+                        fwd_f32_avx2::<3, 8>(&a, &mut got);
+                        dw_f32_avx2::<2, 3>(&d, &mut dgot, 3 * VL);
+                    }
+                }
+            }
         }
-        close(&got, &want) && close(&dgot, &dwant)
+        // The weight gradient's contract is the sum of each vector's lanes.
+        let sums = |v: &[f32]| v.chunks(VL).map(|c| c.iter().sum()).collect::<Vec<f32>>();
+        close(&got, &want) && close(&sums(&dgot), &sums(&dwant))
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        let _ = bf16;
+        let _ = (isa, bf16);
         false
     }
 }

@@ -74,7 +74,7 @@ impl Conv3d {
             Kernel3d::Tiles if product == Conv3dProduct::WeightGrad => tiles::takes_weight_grad(&layer),
             Kernel3d::Tiles => tiles::takes_forward(&layer),
             Kernel3d::Bf16Direct => unit.bf16,
-            Kernel3d::Fp32Direct => unit.f32,
+            Kernel3d::Fp32Direct => unit.has_f32(),
         };
         if !here {
             return false;

@@ -441,7 +441,7 @@ impl Conv3d {
 fn direct_arith(path: Path) -> Option<Arith> {
     let unit = kernels::unit();
     match path {
-        Path::Fp32 => unit.f32.then_some(Arith::F32),
+        Path::Fp32 => unit.has_f32().then_some(Arith::F32),
         Path::Bf16Amx | Path::Bf16Avx512 => unit.bf16.then_some(Arith::Bf16),
         Path::Bf16Portable => None,
     }
@@ -625,8 +625,8 @@ mod tests {
 
     /// The activation applied in the store gives the values of the
     /// activation applied after the forward, on every kernel this machine
-    /// has (tiles, both direct arithmetics, im2col fp32 and bf16), whole
-    /// tiles and partial ones.
+    /// has (tiles, both direct arithmetics, im2col fp32 and bf16, on the
+    /// precision paths it has), whole tiles and partial ones.
     #[test]
     fn leaky_relu_in_the_store_equals_it_after() {
         route::by_capability(|| {
@@ -634,7 +634,7 @@ mod tests {
                 let c = layer(cin, cout, 3, 1, 1, 90 + i as u64);
                 let dims = [19, 6, 5];
                 let x = Volume::from_vec(cin, dims, pseudo_random(cin * dims.iter().product::<usize>(), 91));
-                for path in [Path::Fp32, Path::Bf16Amx, Path::Bf16Avx512, Path::Bf16Portable] {
+                for path in paths_here() {
                     for direct in [direct_arith(path), None] {
                         let mut want = c.forward_with(path, direct, &x, Act::Identity);
                         crate::activation::leaky_relu(&mut want.data);
@@ -645,6 +645,19 @@ mod tests {
                 }
             }
         })
+    }
+
+    /// The precision paths this machine can run: fp32, emulated bf16, and
+    /// the bf16 units it has (asking AMX of a CPU without it is refused).
+    fn paths_here() -> Vec<Path> {
+        let mut paths = vec![Path::Fp32, Path::Bf16Portable];
+        if nst3d_core::bf16::avx512_bf16_available() {
+            paths.push(Path::Bf16Avx512);
+        }
+        if nst3d_core::bf16::amx::available() {
+            paths.push(Path::Bf16Amx);
+        }
+        paths
     }
 
     /// What [`products`] returns, in order.
@@ -704,8 +717,8 @@ mod tests {
         })
     }
 
-    /// The direct kernels (AVX-512 where this machine has them, then the
-    /// scalar references through the same drivers) against the im2col
+    /// The direct kernels (AVX-512 where this machine has them, AVX2 where
+    /// it has those, then the scalar references through the same drivers) against the im2col
     /// products: every tile shape (8, 4 and 1 output channels a block),
     /// rows that are not a multiple of 16, both strides, 3³ and 5³.
     /// fp32 within 1e-5 of the largest value (summation order only); bf16
@@ -721,31 +734,39 @@ mod tests {
                 (1, 16, 5, 2, 2, [23, 9, 8]),
                 (16, 32, 3, 2, 1, [17, 6, 7]),
             ];
-            for scalar in [false, true] {
+            // The machine's own kernels, the AVX2 ones (where the CPU has
+            // AVX2, so on AVX-512 machines too), the scalar references.
+            for (scalar, avx2) in [(false, false), (false, true), (true, false)] {
                 kernels::SCALAR_ONLY.store(scalar, Ordering::Relaxed);
+                kernels::AVX2_ONLY.store(avx2, Ordering::Relaxed);
                 for (arith, path, tol) in [(Arith::F32, Path::Fp32, 1e-5), (Arith::Bf16, Path::Bf16Portable, 1e-4)] {
                     for (i, &(cin, cout, k, s, p, dims)) in shapes.iter().enumerate() {
                         let c = layer(cin, cout, k, s, p, 70 + i as u64);
                         let want = products(&c, dims, 71, path, None);
                         let got = products(&c, dims, 71, path, Some(arith));
                         for (name, e) in PRODUCTS.iter().zip(rel_errors(&got, &want)) {
-                            assert!(e < tol, "scalar {scalar} {arith:?} shape {i} {name}: {e}");
+                            assert!(e < tol, "scalar {scalar} avx2 {avx2} {arith:?} shape {i} {name}: {e}");
                         }
                     }
                 }
             }
             kernels::SCALAR_ONLY.store(false, Ordering::Relaxed);
+            kernels::AVX2_ONLY.store(false, Ordering::Relaxed);
         })
     }
 
-    /// The AVX-512 kernels this machine has agree with their scalar references.
+    /// The vector kernels this machine has agree with their scalar references.
     #[test]
     fn hardware_kernels_pass_their_self_check() {
+        use kernels::Isa;
         if nst3d_core::bf16::has_avx512f() {
-            assert!(kernels::self_check(false));
+            assert!(kernels::self_check(Isa::Avx512, false));
+        }
+        if nst3d_core::microkernel::has_avx2() {
+            assert!(kernels::self_check(Isa::Avx2, false));
         }
         if nst3d_core::bf16::has_avx512f() && nst3d_core::bf16::avx512_bf16_available() {
-            assert!(kernels::self_check(true));
+            assert!(kernels::self_check(Isa::Avx512, true));
         }
     }
 }

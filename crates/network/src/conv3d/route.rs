@@ -47,7 +47,7 @@ pub fn forward(l: &Conv3d, path: Path, direct: Option<Arith>) -> Route {
     let by_speed = !BY_CAPABILITY.with(Cell::get);
     match direct {
         None => Route::Im2col,
-        Some(Arith::Bf16) if by_speed && l.cin < BF16_MIN_CIN && kernels::unit().f32 => Route::Direct(Arith::F32),
+        Some(Arith::Bf16) if by_speed && l.cin < BF16_MIN_CIN && kernels::unit().has_f32() => Route::Direct(Arith::F32),
         Some(Arith::Bf16) if by_speed && l.cout == 1 => Route::Direct(Arith::Bf16),
         Some(Arith::Bf16) if path == Path::Bf16Amx && tiles::takes_forward(l) => Route::Tiles,
         Some(arith) => Route::Direct(arith),
