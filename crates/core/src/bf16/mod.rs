@@ -236,6 +236,8 @@ pub enum Kernel {
     Avx512,
     /// Emulation on AVX-512F: bf16 widened to f32 (exact), fp32 FMAs.
     Emulated,
+    /// The same emulation on AVX2 + FMA (CPUs without AVX-512).
+    EmulatedAvx2,
     /// Scalar emulation: the reference.
     Portable,
 }
@@ -246,6 +248,8 @@ impl Kernel {
     pub fn without_unit() -> Self {
         if has_avx512f() {
             Kernel::Emulated
+        } else if crate::microkernel::has_avx2() {
+            Kernel::EmulatedAvx2
         } else {
             Kernel::Portable
         }
@@ -254,6 +258,9 @@ impl Kernel {
     /// Every kernel this machine can run, the scalar reference first.
     pub fn all_here() -> Vec<Kernel> {
         let mut k = vec![Kernel::Portable];
+        if crate::microkernel::has_avx2() {
+            k.push(Kernel::EmulatedAvx2);
+        }
         if has_avx512f() {
             k.push(Kernel::Emulated);
         }
@@ -312,6 +319,8 @@ impl Ready {
             Kernel::Avx512 => block_avx512(a0, a1, lda, offs, b, c, ldc),
             #[cfg(target_arch = "x86_64")]
             Kernel::Emulated => block_emulated(a0, a1, lda, offs, b, c, ldc),
+            #[cfg(target_arch = "x86_64")]
+            Kernel::EmulatedAvx2 => block_emulated_avx2(a0, a1, lda, offs, b, c, ldc),
             _ => block_portable(a0, a1, lda, offs, b, c, ldc),
         }
     }
@@ -465,6 +474,55 @@ unsafe fn block_emulated(
             }
             for (r, x) in acc.iter().enumerate() {
                 _mm512_storeu_ps(c.add((h * 16 + r) * ldc + t * 16), *x);
+            }
+        }
+    }
+}
+
+/// [`block_emulated`] on AVX2 + FMA: 16 registers of 8 lanes, so a 16 × 16
+/// quarter runs four rows at a time (8 accumulators, a B row of 16 pairs
+/// widened into four even/odd halves).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn block_emulated_avx2(
+    a0: *const u16,
+    a1: *const u16,
+    lda: usize,
+    offs: &[usize],
+    b: *const u16,
+    c: *mut f32,
+    ldc: usize,
+) {
+    use std::arch::x86_64::*;
+    const ROWS: usize = 4;
+    let hi = _mm256_set1_epi32(0xffff_0000u32 as i32);
+    for (h, a) in [a0, a1].into_iter().enumerate() {
+        for t in 0..2 {
+            for r0 in (0..16).step_by(ROWS) {
+                let mut acc = [[_mm256_setzero_ps(); 2]; ROWS];
+                for (s, &o) in offs.iter().enumerate() {
+                    let bt = b.add(s * B_STEP + t * 16 * KS);
+                    let arow = a.add(o + r0 * lda);
+                    for kp in 0..16 {
+                        let bp = bt.add(kp * KS);
+                        let bv = [_mm256_loadu_si256(bp as *const _), _mm256_loadu_si256(bp.add(16) as *const _)];
+                        let be = bv.map(|v| _mm256_castsi256_ps(_mm256_slli_epi32::<16>(v)));
+                        let bo = bv.map(|v| _mm256_castsi256_ps(_mm256_and_si256(v, hi)));
+                        for (r, x) in acc.iter_mut().enumerate() {
+                            let pair = (arow.add(r * lda + 2 * kp) as *const u32).read_unaligned();
+                            let ae = _mm256_set1_ps(f32::from_bits(pair << 16));
+                            let ao = _mm256_set1_ps(f32::from_bits(pair & 0xffff_0000));
+                            for q in 0..2 {
+                                x[q] = _mm256_fmadd_ps(ao, bo[q], _mm256_fmadd_ps(ae, be[q], x[q]));
+                            }
+                        }
+                    }
+                }
+                for (r, x) in acc.iter().enumerate() {
+                    let dst = c.add((h * 16 + r0 + r) * ldc + t * 16);
+                    _mm256_storeu_ps(dst, x[0]);
+                    _mm256_storeu_ps(dst.add(8), x[1]);
+                }
             }
         }
     }
