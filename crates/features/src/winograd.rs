@@ -148,25 +148,38 @@ macro_rules! dispatch_transform {
     }};
 }
 
-/// [`input_tile`] compiled for AVX-512.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx2,fma")]
-unsafe fn input_tile_avx512(
+/// Defines a transform's copies compiled for AVX-512 and for AVX2, each a
+/// wrapper the plain function inlines into.
+macro_rules! wide_copies {
+    ($plain:ident => $avx512:ident, $avx2:ident, ($($arg:ident: $ty:ty),* $(,)?)) => {
+        #[doc = concat!("[`", stringify!($plain), "`] compiled for AVX-512.")]
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx512f,avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn $avx512($($arg: $ty),*) {
+            $plain($($arg),*)
+        }
+
+        #[doc = concat!("[`", stringify!($plain), "`] compiled for AVX2.")]
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn $avx2($($arg: $ty),*) {
+            $plain($($arg),*)
+        }
+    };
+}
+
+wide_copies!(input_tile => input_tile_avx512, input_tile_avx2, (
     map: &FeatureMap,
     mask: Option<&FeatureMap>,
     ty6: &[Option<usize>],
     tx6: &[Option<usize>],
     u: *mut f32,
     pos_stride: usize,
-) {
-    input_tile(map, mask, ty6, tx6, u, pos_stride)
-}
+));
 
-/// [`output_tile`] compiled for AVX-512.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn output_tile_avx512(
+wide_copies!(output_tile => output_tile_avx512, output_tile_avx2, (
     m: *const f32,
     pos_stride: usize,
     cout: usize,
@@ -176,41 +189,7 @@ unsafe fn output_tile_avx512(
     out_stride: usize,
     ny: usize,
     nx: usize,
-) {
-    output_tile(m, pos_stride, cout, bias, relu, out, out_stride, ny, nx)
-}
-
-/// [`input_tile`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn input_tile_avx2(
-    map: &FeatureMap,
-    mask: Option<&FeatureMap>,
-    ty6: &[Option<usize>],
-    tx6: &[Option<usize>],
-    u: *mut f32,
-    pos_stride: usize,
-) {
-    input_tile(map, mask, ty6, tx6, u, pos_stride)
-}
-
-/// [`output_tile`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn output_tile_avx2(
-    m: *const f32,
-    pos_stride: usize,
-    cout: usize,
-    bias: Option<&[f32]>,
-    relu: bool,
-    out: *mut f32,
-    out_stride: usize,
-    ny: usize,
-    nx: usize,
-) {
-    output_tile(m, pos_stride, cout, bias, relu, out, out_stride, ny, nx)
-}
+));
 
 /// Input transform `B^T d B` of one tile: reads the 6x6 source pixels
 /// (through padding and mask) and writes position `p`'s row at
