@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from test_farm import NST3D, PLUME, REPO, STYLE, need, tool, wait_for
+from test_farm import NST3D, PLUME, REPO, STYLE, need, requeue_now, tool, wait_for
 
 NST3D_MPI = pathlib.Path(os.environ.get("NST3D_MPI_BIN", NST3D.parent / "nst3d-mpi"))
 # Ranks and the one-rank run alike use 1 thread (the patch gradients are the
@@ -153,14 +153,7 @@ def test_slurm_trains_on_two_tasks_and_a_stopped_job_resumes(tmp_path, tmp_path_
     while subprocess.run(["pgrep", "-f", f"slurmstepd: \\[{job2}\\."], capture_output=True).returncode == 0:
         assert time.time() - t0 < 300, "the stopped job's steps never ended"
         time.sleep(0.2)
-    subprocess.run(["scontrol", "requeue", job2], check=True)
-    # A requeued job waits two minutes before it may start again; the test
-    # lets it start as soon as it is pending (if that fails, it waits).
-    while subprocess.run(["squeue", "-h", "-j", job2, "-o", "%T"], capture_output=True,
-                         text=True).stdout.strip() != "PENDING":
-        assert time.time() - t0 < 300, "the requeued job never became pending"
-        time.sleep(0.2)
-    subprocess.run(["scontrol", "update", f"JobId={job2}", "StartTime=now"], capture_output=True)
+    requeue_now(job2)
     wait_for(job2)
     text = log2.read_text()
     assert "restart 1" in text and "resuming at step" in text, text[-3000:]
