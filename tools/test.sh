@@ -63,7 +63,8 @@ else
 fi
 
 stamp "fuzzing every reader briefly (the long run: docs/design/performance.md)"
-bash tools/fuzz.sh --seconds 3
+# One reader a core: each libFuzzer process is single-threaded.
+bash tools/fuzz.sh --seconds 3 --jobs "$(nproc)"
 
 stamp "Python package"
 bash tools/test_python.sh
