@@ -124,8 +124,11 @@ impl LoadedModel {
         let grid = VdbGrid::from_dense("density", nst3d_io::vdb::Transform::uniform(1.0), origin, density, 0.0);
         let GridValues::Float(sparse) = &grid.values else { unreachable!("from_dense makes a float grid") };
         let Some(bbox) = grid.active_bbox() else { return Ok(density.clone()) };
-        let (styled, _) = stylize_sparse(&self.model, self.mode, self.vmax, sparse, bbox, &self.settings, progress);
+        let (styled, _, k) = stylize_sparse(&self.model, self.mode, self.vmax, sparse, bbox, &self.settings, progress);
         nst3d_core::stop::check()?;
+        if let Some(why) = erased(k) {
+            bail!("{why}");
+        }
         let out = styled.region(origin, density.dims);
         if out.iter().any(|v| !v.is_finite()) {
             bail!("the network produced non-finite densities");
@@ -141,7 +144,8 @@ impl LoadedModel {
 /// applied as a scale or a velocity, scaled back, and only the tile's own
 /// voxels that hold smoke are kept; tiles with no smoke in reach are not
 /// run. Nothing of the frame's size is ever dense, so memory follows the
-/// tile. Returns the result and the voxels of the frame's box.
+/// tile. Returns the result, the voxels of the frame's box and the factor
+/// that restored the frame's mass (infinite when nothing was left to scale).
 fn stylize_sparse(
     model: &Model,
     mode: Mode,
@@ -150,11 +154,11 @@ fn stylize_sparse(
     (lo, hi): ([i32; 3], [i32; 3]),
     m: &ModelSettings,
     mut progress: Option<&mut (dyn Reporter + '_)>,
-) -> (SparseGrid<f32>, u64) {
+) -> (SparseGrid<f32>, u64, f32) {
     let max = grid.iter_active().map(|(_, v)| v).fold(0.0f32, f32::max);
     let mut out = SparseGrid::new(0.0f32);
     if !(max > 0.0) {
-        return (out, 0);
+        return (out, 0, 1.0);
     }
     // The active box plus room for the velocity to move smoke outwards,
     // starting on a leaf corner: tiles (multiples of 8) then cover whole
@@ -219,7 +223,7 @@ fn stylize_sparse(
     if let Some(r) = progress {
         r.end();
     }
-    (out, dims.iter().product::<usize>() as u64)
+    (out, dims.iter().product::<usize>() as u64, if written > 0.0 { k } else { f32::INFINITY })
 }
 
 /// The models of a job (one, or one per painting of a style map), all of
@@ -281,8 +285,11 @@ fn one_frame(
     let mut results = Vec::new();
     let mut voxels = 0;
     for (model, vmax) in &models.list {
-        let (styled, n) = stylize_sparse(model, models.mode, *vmax, sparse, bbox, m, progress.as_deref_mut());
+        let (styled, n, k) = stylize_sparse(model, models.mode, *vmax, sparse, bbox, m, progress.as_deref_mut());
         nst3d_core::stop::check()?;
+        if let Some(why) = erased(k) {
+            bail!("{}: {why}", input.display());
+        }
         results.push(styled);
         voxels = voxels.max(n);
     }
@@ -298,6 +305,26 @@ fn one_frame(
     result.metadata = grid.metadata.clone();
     write_stylized_grid(out, &file, result)?;
     Ok(Some((voxels, secs)))
+}
+
+/// The most a frame's result is scaled up to keep its input's mass. A model
+/// that kept under a thousandth of the smoke has erased it (a collapsed
+/// training run makes one): scaling what is left up would draw the
+/// network's rounding residue as hot blocks, and where nothing is left the
+/// frame would be written empty. The shipped models scale the held-out
+/// frames and a plume frame by 0.90 to 1.19.
+const MOST_MASS_RESTORED: f32 = 1000.0;
+
+/// Why a result must not be written, from its mass factor `k`
+/// ([`stylize_sparse`]; infinite when nothing was left).
+fn erased(k: f32) -> Option<String> {
+    (!(k <= MOST_MASS_RESTORED)).then(|| {
+        format!(
+            "the model erased the smoke: it kept {} of the frame's density (a collapsed training run makes such a \
+             model; retrain it)",
+            if k.is_finite() { format!("1/{k:.0}") } else { "none".into() }
+        )
+    })
 }
 
 /// The models' results blended voxel by voxel by the style map's weights
@@ -443,6 +470,24 @@ mod tests {
         }
         let bbox = g.active_bbox().unwrap();
         (g, bbox)
+    }
+
+    /// A density model that scales the smoke to (almost) nothing is refused
+    /// with a reason, neither written empty nor scaled up from its residue.
+    #[test]
+    fn a_model_that_erases_the_smoke_is_refused() {
+        let (g, bbox) = blob();
+        let m = ModelSettings::new(PathBuf::new());
+        let k_with_bias = |bias: f32| {
+            let mut net = FeedForward::new(2, 1, 4);
+            net.layers.last_mut().unwrap().bias.iter_mut().for_each(|b| *b = bias);
+            stylize_sparse(&Model { net, info: BTreeMap::new() }, Mode::Density, 0.0, &g, bbox, &m, None).2
+        };
+        // 1 + tanh(-100) is exactly 0 in f32; 1 + tanh(-8) about 2e-7.
+        let (none, residue, fresh) = (k_with_bias(-100.0), k_with_bias(-8.0), k_with_bias(0.0));
+        assert!(erased(none).unwrap().contains("kept none of"), "{none}");
+        assert!(residue.is_finite() && erased(residue).unwrap().contains("kept 1/"), "{residue}");
+        assert_eq!(erased(fresh), None, "{fresh}");
     }
 
     /// Small tiles give the one-tile result (the margin covers the
