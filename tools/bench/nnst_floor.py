@@ -18,6 +18,7 @@ arrangement can do better than free pixels inside the same silhouette.
   python3 tools/bench/nnst_floor.py DIR --free hair --steps 300
 """
 import argparse
+import json
 import os
 import pathlib
 import sys
@@ -44,10 +45,11 @@ def main():
     targets = torch.from_numpy(np.load(a.dump / "targets.npy"))
     render0 = torch.from_numpy(np.load(a.dump / "render0.npy"))
     grid = tuple(targets.shape[1:])
+    weight = json.loads((a.dump / "meta.json").read_text())["nnst_layer_weight"]
     grey0 = render0[0].clone()
 
     def loss_of(img):
-        h = peer.hypercolumns(peer.vgg_taps(vgg, img), grid)
+        h = peer.hypercolumns(peer.vgg_taps(vgg, img), grid, weight)
         return ((h - targets) ** 2).sum(0).mean()
 
     if a.free == "hair":

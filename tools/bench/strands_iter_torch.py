@@ -233,10 +233,13 @@ def vgg_taps(vgg, img):
     return taps
 
 
-def hypercolumns(taps, grid):
+def hypercolumns(taps, grid, layer_weight):
+    """Each layer times nst3d's weight (meta.json's `nnst_layer_weight`:
+    1/sqrt(C) for the strand pipeline, 1/C as NNST wrote it), on the grid."""
     cols = []
     for f in taps:
-        f = f / f.shape[1]
+        c = f.shape[1]
+        f = f / (math.sqrt(c) if layer_weight == "inverse_sqrt_channels" else c)
         if tuple(f.shape[2:]) != grid:
             f = F.interpolate(f, size=grid, mode="bilinear", align_corners=True)
         cols.append(f[0])
@@ -267,6 +270,7 @@ def main():
     sc = Scene(args.dump)
     vgg = load_vgg(args.weights)
     grid = tuple(sc.targets.shape[1:])
+    weight = sc.meta["nnst_layer_weight"]  # a dump from before the field: rerun nst3d bench --dump
     m = sc.meta["adamw"]
     v = torch.zeros(sc.meta["samples"], 3, requires_grad=True)
     opt = torch.optim.AdamW([v], lr=m["lr"], betas=(m["beta1"], m["beta2"]), eps=m["eps"],
@@ -278,7 +282,7 @@ def main():
         img0 = render(sc, x0)
         t0 = time.perf_counter()
         feats0 = vgg_taps(vgg, img0)
-        tgt = match(hypercolumns(feats0, grid), sc.style_columns)
+        tgt = match(hypercolumns(feats0, grid, weight), sc.style_columns)
         match_ms = (time.perf_counter() - t0) * 1e3
     same = float((tgt == sc.targets).all(0).float().mean())
     print(f"max |points - nst3d's| at v=0: {float((x0 - sc.undeformed).abs().max()):.2e} "
@@ -301,7 +305,7 @@ def main():
         lap.append(time.perf_counter())
         feats = vgg_taps(vgg, img)
         lap.append(time.perf_counter())
-        loss = ((hypercolumns(feats, grid) - sc.targets) ** 2).sum() / (grid[0] * grid[1])
+        loss = ((hypercolumns(feats, grid, weight) - sc.targets) ** 2).sum() / (grid[0] * grid[1])
         lap.append(time.perf_counter())
         loss.backward()
         lap.append(time.perf_counter())

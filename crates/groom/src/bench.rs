@@ -11,6 +11,7 @@ use nst3d_core::Reporter;
 use nst3d_features::{Vgg19, VggLayer};
 use nst3d_io::groom::read_groom;
 use nst3d_io::mesh::read_mesh;
+use nst3d_loss::nnst::{LayerWeight, NnstParams};
 use nst3d_strands::pipeline::{
     iteration, loss_and_gradient, match_view, poisson_view_angles, scale_learning_rate, style_target, Adam, NnstMatch,
     NnstTarget, SplatCamera, StrandScene, StylizeParams, CONSTRAINT_PASSES, HARD_TAU_FRACTION, SEGMENT_TOLERANCE,
@@ -196,6 +197,8 @@ fn json_v3(v: [f32; 3]) -> String {
 fn peer_meta(scene: &StrandScene, cam: &SplatCamera, adam: &Adam, loss0: f32) -> String {
     let st = &scene.style;
     let col = &scene.constraints.collision;
+    // The hyper-columns the strand pipeline builds (its views use the defaults).
+    let nnst = NnstParams::default();
     format!(
         r#"{{
   "samples": {samples},
@@ -207,11 +210,17 @@ fn peer_meta(scene: &StrandScene, cam: &SplatCamera, adam: &Adam, loss0: f32) ->
   "collision": {{"tau": {tau:e}, "kappa": {kappa:e}, "skip_roots": {skip}, "hard_tau_fraction": {htf:e},
                 "passes": {passes}, "segment_tolerance": {stol:e}}},
   "adamw": {{"lr": {lr:e}, "beta1": {b1:e}, "beta2": {b2:e}, "eps": {eps:e}, "weight_decay": {wd:e}}},
-  "nnst_grid_divisor": 4,
+  "nnst_grid_divisor": {divisor},
+  "nnst_layer_weight": "{layer_weight}",
   "nst3d_loss_iter0": {loss0:e}
 }}
 "#,
         samples = scene.field.sample_count(),
+        divisor = nnst.grid_divisor,
+        layer_weight = match nnst.layer_weight {
+            LayerWeight::InverseChannels => "inverse_channels",
+            LayerWeight::InverseSqrtChannels => "inverse_sqrt_channels",
+        },
         eye = json_v3(cam.eye),
         right = json_v3(cam.right),
         down = json_v3(cam.down),
