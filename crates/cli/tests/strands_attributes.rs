@@ -136,9 +136,6 @@ fn ply_groom_keeps_colour_bytes_and_thickness() {
 #[test]
 fn color_writes_the_stylized_colours_and_keeps_the_rest() {
     let dir = tempfile::tempdir().unwrap();
-    let dir = dir.keep();
-    eprintln!("DIR {}", dir.display());
-    let dir = DirKeep(dir);
     let groom = bangs_with_attributes();
     let input = dir.path().join("bangs.usda");
     write_usda_curves(&input, &groom).unwrap();
@@ -206,13 +203,6 @@ fn color_writes_the_stylized_colours_and_keeps_the_rest() {
     let err = String::from_utf8_lossy(&seq.stderr);
     assert!(!seq.status.success() && err.contains("--color") && err.lines().count() == 1, "{err}");
 }
-struct DirKeep(std::path::PathBuf);
-impl DirKeep {
-    fn path(&self) -> &Path {
-        &self.0
-    }
-}
-
 /// A groom usd-core wrote as a `.usdz` (z-up under a transformed Xform,
 /// with widths, colours, a texture and primvars of a dozen types, one
 /// indexed, one time-sampled) stylizes into a `.usdz` that holds all of
