@@ -279,6 +279,28 @@ def test_a_model_run_checks_the_mode_as_the_command_line_does(tmp_path, data, ns
     assert not (tmp_path / "py.vdb").exists()
 
 
+def test_a_textured_model_stylizes_like_the_command_line(tmp_path, data, style, nst3d_bin):
+    """``train(texture=P)`` learns a solid texture beside the network; the
+    package applies it in the file's index space (through ``origin``) as
+    ``nst3d volume --model`` does, and a frame shifted by whole periods of
+    the texture and of the network's leaves gets the same result."""
+    frames = [data / "volumes" / f"smoke_00000{i}.vdb" for i in (1, 2)]
+    model = tmp_path / "t.safetensors"
+    nst3d.train(frames, style, model, steps=3, patch=16, channels=2, texture=12, checkpoint_every=3)
+    m = nst3d.Model.load(model)
+    src = data / "volumes" / "smoke_000003.vdb"
+    _, lo, a = read_density(src)
+    out = m.stylize(a, origin=lo)
+    cli = tmp_path / "cli.vdb"
+    run_cli(nst3d_bin, "volume", "--model", model, "--input", src, "--out", cli)
+    b = np.zeros_like(a)
+    vdb.read(str(cli), "density").copyToArray(b, ijk=lo)
+    np.testing.assert_allclose(out, b, rtol=0, atol=1e-6)
+    # 8 keeps the network's lattice (leaves of 8) and moves the texture's
+    # phase; 24 keeps both.
+    assert np.abs(out - m.stylize(a, origin=[v + 8 for v in lo])).max() > 1e-4
+    np.testing.assert_allclose(out, m.stylize(a, origin=[v + 24 for v in lo]), rtol=0, atol=1e-6)
+
 @pytest.mark.parametrize("frames", ["1-10:0", "5-1", "1-x", ""])
 def test_train_frame_lists_are_the_command_lines(tmp_path, data, style, nst3d_bin, frames):
     """``train(frames=...)`` goes through the library's frame-list parser:

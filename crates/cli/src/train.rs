@@ -69,6 +69,12 @@ pub struct TrainArgs {
     /// 2x (and 4x) smaller, matching strokes at several sizes (the paper used 2).
     #[arg(long, default_value_t = 2)]
     octaves: usize,
+    /// Learn a periodic solid texture of this period (voxels) beside the
+    /// network, multiplied into its result: strokes where the smoke is
+    /// smooth, which the network alone leaves flat. Not in the paper
+    /// (docs/design/feedforward.md); the shipped models use 32.
+    #[arg(long)]
+    texture: Option<usize>,
     /// Seed of the initial weights and the patch sampling.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -102,6 +108,7 @@ fn settings(args: TrainArgs) -> Result<TrainSettings> {
         theta_deg: args.theta,
         phi_deg: args.phi,
         view_axes: args.view_axes,
+        texture: args.texture,
         seed: args.seed,
         out: args.out,
         checkpoint_every: args.checkpoint_every,

@@ -174,3 +174,51 @@ fn a_training_killed_between_checkpoints_resumes_to_the_same_model() {
     assert!(String::from_utf8_lossy(&o.stdout).contains("(resumed at step 4)"));
     assert_eq!(std::fs::read(&whole).unwrap(), std::fs::read(&killed).unwrap(), "the resumed model differs");
 }
+
+/// A model trained with a solid texture (`--texture`) writes it into the
+/// model file, and its result does not depend on the tiles: the texture is
+/// fixed in the frame's index space, as the network's stride lattice is.
+#[test]
+fn a_textured_model_is_seamless_across_tiles() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("t.safetensors");
+    let plume = shared("volumes/plume48").join("fluid_data_####.vdb");
+    let (style, frames) = (shared("styles/starry_night.jpg"), "20-22");
+    let train = ["train", "--input", s(&plume), "--frames", frames, "--style", s(&style), "--out", s(&model)];
+    let small = ["--steps", "3", "--patch", "16", "--channels", "2", "--texture", "12"];
+    let o = nst3d(&[&["--threads", "2"][..], &train, &small].concat());
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let m = nst3d_network::Model::from_bytes(&std::fs::read(&model).unwrap(), &model).unwrap();
+    assert_eq!(m.texture.as_ref().map(|t| t.period), Some(12));
+
+    let frame = shared("volumes/plume48/fluid_data_0030.vdb");
+    let dense = |extra: &[&str], name: &str| {
+        let out = dir.path().join(name);
+        let mut a = vec!["--threads", "2", "volume", "--model", s(&model), "--input", s(&frame), "--out", s(&out)];
+        a.extend_from_slice(extra);
+        let o = nst3d(&a);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        nst3d_io::vdb::read_vdb(&out).unwrap().grid("density").unwrap().to_dense().unwrap()
+    };
+    let whole = dense(&[], "whole.vdb");
+    let tiled = dense(&["--tile", "32", "--tile-margin", "32"], "tiled.vdb");
+    assert_eq!(whole.0, tiled.0);
+    let worst = whole.1.data.iter().zip(&tiled.1.data).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(worst <= 1e-6 * whole.1.max(), "tiles change the result by {worst}");
+    // Refused: a period the texture cannot have.
+    let bad = dir.path().join("bad.safetensors");
+    let o = nst3d(&[
+        "train",
+        "--input",
+        s(&plume),
+        "--frames",
+        frames,
+        "--style",
+        s(&style),
+        "--out",
+        s(&bad),
+        "--texture",
+        "1",
+    ]);
+    fails_with(&o, &bad, "--texture");
+}

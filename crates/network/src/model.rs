@@ -10,6 +10,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use crate::feedforward::{FeedForward, LAYERS};
+use crate::texture::SolidTexture;
 
 /// The `format` metadata value of nst3d model files.
 pub const FORMAT: &str = "nst3d-feedforward-v1";
@@ -22,6 +23,10 @@ pub const LAYER_NAMES: [&str; LAYERS] = ["e1", "e2", "m1", "m2", "m3", "m4", "d1
 pub struct Model {
     /// The weights.
     pub net: FeedForward,
+    /// The learned solid texture multiplied into the result, if the model
+    /// was trained with one (tensor `texture`, `P × P × P`; metadata
+    /// `texture_period`).
+    pub texture: Option<SolidTexture>,
     /// String metadata beyond the architecture (the trainer's keys).
     pub info: BTreeMap<String, String>,
 }
@@ -60,6 +65,9 @@ impl Model {
             out.push((format!("{name}.weight"), vec![l.cout, l.cin, l.k, l.k, l.k], &l.weight[..]));
             out.push((format!("{name}.bias"), vec![l.cout], &l.bias[..]));
         }
+        if let Some(t) = &self.texture {
+            out.push((TEXTURE.to_string(), vec![t.period; 3], &t.values[..]));
+        }
         out
     }
 
@@ -71,6 +79,9 @@ impl Model {
         meta.insert("architecture".into(), "volumetric-style-transfer fig9".into());
         meta.insert("channels".into(), self.net.layers[0].cout.to_string());
         meta.insert("out_channels".into(), self.net.out_channels().to_string());
+        if let Some(t) = &self.texture {
+            meta.insert(TEXTURE_PERIOD.into(), t.period.to_string());
+        }
         meta
     }
 
@@ -128,11 +139,45 @@ impl Model {
         for (dst, src) in slots.zip(found) {
             dst.copy_from_slice(src);
         }
-        for key in ["format", "architecture", "channels", "out_channels"] {
+        let texture = texture_from(tensors, &info).map_err(invalid)?;
+        for key in ["format", "architecture", "channels", "out_channels", TEXTURE_PERIOD] {
             info.remove(key);
         }
-        Ok(Model { net, info })
+        Ok(Model { net, texture, info })
     }
+}
+
+/// Name of the solid texture's tensor.
+pub const TEXTURE: &str = "texture";
+/// Metadata key of the solid texture's period.
+pub const TEXTURE_PERIOD: &str = "texture_period";
+
+/// The solid texture the metadata declares, checked against its tensor
+/// (none when the metadata names no period; a texture tensor without one is
+/// refused rather than silently ignored).
+fn texture_from(
+    tensors: &nst3d_weights::TensorMap,
+    info: &BTreeMap<String, String>,
+) -> Result<Option<SolidTexture>, String> {
+    let Some(period) = info.get(TEXTURE_PERIOD) else {
+        return match tensors.contains_key(TEXTURE) {
+            true => Err(format!("tensor {TEXTURE} without the metadata '{TEXTURE_PERIOD}'")),
+            false => Ok(None),
+        };
+    };
+    let period: usize = period
+        .parse()
+        .ok()
+        .filter(|p| (1..=256).contains(p))
+        .ok_or_else(|| format!("metadata '{TEXTURE_PERIOD}' is not a period from 1 to 256"))?;
+    let t = tensors.get(TEXTURE).ok_or_else(|| format!("tensor {TEXTURE} is missing"))?;
+    if t.shape != [period; 3] {
+        return Err(format!("tensor {TEXTURE} has shape {:?}, the period {period} needs {:?}", t.shape, [period; 3]));
+    }
+    if let Some(i) = t.data.iter().position(|v| !v.is_finite()) {
+        return Err(format!("tensor {TEXTURE} holds a non-finite value at {i}"));
+    }
+    Ok(Some(SolidTexture { period, values: t.data.clone() }))
 }
 
 #[cfg(test)]
@@ -143,7 +188,7 @@ mod tests {
     fn round_trip_and_refusals() {
         let mut info = BTreeMap::new();
         info.insert("mode".to_string(), "density".to_string());
-        let m = Model { net: FeedForward::new(3, 1, 9), info };
+        let m = Model { net: FeedForward::new(3, 1, 9), texture: None, info };
         let bytes = m.to_bytes();
         let p = Path::new("m.safetensors");
         assert_eq!(Model::from_bytes(&bytes, p).unwrap(), m);
@@ -166,6 +211,27 @@ mod tests {
         assert!(e.contains("e1.weight") && e.contains("channels 4"), "{e}");
     }
 
+    /// A model with a solid texture writes it as a tensor and reads it
+    /// back; a texture of the wrong shape, or a period with no tensor, is
+    /// refused by name.
+    #[test]
+    fn a_texture_round_trips_and_a_wrong_one_is_refused() {
+        let m = Model { net: FeedForward::new(2, 1, 9), texture: Some(SolidTexture::new(4, 1)), info: BTreeMap::new() };
+        let p = Path::new("m.safetensors");
+        assert_eq!(Model::from_bytes(&m.to_bytes(), p).unwrap(), m);
+        let mut tensors = nst3d_weights::TensorMap::new();
+        for (name, shape, data) in m.tensors() {
+            tensors.insert(name, nst3d_weights::TensorData { shape, data: data.to_vec() });
+        }
+        let mut wrong = m.metadata();
+        wrong.insert(TEXTURE_PERIOD.into(), "5".into());
+        let e = Model::from_parts(&tensors, wrong, p).unwrap_err().to_string();
+        assert!(e.contains("tensor texture has shape [4, 4, 4]"), "{e}");
+        tensors.remove(TEXTURE);
+        let e = Model::from_parts(&tensors, m.metadata(), p).unwrap_err().to_string();
+        assert!(e.contains("tensor texture is missing"), "{e}");
+    }
+
     /// The example model shipped with nst3d reads and writes back to the
     /// same bytes: what the writer writes has not changed since it was made.
     #[test]
@@ -180,7 +246,7 @@ mod tests {
         // Found while writing the fuzz harness: the network of the claimed
         // width (1.8 GB at 1024 channels) used to be made and initialised
         // before the tensors were compared with it.
-        let m = Model { net: FeedForward::new(1, 1, 9), info: BTreeMap::new() };
+        let m = Model { net: FeedForward::new(1, 1, 9), texture: None, info: BTreeMap::new() };
         let bytes = m.to_bytes();
         let key = b"\"channels\":\"1\"";
         let at = bytes.windows(key.len()).position(|w| w == key).expect("channels in the header");

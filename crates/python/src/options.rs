@@ -257,6 +257,7 @@ pub fn apply_train(s: &mut nst3d_train::TrainSettings, mut o: Options<'_>) -> Py
     if let Some(v) = o.parsed("view_axes", |v| v.parse::<nst3d_train::ViewAxes>())? {
         s.view_axes = v;
     }
+    set!(o.usize("texture") => Some s.texture);
     set!(o.u64("seed") => s.seed);
     set!(o.u64("checkpoint_every") => s.checkpoint_every);
     set!(o.usize("batch") => s.batch);

@@ -45,7 +45,7 @@ pub fn train_step(p: usize, velocity: bool, channels: usize, steps: usize) -> (V
         };
         let patch = rotated_patch(&volume, origin, p, &rot);
         last = trainer
-            .step(&patch, &loss, &view, &[crate::axes::Sight::Along(crate::axes::Axis::Z)])
+            .step(&patch, [0; 3], &loss, &view, &[crate::axes::Sight::Along(crate::axes::Axis::Z)])
             .expect("the benchmark view renders");
         if it > 0 {
             times.push(t0.elapsed().as_secs_f64() * 1e3);

@@ -159,14 +159,14 @@ pub fn share_start(team: &dyn Team, trainer: &mut TrainStep, rng: &mut SplitMix6
         return Ok(());
     }
     let (m, v, adam_step) = trainer.adam_state();
-    let mut floats = [trainer.net.flat(), m.to_vec(), v.to_vec()].concat();
+    let mut floats = [trainer.params(), m.to_vec(), v.to_vec()].concat();
     let mut words =
         [adam_step, trainer.position().to_bits(), trainer.schedule.total_steps, trainer.pace.to_bits(), rng.state()];
     team.broadcast_f32(&mut floats);
     team.broadcast_u64(&mut words);
     if team.rank() != 0 {
         let n = floats.len() / 3;
-        trainer.net.set_flat(&floats[..n]);
+        trainer.set_params(&floats[..n]);
         trainer.set_adam_state(&floats[n..2 * n], &floats[2 * n..], words[0])?;
         trainer.set_position(f64::from_bits(words[1]));
         trainer.schedule.total_steps = words[2];
@@ -207,13 +207,30 @@ pub struct Batch {
     pub phi_deg: f32,
     /// How each patch is seen.
     pub view_axes: ViewAxes,
+    /// The solid texture's period, if one is trained.
+    pub texture_period: Option<usize>,
+}
+
+/// One patch of a step: where it is cut, how it is seen and where its
+/// corner lies in the solid texture's space.
+struct Draw {
+    patch: PatchDraw,
+    sights: Vec<Sight>,
+    at: [i64; 3],
 }
 
 impl Batch {
-    /// One patch's numbers from `rng`: where it is cut, then its view axes.
-    fn draw(&self, rng: &mut SplitMix64, frames: &[Grid3]) -> (PatchDraw, Vec<Sight>) {
-        let d = PatchDraw::draw(rng, frames, self.patch, self.theta_deg, self.phi_deg);
-        (d, self.view_axes.pick(|| rng.uniform_f32()))
+    /// One patch's numbers from `rng`: where it is cut, its view axes, then
+    /// (only with a texture, so a run without one keeps its stream) where
+    /// it lies on the texture.
+    fn draw(&self, rng: &mut SplitMix64, frames: &[Grid3]) -> Draw {
+        let patch = PatchDraw::draw(rng, frames, self.patch, self.theta_deg, self.phi_deg);
+        let sights = self.view_axes.pick(|| rng.uniform_f32());
+        let at = match self.texture_period {
+            Some(p) => std::array::from_fn(|_| (rng.next_u64() % p as u64) as i64),
+            None => [0; 3],
+        };
+        Draw { patch, sights, at }
     }
 }
 
@@ -228,15 +245,15 @@ pub fn batch_step(
     (loss, view): (&ViewLoss, &ViewSpec),
 ) -> Result<f32> {
     if batch.size == 1 && team.size() == 1 {
-        let (d, axes) = batch.draw(rng, frames);
-        return Ok(trainer.step(&d.cut(frames, batch.patch), loss, view, &axes)?);
+        let d = batch.draw(rng, frames);
+        return Ok(trainer.step(&d.patch.cut(frames, batch.patch), d.at, loss, view, &d.sights)?);
     }
     let draws: Vec<_> = (0..batch.size).map(|_| batch.draw(rng, frames)).collect();
     let mut mine: Vec<(usize, PatchGradient)> = Vec::new();
     let mut failure = None;
     for j in (team.rank()..batch.size).step_by(team.size()) {
-        let (d, axes) = &draws[j];
-        match trainer.gradient(&d.cut(frames, batch.patch), loss, view, axes) {
+        let d = &draws[j];
+        match trainer.gradient(&d.patch.cut(frames, batch.patch), d.at, loss, view, &d.sights) {
             Ok(g) => mine.push((j, g)),
             Err(e) => {
                 failure = Some(e);

@@ -14,7 +14,8 @@ use anyhow::{bail, Context, Result};
 use nst3d_core::{math::SplitMix64, Grid3, Reporter};
 use nst3d_features::Vgg19;
 use nst3d_job::{expand_pattern, FrameSpec, JobId, Resume, StateFiles};
-use nst3d_network::{FeedForward, Model};
+use nst3d_network::model::{TEXTURE, TEXTURE_PERIOD};
+use nst3d_network::{FeedForward, Model, SolidTexture};
 use nst3d_optim::OneCycle;
 use nst3d_stylize::{StyleSpec, ViewLoss, ViewSpec};
 
@@ -55,6 +56,9 @@ pub struct TrainSettings {
     pub phi_deg: f32,
     /// The patch axes each step renders along ([`crate::axes`]).
     pub view_axes: ViewAxes,
+    /// Period of a solid texture learned beside the network
+    /// ([`nst3d_network::SolidTexture`]); `None`: the paper's network alone.
+    pub texture: Option<usize>,
     /// Seed of the patch sampling and the initial weights.
     pub seed: u64,
     /// The model file written at the end (and with every checkpoint).
@@ -85,6 +89,7 @@ impl TrainSettings {
             theta_deg: 180.0,
             phi_deg: 90.0,
             view_axes: ViewAxes::Random,
+            texture: None,
             seed: 0,
             out: out.into(),
             checkpoint_every: 50,
@@ -223,6 +228,7 @@ fn job_id(s: &TrainSettings) -> Result<JobId> {
 
 struct Checkpoint {
     net: FeedForward,
+    texture: Option<SolidTexture>,
     m: Vec<f32>,
     v: Vec<f32>,
     step: u64,
@@ -258,7 +264,7 @@ fn save_checkpoint(
     clock: Clock,
 ) -> Result<()> {
     let (m, v, adam_step) = t.adam_state();
-    let model = Model { net: t.net.clone(), info: BTreeMap::new() };
+    let model = Model { net: t.net.clone(), texture: t.texture().cloned(), info: BTreeMap::new() };
     let mut st = files.fresh();
     for (name, shape, data) in model.tensors() {
         st.put_f32(&format!("model.{name}"), &shape, data);
@@ -289,11 +295,16 @@ fn load_checkpoint(path: &Path, files: &StateFiles) -> Result<Option<Checkpoint>
         let (shape, data) = st.take_f32s(&format!("model.{name}")).map_err(|p| files.unusable(path, p))?;
         tensors.insert(name, nst3d_weights::TensorData { shape, data });
     }
+    if st.metadata().contains_key(&format!("model.{TEXTURE_PERIOD}")) {
+        let (shape, data) = st.take_f32s(&format!("model.{TEXTURE}")).map_err(|p| files.unusable(path, p))?;
+        tensors.insert(TEXTURE.to_string(), nst3d_weights::TensorData { shape, data });
+    }
     let info = st.metadata().iter().filter_map(|(k, v)| Some((k.strip_prefix("model.")?.to_string(), v.clone())));
     let model = Model::from_parts(&tensors, info.collect(), path)?;
     let checkpoint = |st: &mut nst3d_job::State<'_>| -> Result<Checkpoint, nst3d_job::state::Problem> {
         Ok(Checkpoint {
             net: model.net,
+            texture: model.texture,
             m: st.take_f32s("adam.m")?.1,
             v: st.take_f32s("adam.v")?.1,
             step: st.get("step")?,
@@ -337,7 +348,7 @@ fn write_outputs(
         info.insert("batch".to_string(), s.batch.to_string());
     }
     info.insert("nst3d_version".to_string(), env!("CARGO_PKG_VERSION").to_string());
-    let bytes = Model { net: t.net.clone(), info }.to_bytes();
+    let bytes = Model { net: t.net.clone(), texture: t.texture().cloned(), info }.to_bytes();
     nst3d_io::atomic::write_atomic(&s.out, |w| w.write_all(&bytes))
         .with_context(|| format!("cannot write the model {}", s.out.display()))?;
     let log = log_path(&s.out);
@@ -364,6 +375,9 @@ fn check_settings(s: &TrainSettings) -> Result<()> {
     }
     if s.minutes.is_some_and(|m| !(m >= 0.0 && m.is_finite())) {
         bail!("--minutes must be a number of minutes, 0 or more");
+    }
+    if s.texture.is_some_and(|p| !(2..=256).contains(&p)) {
+        bail!("--texture must be a period from 2 to 256 voxels");
     }
     if !(1..=3).contains(&s.octaves) || s.patch >> (s.octaves - 1) < 8 {
         bail!(
@@ -398,6 +412,9 @@ fn resume(
         return Ok(None);
     };
     trainer.net = c.net;
+    if let Some(t) = c.texture {
+        trainer.set_texture(t);
+    }
     trainer.set_adam_state(&c.m, &c.v, c.step)?;
     trainer.set_position(c.position);
     // A resumed run keeps the schedule it was planned with, and a
@@ -500,6 +517,18 @@ pub fn train(s: &TrainSettings, reporter: &mut dyn Reporter) -> Result<TrainRepo
     train_on(&Solo, s, reporter)
 }
 
+/// What each step draws ([`distributed::batch_step`]).
+fn batch_of(s: &TrainSettings) -> Batch {
+    Batch {
+        size: s.batch,
+        patch: s.patch,
+        theta_deg: s.theta_deg,
+        phi_deg: s.phi_deg,
+        view_axes: s.view_axes,
+        texture_period: s.texture,
+    }
+}
+
 /// A fresh network and its optimiser on the provisional schedule.
 fn new_trainer(s: &TrainSettings) -> TrainStep {
     let stylization =
@@ -507,6 +536,9 @@ fn new_trainer(s: &TrainSettings) -> TrainStep {
     let net = FeedForward::new(s.channels, stylization.channels(), s.seed);
     let planned = s.steps.unwrap_or(DEFAULT_STEPS);
     let mut trainer = TrainStep::new(net, stylization, OneCycle::new(1e-4, planned, 20.0));
+    if let Some(p) = s.texture {
+        trainer = trainer.with_texture(SolidTexture::new(p, s.seed));
+    }
     trainer.octaves = s.octaves;
     trainer
 }
@@ -552,8 +584,7 @@ pub fn train_on(team: &dyn Team, s: &TrainSettings, reporter: &mut dyn Reporter)
         (pacing.sizing, pacing.paced) = (false, r.paced);
     }
     distributed::share_start(team, &mut trainer, &mut rng)?;
-    let batch =
-        Batch { size: s.batch, patch: s.patch, theta_deg: s.theta_deg, phi_deg: s.phi_deg, view_axes: s.view_axes };
+    let batch = batch_of(s);
     let resumed_at = trainer.steps();
     // γ = 8/P as the benchmark: the densest ray of a full patch gets optical
     // depth ~8. Exposure γ, as every picture the optimisation, the previews

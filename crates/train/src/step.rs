@@ -5,7 +5,7 @@
 
 use crate::axes::{turn_to_z, turn_to_z_backward, Sight};
 use nst3d_core::{math::lane_sum, Grid3};
-use nst3d_network::{FeedForward, Volume};
+use nst3d_network::{FeedForward, SolidTexture, Volume};
 // The inference half lives with the network (the volume job applies a
 // trained model without the training crate); re-exported for the trainer.
 use nst3d_network::apply::CHUNK;
@@ -160,7 +160,19 @@ pub struct TrainStep {
     pub pace: f64,
     /// The last step's [`conserve_mass`] ratio `k`.
     last_mass_ratio: f32,
+    /// The solid texture trained beside the network, if any
+    /// ([`TrainStep::with_texture`]).
+    texture: Option<SolidTexture>,
 }
+
+/// How much faster the solid texture learns than the network: Adam moves
+/// every parameter by about the learning rate a step, and a texel must
+/// move by about 1 (`tanh`'s range) in a few thousand steps where a
+/// weight moves by hundredths. The optimiser holds `T / TEXTURE_RATE`.
+/// Measured: at 10× and 30× the texture was still near its start after
+/// 5,500 steps (scales within 0.72–1.29 and 0.40–1.61); at 300× it was
+/// carving (a third of the texels below 0.2) by 3,700.
+pub const TEXTURE_RATE: f32 = 300.0;
 
 impl TrainStep {
     /// A trainer for `net` (whose output channels must fit `stylization`).
@@ -181,6 +193,45 @@ impl TrainStep {
             position: 0.0,
             pace: 1.0,
             last_mass_ratio: 1.0,
+            texture: None,
+        }
+    }
+
+    /// The trainer with a solid texture learned beside the network
+    /// ([`SolidTexture`]); its values follow the network's in the
+    /// optimiser's parameters.
+    pub fn with_texture(mut self, texture: SolidTexture) -> Self {
+        self.adam = Adam::new(self.net.flat().len() + texture.values.len(), 0.0);
+        self.texture = Some(texture);
+        self
+    }
+
+    /// The solid texture being trained, if any.
+    pub fn texture(&self) -> Option<&SolidTexture> {
+        self.texture.as_ref()
+    }
+
+    /// Replaces the texture's values (a checkpoint's).
+    pub fn set_texture(&mut self, texture: SolidTexture) {
+        self.texture = Some(texture);
+    }
+
+    /// Every trained parameter in the optimiser's order: the network's
+    /// ([`FeedForward::flat`]), then the texture's over [`TEXTURE_RATE`].
+    pub fn params(&self) -> Vec<f32> {
+        let mut p = self.net.flat();
+        if let Some(t) = &self.texture {
+            p.extend(t.values.iter().map(|v| v / TEXTURE_RATE));
+        }
+        p
+    }
+
+    /// Sets every trained parameter from [`TrainStep::params`]' order.
+    pub fn set_params(&mut self, p: &[f32]) {
+        let n = p.len() - self.texture.as_ref().map_or(0, |t| t.values.len());
+        self.net.set_flat(&p[..n]);
+        if let Some(t) = &mut self.texture {
+            t.values.iter_mut().zip(&p[n..]).for_each(|(v, q)| *v = q * TEXTURE_RATE);
         }
     }
 
@@ -232,15 +283,17 @@ impl TrainStep {
     /// One step on `patch` (densities in `[0, 1]`, sides a multiple of 4)
     /// seen with `view`'s absorption from each of `sights`
     /// ([`crate::axes`]); returns the style loss (summed over the octaves,
-    /// the mean over the sights) before the update.
+    /// the mean over the sights) before the update. `at` is where the
+    /// patch's corner lies in the solid texture's space (unused without one).
     pub fn step(
         &mut self,
         patch: &Grid3,
+        at: [i64; 3],
         loss: &ViewLoss,
         view: &ViewSpec,
         sights: &[Sight],
     ) -> Result<f32, ViewError> {
-        let g = self.gradient(patch, loss, view, sights)?;
+        let g = self.gradient(patch, at, loss, view, sights)?;
         self.update(g.grads, g.mass_ratio);
         Ok(g.loss)
     }
@@ -251,6 +304,7 @@ impl TrainStep {
     pub fn gradient(
         &self,
         patch: &Grid3,
+        at: [i64; 3],
         loss: &ViewLoss,
         view: &ViewSpec,
         sights: &[Sight],
@@ -258,7 +312,11 @@ impl TrainStep {
         assert!(!sights.is_empty(), "a step renders its patch at least once");
         let x = Volume::from_grid(patch);
         let (o, tape) = self.net.forward(&x);
-        let raw = apply(patch, &o, self.stylization);
+        let styled = apply(patch, &o, self.stylization);
+        let raw = match &self.texture {
+            Some(t) => t.apply(&styled, at),
+            None => styled.clone(),
+        };
         let (dstar, k) = conserve_mass(patch, &raw);
         let (mut l, mut grad_dstar) = (0.0f32, vec![0.0f32; dstar.len()]);
         let share = 1.0 / sights.len() as f32;
@@ -274,8 +332,13 @@ impl TrainStep {
             let (_, g) = scale_pin(&raw, k, SCALE_PIN);
             grad_raw.iter_mut().for_each(|x| *x += g);
         }
-        let grad_o = apply_backward(patch, &o, self.stylization, &grad_raw);
-        let grads = FeedForward::flat_grads(&self.net.backward(&tape, &grad_o));
+        let (grad_styled, grad_texture) = match &self.texture {
+            Some(t) => t.apply_backward(&styled, at, &grad_raw),
+            None => (grad_raw, Vec::new()),
+        };
+        let grad_o = apply_backward(patch, &o, self.stylization, &grad_styled);
+        let mut grads = FeedForward::flat_grads(&self.net.backward(&tape, &grad_o));
+        grads.extend(grad_texture.iter().map(|g| g * TEXTURE_RATE));
         Ok(PatchGradient { loss: l, grads, mass_ratio: k })
     }
 
@@ -285,13 +348,19 @@ impl TrainStep {
     /// reports.
     pub fn update(&mut self, mut grads: Vec<f32>, mass_ratio: f32) {
         self.last_mass_ratio = mass_ratio;
-        clip_grad_norm(&mut [&mut grads], self.clip);
+        // The network's and the texture's gradients are clipped apart: the
+        // texture's, TEXTURE_RATE times larger, would otherwise take the
+        // whole norm and scale the network's steps down with it.
+        let n = self.net.flat().len();
+        let (net, texture) = grads.split_at_mut(n);
+        clip_grad_norm(&mut [net], self.clip);
+        clip_grad_norm(&mut [texture], self.clip);
         let (lr, beta1) = self.schedule.at(self.position.floor() as u64);
         self.adam.lr = lr as f32;
         self.adam.beta1 = beta1 as f32;
-        let mut params = self.net.flat();
+        let mut params = self.params();
         self.adam.step(&mut params, &grads);
-        self.net.set_flat(&params);
+        self.set_params(&params);
         self.steps += 1;
         self.position += self.pace;
     }
@@ -464,7 +533,7 @@ mod tests {
         let schedule = OneCycle::new(1e-4, 10, 20.0);
         let total = |net: &FeedForward| -> f64 {
             let t = TrainStep::new(net.clone(), Stylization::Density, schedule.clone());
-            let l = t.gradient(patch, loss, view, &[sight]).unwrap().loss;
+            let l = t.gradient(patch, [0; 3], loss, view, &[sight]).unwrap().loss;
             let raw = apply(patch, &net.forward(&Volume::from_grid(patch)).0, Stylization::Density);
             let (_, k) = conserve_mass(patch, &raw);
             l as f64 + scale_pin(&raw, k, SCALE_PIN).0 as f64
@@ -479,7 +548,7 @@ mod tests {
         }
         *net.layers[nst3d_network::feedforward::LAYERS - 1].bias.last_mut().unwrap() = bias;
         let t = TrainStep::new(net.clone(), Stylization::Density, schedule.clone());
-        let g = t.gradient(patch, loss, view, &[sight]).unwrap().grads;
+        let g = t.gradient(patch, [0; 3], loss, view, &[sight]).unwrap().grads;
         // Layer by layer along a direction with the gradient's signs, moved
         // by a share of the layer's weights' size: one difference quotient
         // checks every weight of the layer, far above the loss's rounding.
@@ -505,6 +574,67 @@ mod tests {
             // Kinks crossed and f32 rounding: up to 1.1e-2 measured; a
             // gradient 20 % off scores 0.17.
             assert!(err < 3e-2, "{sight:?}, bias {bias}, layer {l}: relative error {err}");
+        }
+    }
+
+    /// The chain through a solid texture: the loss (and pin) of a step with
+    /// a texture of period 5 on a 12³ patch at a negative corner (texels
+    /// under several voxels, wrapped on both sides), against finite
+    /// differences along one direction of the texture's parameters (in the
+    /// optimiser's scaling, `T / TEXTURE_RATE`) and of the last layer's
+    /// weights (reached through the texture's scale).
+    #[test]
+    fn a_textured_training_step_gradient_matches_finite_differences() {
+        nst3d_core::precision::fp32(textured_step_check)
+    }
+
+    fn textured_step_check() {
+        use nst3d_features::{Vgg19, VggFlavor};
+        use nst3d_stylize::StyleSpec;
+        let vgg = Vgg19::random(VggFlavor::Torchvision, 3);
+        let style =
+            nst3d_core::Image::from_vec(3, 24, 24, pseudo_random(3 * 576, 4).iter().map(|v| 0.5 + 0.4 * v).collect());
+        let loss = ViewLoss::new(&vgg, &style, &StyleSpec::default()).unwrap();
+        let view = ViewSpec { camera: None, gamma: 0.5, exposure: 0.5, equalize: false };
+        let patch = Grid3::from_vec([12; 3], pseudo_random(1728, 11).iter().map(|v| 0.5 + 0.5 * v).collect());
+        let (at, sight) = ([-3, 4, -11], Sight::From([0.48, 0.6, -0.64]));
+        let mut texture = SolidTexture::new(5, 2);
+        texture.values.iter_mut().zip(pseudo_random(125, 6)).for_each(|(t, r)| *t = 1.2 * r);
+        let fresh = || {
+            TrainStep::new(FeedForward::new(2, 1, 5), Stylization::Density, OneCycle::new(1e-4, 10, 20.0))
+                .with_texture(texture.clone())
+        };
+        let trainer = |p: &[f32]| {
+            let mut t = fresh();
+            t.set_params(p);
+            t
+        };
+        let total = |p: &[f32]| -> f64 {
+            let t = trainer(p);
+            let l = t.gradient(&patch, at, &loss, &view, &[sight]).unwrap().loss;
+            let styled = apply(&patch, &t.net.forward(&Volume::from_grid(&patch)).0, Stylization::Density);
+            let raw = t.texture().unwrap().apply(&styled, at);
+            let (_, k) = conserve_mass(&patch, &raw);
+            l as f64 + scale_pin(&raw, k, SCALE_PIN).0 as f64
+        };
+        let p0 = fresh().params();
+        let g = trainer(&p0).gradient(&patch, at, &loss, &view, &[sight]).unwrap().grads;
+        let n_tex = texture.values.len();
+        let last = nst3d_network::feedforward::LAYERS - 1;
+        let net_n = p0.len() - n_tex;
+        let last_layer = fresh().net.layers[last].clone();
+        let last_w = net_n - last_layer.bias.len() - last_layer.weight.len();
+        for (name, range) in [("texture", net_n..p0.len()), ("last layer", last_w..net_n)] {
+            let n = range.len();
+            let v: Vec<f32> =
+                pseudo_random(n, 40).iter().zip(&g[range.clone()]).map(|(r, g)| r.abs() * g.signum()).collect();
+            let step = 1e-2 * p0[range.clone()].iter().map(|x| x.abs()).sum::<f32>() / n as f32;
+            let err = directional(&g[range.clone()], &v, step, |t| {
+                let mut x = p0.clone();
+                x[range.clone()].iter_mut().zip(&v).for_each(|(x, v)| *x += t * v);
+                total(&x)
+            });
+            assert!(err < 3e-2, "{name}: relative error {err}");
         }
     }
 

@@ -116,6 +116,16 @@ fn two_ranks_train_what_one_process_trains_with_the_same_batch() {
         assert_eq!(r.unwrap().steps, 4);
     }
     assert_eq!(std::fs::read(&one).unwrap(), std::fs::read(&two).unwrap(), "2 ranks and 1 differ");
+    // With a solid texture too (its gradient rides in the same sum).
+    let textured = |name: &str| {
+        let mut s = settings(&dir.path().join(name));
+        s.texture = Some(8);
+        s
+    };
+    fp32(|| train(&textured("one_t.safetensors"), &mut Silent)).unwrap();
+    on_ranks(2, &textured("two_t.safetensors"), |_| {}).into_iter().for_each(|r| assert_eq!(r.unwrap().steps, 4));
+    let read = |name: &str| std::fs::read(dir.path().join(name)).unwrap();
+    assert_eq!(read("one_t.safetensors"), read("two_t.safetensors"), "textured: 2 ranks and 1 differ");
     assert_eq!(std::fs::read(one.with_extension("csv")).unwrap(), std::fs::read(two.with_extension("csv")).unwrap());
     let m = nst3d_network::Model::from_bytes(&std::fs::read(&two).unwrap(), &two).unwrap();
     assert_eq!(m.info.get("batch").map(String::as_str), Some("3"));

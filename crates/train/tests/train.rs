@@ -30,6 +30,7 @@ fn settings(out: &Path) -> TrainSettings {
         theta_deg: 180.0,
         phi_deg: 90.0,
         view_axes: nst3d_train::ViewAxes::Random,
+        texture: None,
         seed: 3,
         out: out.to_path_buf(),
         checkpoint_every: 2,
@@ -76,6 +77,30 @@ fn a_killed_run_resumes_to_the_same_model() {
     assert!(train(&bad, &mut Silent).unwrap_err().to_string().contains("--patch"));
 }
 
+/// A run with a solid texture checkpoints it with the network: stopped
+/// after its first step and resumed, it ends with the same model file, and
+/// the file carries the texture.
+#[test]
+fn a_textured_run_resumes_to_the_same_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let textured = |name: &str| {
+        let mut s = settings(&dir.path().join(name));
+        s.texture = Some(8);
+        s
+    };
+    let whole = textured("whole.safetensors");
+    train(&whole, &mut Silent).unwrap();
+    let mut parts = textured("parts.safetensors");
+    parts.minutes = Some(0.0);
+    assert_eq!(train(&parts, &mut Silent).unwrap().steps, 1);
+    parts.minutes = None;
+    assert_eq!(train(&parts, &mut Silent).unwrap().resumed_at, 1);
+    let bytes = std::fs::read(&whole.out).unwrap();
+    assert_eq!(bytes, std::fs::read(&parts.out).unwrap(), "resumed textured model differs");
+    let m = nst3d_network::Model::from_bytes(&bytes, &whole.out).unwrap();
+    assert_eq!(m.texture.map(|t| t.period), Some(8));
+}
+
 /// A checkpoint an older nst3d wrote (its model, then a second
 /// safetensors part, behind a length) is refused in one line that says how
 /// to start over, and so is a cut one; deleting it starts afresh.
@@ -83,7 +108,8 @@ fn a_killed_run_resumes_to_the_same_model() {
 fn an_older_or_cut_checkpoint_is_refused_in_one_line() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("old.safetensors");
-    let model = nst3d_network::Model { net: nst3d_network::FeedForward::new(2, 1, 3), info: Default::default() };
+    let model =
+        nst3d_network::Model { net: nst3d_network::FeedForward::new(2, 1, 3), texture: None, info: Default::default() };
     let model = model.to_bytes();
     let mut old = (model.len() as u64).to_le_bytes().to_vec();
     old.extend(&model);

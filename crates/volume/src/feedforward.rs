@@ -208,7 +208,15 @@ fn stylize_sparse(
             for y in t.lo[1]..t.hi[1] {
                 let row = ((z - t.from[2]) * t.size[1] + (y - t.from[1])) * t.size[0];
                 let (a, b) = (t.lo[0] - t.from[0], t.hi[0] - t.from[0]);
-                values.extend(styled.data[row + a..row + b].iter().map(|v| v * max));
+                let row = styled.data[row + a..row + b].iter().map(|v| v * max);
+                match &model.texture {
+                    // The texture is fixed in index space: tiles and frames agree.
+                    Some(tex) => values.extend(row.zip(t.lo[0]..t.hi[0]).map(|(v, x)| {
+                        let [gx, gy, gz] = at([x, y, z]);
+                        v * tex.scale([gx as i64, gy as i64, gz as i64], m.strength)
+                    })),
+                    None => values.extend(row),
+                }
             }
         }
         written += values.iter().filter(|v| **v > 0.0).map(|v| *v as f64).sum::<f64>();
@@ -481,7 +489,8 @@ mod tests {
         let k_with_bias = |bias: f32| {
             let mut net = FeedForward::new(2, 1, 4);
             net.layers.last_mut().unwrap().bias.iter_mut().for_each(|b| *b = bias);
-            stylize_sparse(&Model { net, info: BTreeMap::new() }, Mode::Density, 0.0, &g, bbox, &m, None).2
+            stylize_sparse(&Model { net, texture: None, info: BTreeMap::new() }, Mode::Density, 0.0, &g, bbox, &m, None)
+                .2
         };
         // 1 + tanh(-100) is exactly 0 in f32; 1 + tanh(-8) about 2e-7.
         let (none, residue, fresh) = (k_with_bias(-100.0), k_with_bias(-8.0), k_with_bias(0.0));
@@ -497,7 +506,7 @@ mod tests {
     fn tile_size_does_not_change_the_frame() {
         let (g, bbox) = blob();
         for (mode, out_c, vmax) in [(Mode::Density, 1, 0.0), (Mode::Velocity, 3, 2.0)] {
-            let model = Model { net: FeedForward::new(2, out_c, 4), info: BTreeMap::new() };
+            let model = Model { net: FeedForward::new(2, out_c, 4), texture: None, info: BTreeMap::new() };
             let run = |tile: usize| {
                 let m = ModelSettings { tile, ..ModelSettings::new(PathBuf::new()) };
                 stylize_sparse(&model, mode, vmax, &g, bbox, &m, None).0
