@@ -319,8 +319,8 @@ fn one_frame(
 /// that kept under a thousandth of the smoke has erased it (a collapsed
 /// training run makes one): scaling what is left up would draw the
 /// network's rounding residue as hot blocks, and where nothing is left the
-/// frame would be written empty. The shipped models scale the held-out
-/// frames and a plume frame by 0.90 to 1.19.
+/// frame would be written empty. A trained model's factor stays near 1
+/// (the training's scale pin holds it there).
 const MOST_MASS_RESTORED: f32 = 1000.0;
 
 /// Why a result must not be written, from its mass factor `k`
