@@ -313,11 +313,9 @@ impl TrainStep {
         let x = Volume::from_grid(patch);
         let (o, tape) = self.net.forward(&x);
         let styled = apply(patch, &o, self.stylization);
-        let raw = match &self.texture {
-            Some(t) => t.apply(&styled, at),
-            None => styled.clone(),
-        };
-        let (dstar, k) = conserve_mass(patch, &raw);
+        let textured = self.texture.as_ref().map(|t| t.apply(&styled, at));
+        let raw = textured.as_ref().unwrap_or(&styled);
+        let (dstar, k) = conserve_mass(patch, raw);
         let (mut l, mut grad_dstar) = (0.0f32, vec![0.0f32; dstar.len()]);
         let share = 1.0 / sights.len() as f32;
         for &sight in sights {
@@ -327,9 +325,9 @@ impl TrainStep {
                 *g += share * a;
             }
         }
-        let mut grad_raw = conserve_mass_backward(&raw, k, &grad_dstar);
+        let mut grad_raw = conserve_mass_backward(raw, k, &grad_dstar);
         if self.stylization == Stylization::Density {
-            let (_, g) = scale_pin(&raw, k, SCALE_PIN);
+            let (_, g) = scale_pin(raw, k, SCALE_PIN);
             grad_raw.iter_mut().for_each(|x| *x += g);
         }
         let (grad_styled, grad_texture) = match &self.texture {
@@ -351,7 +349,7 @@ impl TrainStep {
         // The network's and the texture's gradients are clipped apart: the
         // texture's, TEXTURE_RATE times larger, would otherwise take the
         // whole norm and scale the network's steps down with it.
-        let n = self.net.flat().len();
+        let n = grads.len() - self.texture.as_ref().map_or(0, |t| t.values.len());
         let (net, texture) = grads.split_at_mut(n);
         clip_grad_norm(&mut [net], self.clip);
         clip_grad_norm(&mut [texture], self.clip);
