@@ -509,6 +509,7 @@ def train(
     theta: Optional[float] = None,
     phi: Optional[float] = None,
     view_axes: Optional[str] = None,
+    absorption: Optional[str] = None,
     texture: Optional[int] = None,
     style_scale: Optional[float] = None,
     octaves: Optional[int] = None,
@@ -532,7 +533,7 @@ def train(
     frame_lists = [] if frames is None else [frames] if isinstance(frames, str) else list(frames)
     opts = _options(
         mode=mode, grid=grid, channels=channels, patch=patch, steps=steps, minutes=minutes,
-        theta=theta, phi=phi, view_axes=view_axes, texture=texture, style_scale=style_scale, octaves=octaves,
+        theta=theta, phi=phi, view_axes=view_axes, absorption=absorption, texture=texture, style_scale=style_scale, octaves=octaves,
         seed=seed, checkpoint_every=checkpoint_every, batch=batch, weights=weights,
     )
     return _nst3d.train(inputs, frame_lists, os.fspath(style), os.fspath(out), opts, progress, _to_log)

@@ -119,6 +119,8 @@ class TrainOptions(TypedDict, total=False):
     theta: float
     phi: float
     view_axes: str
+    absorption: str
+    texture: int
     style_scale: float
     octaves: int
     seed: int

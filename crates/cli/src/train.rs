@@ -62,6 +62,11 @@ pub struct TrainArgs {
     /// docs/design/feedforward.md).
     #[arg(long, default_value = "random")]
     view_axes: ViewAxes,
+    /// How opaque the training pictures are: patch (γ = 8/P for every
+    /// patch, the paper's peer) or frame (each patch as its whole frame is
+    /// drawn: its densest column at optical depth 3).
+    #[arg(long, default_value = "patch")]
+    absorption: nst3d_train::Absorption,
     /// Style image scale factor (smaller = larger patterns).
     #[arg(long, default_value_t = 0.5)]
     style_scale: f32,
@@ -108,6 +113,7 @@ fn settings(args: TrainArgs) -> Result<TrainSettings> {
         theta_deg: args.theta,
         phi_deg: args.phi,
         view_axes: args.view_axes,
+        absorption: args.absorption,
         texture: args.texture,
         seed: args.seed,
         out: args.out,

@@ -257,6 +257,9 @@ pub fn apply_train(s: &mut nst3d_train::TrainSettings, mut o: Options<'_>) -> Py
     if let Some(v) = o.parsed("view_axes", |v| v.parse::<nst3d_train::ViewAxes>())? {
         s.view_axes = v;
     }
+    if let Some(a) = o.parsed("absorption", |v| v.parse::<nst3d_train::Absorption>())? {
+        s.absorption = a;
+    }
     set!(o.usize("texture") => Some s.texture);
     set!(o.u64("seed") => s.seed);
     set!(o.u64("checkpoint_every") => s.checkpoint_every);

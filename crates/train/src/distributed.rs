@@ -235,17 +235,19 @@ impl Batch {
 }
 
 /// One optimisation step over the global batch; returns the batch's mean
-/// loss. A collective: every rank calls it once a step.
+/// loss. Each patch is seen as `views[i]` says for its frame `i`. A
+/// collective: every rank calls it once a step.
 pub fn batch_step(
     team: &dyn Team,
     trainer: &mut TrainStep,
     rng: &mut SplitMix64,
     frames: &[Grid3],
     batch: &Batch,
-    (loss, view): (&ViewLoss, &ViewSpec),
+    (loss, views): (&ViewLoss, &[ViewSpec]),
 ) -> Result<f32> {
     if batch.size == 1 && team.size() == 1 {
         let d = batch.draw(rng, frames);
+        let view = &views[d.patch.frame];
         return Ok(trainer.step(&d.patch.cut(frames, batch.patch), d.at, loss, view, &d.sights)?);
     }
     let draws: Vec<_> = (0..batch.size).map(|_| batch.draw(rng, frames)).collect();
@@ -253,7 +255,7 @@ pub fn batch_step(
     let mut failure = None;
     for j in (team.rank()..batch.size).step_by(team.size()) {
         let d = &draws[j];
-        match trainer.gradient(&d.patch.cut(frames, batch.patch), d.at, loss, view, &d.sights) {
+        match trainer.gradient(&d.patch.cut(frames, batch.patch), d.at, loss, &views[d.patch.frame], &d.sights) {
             Ok(g) => mine.push((j, g)),
             Err(e) => {
                 failure = Some(e);

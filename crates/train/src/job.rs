@@ -19,6 +19,7 @@ use nst3d_network::{FeedForward, Model, SolidTexture};
 use nst3d_optim::OneCycle;
 use nst3d_stylize::{StyleSpec, ViewLoss, ViewSpec};
 
+use crate::absorption::Absorption;
 use crate::axes::ViewAxes;
 use crate::distributed::{self, Batch, Solo, Team};
 use crate::step::{Stylization, TrainStep};
@@ -56,6 +57,8 @@ pub struct TrainSettings {
     pub phi_deg: f32,
     /// The patch axes each step renders along ([`crate::axes`]).
     pub view_axes: ViewAxes,
+    /// The absorption each patch is rendered with ([`crate::absorption`]).
+    pub absorption: Absorption,
     /// Period of a solid texture learned beside the network
     /// ([`nst3d_network::SolidTexture`]); `None`: the paper's network alone.
     pub texture: Option<usize>,
@@ -89,6 +92,7 @@ impl TrainSettings {
             theta_deg: 180.0,
             phi_deg: 90.0,
             view_axes: ViewAxes::Random,
+            absorption: Absorption::Patch,
             texture: None,
             seed: 0,
             out: out.into(),
@@ -340,6 +344,10 @@ fn write_outputs(
     info.insert("patch".to_string(), s.patch.to_string());
     info.insert("octaves".to_string(), s.octaves.to_string());
     info.insert("view_axes".to_string(), s.view_axes.name().to_string());
+    // Only where it is not the rule every earlier model was trained with.
+    if s.absorption != Absorption::Patch {
+        info.insert("absorption".to_string(), s.absorption.name().to_string());
+    }
     info.insert("mass".to_string(), if s.velocity { "conserved" } else { crate::step::MASS_PINNED }.to_string());
     info.insert("steps".to_string(), t.steps().to_string());
     // Only where it is not the one patch every model was trained with, so
@@ -586,20 +594,21 @@ pub fn train_on(team: &dyn Team, s: &TrainSettings, reporter: &mut dyn Reporter)
     distributed::share_start(team, &mut trainer, &mut rng)?;
     let batch = batch_of(s);
     let resumed_at = trainer.steps();
-    // γ = 8/P as the benchmark: the densest ray of a full patch gets optical
-    // depth ~8. Exposure γ, as every picture the optimisation, the previews
-    // and the judges draw: grey = γ Σ d τ ≈ the ray's opacity, in [0, 1)
-    // like the painting. (Exposure 1, the benchmark's, drew dense smoke up
-    // to 1/γ = P/8 times too bright for VGG — 4 at the default patch — and
-    // the network learned its look on pictures nobody sees.)
-    let gamma = 8.0 / s.patch as f32;
-    let view = ViewSpec { camera: None, gamma, exposure: gamma, equalize: false };
+    // γ by the settings' rule (crate::absorption). Exposure γ, as every
+    // picture the optimisation, the previews and the judges draw:
+    // grey = γ Σ d τ ≈ the ray's opacity, in [0, 1) like the painting.
+    // (Exposure 1, the benchmark's, drew dense smoke up to 1/γ = P/8 times
+    // too bright for VGG — 4 at the default patch — and the network learned
+    // its look on pictures nobody sees.)
+    let views: Vec<ViewSpec> = (s.absorption.gammas(&frames, s.patch).into_iter())
+        .map(|gamma| ViewSpec { camera: None, gamma, exposure: gamma, equalize: false })
+        .collect();
     let t0 = Instant::now();
     let mut last_step = Instant::now();
     reporter.begin(trainer.schedule.total_steps.saturating_sub(trainer.position().floor() as u64));
     while !trainer.schedule_done() {
         let before = trainer.position().floor() as u64;
-        let l = distributed::batch_step(team, &mut trainer, &mut rng, &frames, &batch, (&loss, &view))?;
+        let l = distributed::batch_step(team, &mut trainer, &mut rng, &frames, &batch, (&loss, &views))?;
         // The bar counts the schedule's steps: a paced run takes more or
         // fewer training steps than its schedule has, as the clock says.
         for _ in before..trainer.position().floor() as u64 {

@@ -9,6 +9,7 @@
 
 #![warn(missing_docs)]
 
+pub mod absorption;
 pub mod axes;
 pub mod bench;
 pub mod curve;
@@ -17,6 +18,7 @@ pub mod job;
 pub mod patch;
 pub mod step;
 
+pub use absorption::Absorption;
 pub use axes::{Axis, Sight, ViewAxes};
 pub use job::{train, train_on, TrainReport, TrainSettings};
 pub use patch::{rotated_patch, Rotation};

@@ -131,6 +131,34 @@ fn two_ranks_train_what_one_process_trains_with_the_same_batch() {
     assert_eq!(m.info.get("batch").map(String::as_str), Some("3"));
 }
 
+/// With a texture and each patch seen at its own frame's absorption, two
+/// ranks train what one process trains to within f32 rounding: a patch's
+/// gradient on rank 1 has differed from the same patch's in one process
+/// in its last bits (a source of order dependence not yet found), so this
+/// pair is held to a tolerance, the others above to the bit.
+#[test]
+fn two_ranks_with_frame_absorption_agree_with_one_within_rounding() {
+    let dir = tempfile::tempdir().unwrap();
+    let framed = |name: &str| {
+        let mut s = settings(&dir.path().join(name));
+        (s.texture, s.absorption) = (Some(8), nst3d_train::Absorption::Frame);
+        s
+    };
+    let (one, two) = (framed("one.safetensors"), framed("two.safetensors"));
+    fp32(|| train(&one, &mut Silent)).unwrap();
+    on_ranks(2, &two, |_| {}).into_iter().for_each(|r| assert_eq!(r.unwrap().steps, 4));
+    let model = |s: &TrainSettings| nst3d_network::Model::from_bytes(&std::fs::read(&s.out).unwrap(), &s.out).unwrap();
+    let flat = |m: nst3d_network::Model| {
+        let mut p = m.net.flat();
+        p.extend(m.texture.expect("a textured model").values);
+        p
+    };
+    let (a, b) = (flat(model(&one)), flat(model(&two)));
+    let largest = a.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let worst = a.iter().zip(&b).fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+    assert!(worst <= 1e-5 * largest, "2 ranks and 1 differ by {worst} (largest parameter {largest})");
+}
+
 #[test]
 fn a_run_stopped_on_two_ranks_resumes_on_one() {
     let dir = tempfile::tempdir().unwrap();

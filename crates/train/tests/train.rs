@@ -30,6 +30,7 @@ fn settings(out: &Path) -> TrainSettings {
         theta_deg: 180.0,
         phi_deg: 90.0,
         view_axes: nst3d_train::ViewAxes::Random,
+        absorption: nst3d_train::Absorption::Patch,
         texture: None,
         seed: 3,
         out: out.to_path_buf(),
@@ -99,6 +100,23 @@ fn a_textured_run_resumes_to_the_same_model() {
     assert_eq!(bytes, std::fs::read(&parts.out).unwrap(), "resumed textured model differs");
     let m = nst3d_network::Model::from_bytes(&bytes, &whole.out).unwrap();
     assert_eq!(m.texture.map(|t| t.period), Some(8));
+}
+
+/// `frame` absorption sees each patch as its whole frame is drawn: the
+/// same patches give another model than `patch`'s 8/P, and the file says
+/// which rule trained it (a `patch` model keeps the earlier metadata).
+#[test]
+fn frame_absorption_trains_another_model_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let patch = settings(&dir.path().join("patch.safetensors"));
+    let mut frame = settings(&dir.path().join("frame.safetensors"));
+    frame.absorption = nst3d_train::Absorption::Frame;
+    let first = |s: &TrainSettings| train(s, &mut Silent).unwrap().loss_first;
+    assert_ne!(first(&patch), first(&frame), "the first step's loss should see another absorption");
+    let model = |s: &TrainSettings| nst3d_network::Model::from_bytes(&std::fs::read(&s.out).unwrap(), &s.out).unwrap();
+    assert_ne!(model(&patch).net, model(&frame).net);
+    assert_eq!(model(&frame).info.get("absorption").map(String::as_str), Some("frame"));
+    assert_eq!(model(&patch).info.get("absorption"), None);
 }
 
 /// A checkpoint an older nst3d wrote (its model, then a second
