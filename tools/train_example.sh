@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Trains an example feed-forward model committed under models/ (the
 # recipe of docs/guide/feedforward.md): Starry Night (or PAINTING) for
-# $NST3D_TRAIN_MINUTES (default 60) minutes of wall clock on one thread, 32³
-# patches seen through cameras from random directions, a solid texture of
-# period 32 beside the network, two octaves, the schedule sized to the budget, on
+# $NST3D_TRAIN_MINUTES (default 55) minutes of wall clock on one thread, 32³
+# patches seen through cameras from random directions, each as its whole
+# frame is drawn (--absorption frame), a solid texture of period 32 beside
+# the network, two octaves, the schedule sized to the budget, on
 # three simulations — the shared plume48 (frames 1–40) and two bakes with
 # other sizes and settings made here with Blender (plumeB: 56 voxels high,
 # source off-centre with a sideways push; plume96: the shared scene at
@@ -38,6 +39,6 @@ mkdir -p models
   --input '../shared/data/volumes/plume48/fluid_data_####.vdb' --frames 1-40 \
   --input "$PLUMES/plumeB/data/fluid_data_####.vdb" --frames 1-48 \
   --input "$PLUMES/plume96/data/fluid_data_####.vdb" --frames 1-40 \
-  --style "$PAINTING" --mode "$MODE" --minutes "${NST3D_TRAIN_MINUTES:-60}" --seed 0 \
-  --view-axes sphere --texture 32 \
+  --style "$PAINTING" --mode "$MODE" --minutes "${NST3D_TRAIN_MINUTES:-55}" --seed 0 \
+  --view-axes sphere --absorption frame --texture 32 \
   --out "models/${name}_$MODE.safetensors" "$@"
