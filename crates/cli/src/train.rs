@@ -63,9 +63,8 @@ pub struct TrainArgs {
     #[arg(long, default_value = "random")]
     view_axes: ViewAxes,
     /// How opaque the training pictures are: patch (γ = 8/P for every
-    /// patch, the paper's peer), frame (each patch as its whole frame is
-    /// drawn: its densest column at optical depth 3) or drawn (each patch
-    /// its own γ over 0.03–0.3, the network shown the optical density γ·d).
+    /// patch, the paper's peer) or frame (each patch as its whole frame is
+    /// drawn: its densest column at optical depth 3).
     #[arg(long, default_value = "patch")]
     absorption: nst3d_train::Absorption,
     /// Style image scale factor (smaller = larger patterns).

@@ -36,7 +36,6 @@ use anyhow::{bail, Result};
 use nst3d_core::{math::SplitMix64, Grid3};
 use nst3d_stylize::{ViewLoss, ViewSpec};
 
-use crate::absorption::Absorption;
 use crate::axes::{Sight, ViewAxes};
 use crate::patch::PatchDraw;
 use crate::step::{PatchGradient, TrainStep};
@@ -210,35 +209,20 @@ pub struct Batch {
     pub view_axes: ViewAxes,
     /// The solid texture's period, if one is trained.
     pub texture_period: Option<usize>,
-    /// The absorption rule (only [`Absorption::Drawn`] draws per patch).
-    pub absorption: Absorption,
 }
 
-/// One patch of a step: where it is cut, how it is seen, where its
-/// corner lies in the solid texture's space and its own γ, if drawn.
+/// One patch of a step: where it is cut, how it is seen and where its
+/// corner lies in the solid texture's space.
 struct Draw {
     patch: PatchDraw,
     sights: Vec<Sight>,
     at: [i64; 3],
-    gamma: Option<f32>,
-}
-
-impl Draw {
-    /// The patch's view: its frame's, or at its own γ (exposure γ, as
-    /// every picture).
-    fn view(&self, views: &[ViewSpec]) -> ViewSpec {
-        let frame = &views[self.patch.frame];
-        match self.gamma {
-            Some(gamma) => ViewSpec { gamma, exposure: gamma, ..frame.clone() },
-            None => frame.clone(),
-        }
-    }
 }
 
 impl Batch {
     /// One patch's numbers from `rng`: where it is cut, its view axes, then
     /// (only with a texture, so a run without one keeps its stream) where
-    /// it lies on the texture, then (only for drawn absorption) its γ.
+    /// it lies on the texture.
     fn draw(&self, rng: &mut SplitMix64, frames: &[Grid3]) -> Draw {
         let patch = PatchDraw::draw(rng, frames, self.patch, self.theta_deg, self.phi_deg);
         let sights = self.view_axes.pick(|| rng.uniform_f32());
@@ -246,8 +230,7 @@ impl Batch {
             Some(p) => std::array::from_fn(|_| (rng.next_u64() % p as u64) as i64),
             None => [0; 3],
         };
-        let gamma = self.absorption.draw(rng);
-        Draw { patch, sights, at, gamma }
+        Draw { patch, sights, at }
     }
 }
 
@@ -264,14 +247,15 @@ pub fn batch_step(
 ) -> Result<f32> {
     if batch.size == 1 && team.size() == 1 {
         let d = batch.draw(rng, frames);
-        return Ok(trainer.step(&d.patch.cut(frames, batch.patch), d.at, loss, &d.view(views), &d.sights)?);
+        let view = &views[d.patch.frame];
+        return Ok(trainer.step(&d.patch.cut(frames, batch.patch), d.at, loss, view, &d.sights)?);
     }
     let draws: Vec<_> = (0..batch.size).map(|_| batch.draw(rng, frames)).collect();
     let mut mine: Vec<(usize, PatchGradient)> = Vec::new();
     let mut failure = None;
     for j in (team.rank()..batch.size).step_by(team.size()) {
         let d = &draws[j];
-        match trainer.gradient(&d.patch.cut(frames, batch.patch), d.at, loss, &d.view(views), &d.sights) {
+        match trainer.gradient(&d.patch.cut(frames, batch.patch), d.at, loss, &views[d.patch.frame], &d.sights) {
             Ok(g) => mine.push((j, g)),
             Err(e) => {
                 failure = Some(e);

@@ -15,7 +15,6 @@ use nst3d_core::{math::SplitMix64, Grid3, Reporter};
 use nst3d_features::Vgg19;
 use nst3d_job::{expand_pattern, FrameSpec, JobId, Resume, StateFiles};
 use nst3d_network::model::{TEXTURE, TEXTURE_PERIOD};
-use nst3d_network::optical::{self, NetInput};
 use nst3d_network::{FeedForward, Model, SolidTexture};
 use nst3d_optim::OneCycle;
 use nst3d_stylize::{StyleSpec, ViewLoss, ViewSpec};
@@ -349,9 +348,6 @@ fn write_outputs(
     if s.absorption != Absorption::Patch {
         info.insert("absorption".to_string(), s.absorption.name().to_string());
     }
-    if t.input != NetInput::Density {
-        info.insert(optical::INPUT_KEY.to_string(), "optical".to_string());
-    }
     info.insert("mass".to_string(), if s.velocity { "conserved" } else { crate::step::MASS_PINNED }.to_string());
     info.insert("steps".to_string(), t.steps().to_string());
     // Only where it is not the one patch every model was trained with, so
@@ -538,7 +534,6 @@ fn batch_of(s: &TrainSettings) -> Batch {
         phi_deg: s.phi_deg,
         view_axes: s.view_axes,
         texture_period: s.texture,
-        absorption: s.absorption,
     }
 }
 
@@ -553,7 +548,6 @@ fn new_trainer(s: &TrainSettings) -> TrainStep {
         trainer = trainer.with_texture(SolidTexture::new(p, s.seed));
     }
     trainer.octaves = s.octaves;
-    trainer.input = s.absorption.input();
     trainer
 }
 

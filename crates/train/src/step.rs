@@ -5,7 +5,7 @@
 
 use crate::axes::{turn_to_z, turn_to_z_backward, Sight};
 use nst3d_core::{math::lane_sum, Grid3};
-use nst3d_network::{FeedForward, NetInput, SolidTexture, Volume};
+use nst3d_network::{FeedForward, SolidTexture, Volume};
 // The inference half lives with the network (the volume job applies a
 // trained model without the training crate); re-exported for the trainer.
 use nst3d_network::apply::CHUNK;
@@ -163,9 +163,6 @@ pub struct TrainStep {
     /// The solid texture trained beside the network, if any
     /// ([`TrainStep::with_texture`]).
     texture: Option<SolidTexture>,
-    /// What the network is shown: the patch, or its optical density at the
-    /// view's γ (`nst3d_network::optical`).
-    pub input: NetInput,
 }
 
 /// How much faster the solid texture learns than the network: Adam moves
@@ -197,7 +194,6 @@ impl TrainStep {
             pace: 1.0,
             last_mass_ratio: 1.0,
             texture: None,
-            input: NetInput::Density,
         }
     }
 
@@ -314,11 +310,7 @@ impl TrainStep {
         sights: &[Sight],
     ) -> Result<PatchGradient, ViewError> {
         assert!(!sights.is_empty(), "a step renders its patch at least once");
-        let mut x = Volume::from_grid(patch);
-        if self.input != NetInput::Density {
-            let gain = self.input.gain(view.gamma);
-            x.data.iter_mut().for_each(|v| *v *= gain);
-        }
+        let x = Volume::from_grid(patch);
         let (o, tape) = self.net.forward(&x);
         let styled = apply(patch, &o, self.stylization);
         let textured = self.texture.as_ref().map(|t| t.apply(&styled, at));
@@ -527,35 +519,20 @@ mod tests {
         for (sight, bias) in
             [(Sight::Along(Axis::Y), 0.0f32), (Sight::Along(Axis::Y), -1.2), (oblique, 0.0), (oblique, -1.2)]
         {
-            training_step_check_from(&patch, &loss, &view, sight, (bias, NetInput::Density));
+            training_step_check_from(&patch, &loss, &view, sight, bias);
         }
-        // Shown optical density (5× the patch at this γ).
-        training_step_check_from(&patch, &loss, &view, Sight::Along(Axis::Y), (0.0, NetInput::Optical));
     }
 
     /// The step of [`training_step_check_from`], a share of each layer's
     /// weights' mean size: at 1e-2 kinks crossed reached 4e-2.
     const STEP: f32 = 3e-3;
 
-    fn training_step_check_from(
-        patch: &Grid3,
-        loss: &ViewLoss,
-        view: &ViewSpec,
-        sight: Sight,
-        (bias, input): (f32, NetInput),
-    ) {
+    fn training_step_check_from(patch: &Grid3, loss: &ViewLoss, view: &ViewSpec, sight: Sight, bias: f32) {
         let schedule = OneCycle::new(1e-4, 10, 20.0);
-        let trainer = |net: &FeedForward| TrainStep {
-            input,
-            ..TrainStep::new(net.clone(), Stylization::Density, schedule.clone())
-        };
-        let shown = Volume::from_grid(&Grid3::from_vec(
-            patch.dims,
-            patch.data.iter().map(|v| v * input.gain(view.gamma)).collect(),
-        ));
         let total = |net: &FeedForward| -> f64 {
-            let l = trainer(net).gradient(patch, [0; 3], loss, view, &[sight]).unwrap().loss;
-            let raw = apply(patch, &net.forward(&shown).0, Stylization::Density);
+            let t = TrainStep::new(net.clone(), Stylization::Density, schedule.clone());
+            let l = t.gradient(patch, [0; 3], loss, view, &[sight]).unwrap().loss;
+            let raw = apply(patch, &net.forward(&Volume::from_grid(patch)).0, Stylization::Density);
             let (_, k) = conserve_mass(patch, &raw);
             l as f64 + scale_pin(&raw, k, SCALE_PIN).0 as f64
         };
@@ -568,7 +545,8 @@ mod tests {
             l.bias.iter_mut().for_each(|b| *b *= 0.1);
         }
         *net.layers[nst3d_network::feedforward::LAYERS - 1].bias.last_mut().unwrap() = bias;
-        let g = trainer(&net).gradient(patch, [0; 3], loss, view, &[sight]).unwrap().grads;
+        let t = TrainStep::new(net.clone(), Stylization::Density, schedule.clone());
+        let g = t.gradient(patch, [0; 3], loss, view, &[sight]).unwrap().grads;
         // Layer by layer along a direction with the gradient's signs, moved
         // by a share of the layer's weights' size: one difference quotient
         // checks every weight of the layer, far above the loss's rounding.
@@ -593,7 +571,7 @@ mod tests {
             });
             // Kinks crossed and f32 rounding: up to 1.1e-2 measured; a
             // gradient 20 % off scores 0.17.
-            assert!(err < 3e-2, "{sight:?}, bias {bias}, {input:?}, layer {l}: relative error {err}");
+            assert!(err < 3e-2, "{sight:?}, bias {bias}, layer {l}: relative error {err}");
         }
     }
 

@@ -119,25 +119,6 @@ fn frame_absorption_trains_another_model_and_says_so() {
     assert_eq!(model(&patch).info.get("absorption"), None);
 }
 
-/// `drawn` absorption gives each patch its own γ and shows the network the
-/// optical density: another model again, whose file says both (so
-/// inference knows to show it the frame's optical density too).
-#[test]
-fn drawn_absorption_trains_a_model_shown_optical_density() {
-    let dir = tempfile::tempdir().unwrap();
-    let frame =
-        TrainSettings { absorption: nst3d_train::Absorption::Frame, ..settings(&dir.path().join("f.safetensors")) };
-    let drawn =
-        TrainSettings { absorption: nst3d_train::Absorption::Drawn, ..settings(&dir.path().join("d.safetensors")) };
-    let first = |s: &TrainSettings| train(s, &mut Silent).unwrap().loss_first;
-    assert_ne!(first(&frame), first(&drawn), "the first step's loss should see another absorption");
-    let model = |s: &TrainSettings| nst3d_network::Model::from_bytes(&std::fs::read(&s.out).unwrap(), &s.out).unwrap();
-    let m = model(&drawn);
-    assert_eq!(m.info.get("absorption").map(String::as_str), Some("drawn"));
-    assert_eq!(nst3d_network::NetInput::of(&m.info), Ok(nst3d_network::NetInput::Optical));
-    assert_eq!(nst3d_network::NetInput::of(&model(&frame).info), Ok(nst3d_network::NetInput::Density));
-}
-
 /// A checkpoint an older nst3d wrote (its model, then a second
 /// safetensors part, behind a length) is refused in one line that says how
 /// to start over, and so is a cut one; deleting it starts afresh.

@@ -13,7 +13,6 @@ use nst3d_core::{Grid3, Reporter};
 use nst3d_io::vdb::{read_vdb, GridValues, SparseGrid, VdbGrid, LEAF_DIM};
 use nst3d_job::{expand_pattern, FrameSpec};
 use nst3d_network::apply::{apply_with_strength, mass_ratio, Stylization, MASS_PINNED};
-use nst3d_network::optical::{self, NetInput};
 use nst3d_network::tiled::infer_tiles;
 use nst3d_network::{Model, Volume};
 use nst3d_stylize::Mode;
@@ -73,7 +72,6 @@ fn load_model(m: &ModelSettings) -> Result<(Model, Mode, f32)> {
         }
         Mode::Density => 0.0,
     };
-    NetInput::of(&model.info).map_err(|e| anyhow::anyhow!("{}: {e}", m.path.display()))?;
     if m.tile < m.margin || m.tile == 0 {
         bail!("--tile ({}) must be at least --tile-margin ({})", m.tile, m.margin);
     }
@@ -162,12 +160,6 @@ fn stylize_sparse(
     if !(max > 0.0) {
         return (out, 0, 1.0);
     }
-    // A network shown optical density sees the frame at the γ its pictures
-    // take (load_model checked the metadata).
-    let gain = match NetInput::of(&model.info).unwrap_or_default() {
-        NetInput::Density => 1.0,
-        input => input.gain(optical::frame_gamma(grid.iter_active().map(|(p, v)| (p, v / max)))),
-    };
     // The active box plus room for the velocity to move smoke outwards,
     // starting on a leaf corner: tiles (multiples of 8) then cover whole
     // leaves, and the network's stride lattice is fixed in index space, so a
@@ -203,21 +195,13 @@ fn stylize_sparse(
         if v.iter().all(|x| *x == 0.0) {
             return None;
         }
-        // Divided, then scaled: a density model's input keeps its bits.
         v.iter_mut().for_each(|x| *x /= max);
-        if gain != 1.0 {
-            v.iter_mut().for_each(|x| *x *= gain);
-        }
         Some(Volume::from_vec(1, size, v))
     };
     infer_tiles(&model.net, dims, tile, m.margin, read, |t, input, o| {
         // Applied on the whole region: a velocity reads density up to vmax
         // away, which the margin holds.
-        let density = match gain {
-            1.0 => input.data.clone(),
-            _ => input.data.iter().map(|x| x / gain).collect(),
-        };
-        let styled = apply_with_strength(&Grid3::from_vec(t.size, density), o, how, m.strength);
+        let styled = apply_with_strength(&Grid3::from_vec(t.size, input.data.clone()), o, how, m.strength);
         let core: [usize; 3] = std::array::from_fn(|a| t.hi[a] - t.lo[a]);
         let mut values = Vec::with_capacity(core.iter().product());
         for z in t.lo[2]..t.hi[2] {
@@ -538,36 +522,5 @@ mod tests {
                 assert!(whole.iter_active().all(|(ijk, _)| g.is_active(ijk)));
             }
         }
-    }
-
-    /// A model shown optical density sees the frame at its own γ: the same
-    /// as a density model whose first convolution is scaled by that gain
-    /// (a convolution is linear in its input), and unlike the model unscaled.
-    #[test]
-    fn an_optical_model_sees_the_frame_at_its_absorption() {
-        let (g, bbox) = blob();
-        let max = g.iter_active().map(|(_, v)| v).fold(0.0f32, f32::max);
-        let gain = NetInput::Optical.gain(optical::frame_gamma(g.iter_active().map(|(p, v)| (p, v / max))));
-        assert!((gain - 1.0).abs() > 0.2, "the blob's gain {gain} should differ from 1");
-        // Weights large enough that the output varies over the blob (at
-        // PyTorch's initialisation it is nearly flat, and the mass kept).
-        let mut net = FeedForward::new(2, 1, 4);
-        net.layers.iter_mut().for_each(|l| l.weight.iter_mut().for_each(|w| *w *= 3.0));
-        let optical = BTreeMap::from([(optical::INPUT_KEY.to_string(), "optical".to_string())]);
-        let mut scaled = net.clone();
-        scaled.layers[0].weight.iter_mut().for_each(|w| *w *= gain);
-        let m = ModelSettings::new(PathBuf::new());
-        let run = |net: &FeedForward, info: &BTreeMap<String, String>| {
-            let model = Model { net: net.clone(), texture: None, info: info.clone() };
-            stylize_sparse(&model, Mode::Density, 0.0, &g, bbox, &m, None).0
-        };
-        let (seen, expected, plain) =
-            (run(&net, &optical), run(&scaled, &BTreeMap::new()), run(&net, &BTreeMap::new()));
-        let mut moved = 0.0f32;
-        for (ijk, v) in expected.iter_active() {
-            assert!((v - seen.get(ijk)).abs() <= 1e-5 * v.abs().max(1.0), "at {ijk:?}: {v} vs {}", seen.get(ijk));
-            moved = moved.max((v - plain.get(ijk)).abs());
-        }
-        assert!(moved > 1e-3, "the gain should change the result (largest change {moved})");
     }
 }
