@@ -600,7 +600,10 @@ pub fn train_on(team: &dyn Team, s: &TrainSettings, reporter: &mut dyn Reporter)
     // (Exposure 1, the benchmark's, drew dense smoke up to 1/γ = P/8 times
     // too bright for VGG — 4 at the default patch — and the network learned
     // its look on pictures nobody sees.)
-    let views: Vec<ViewSpec> = (s.absorption.gammas(&frames, s.patch).into_iter())
+    let views: Vec<ViewSpec> = s
+        .absorption
+        .gammas(&frames, s.patch)
+        .into_iter()
         .map(|gamma| ViewSpec { camera: None, gamma, exposure: gamma, equalize: false })
         .collect();
     let t0 = Instant::now();
